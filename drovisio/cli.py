@@ -1,0 +1,319 @@
+"""The ``drovisio`` command line.
+
+This module only *declares* the commands (their arguments, help and examples: the contract of
+DESIGN.md) and dispatches to their implementations, which are imported lazily so that
+
+* ``drovisio --help`` stays fast (no OpenCV, no web stack imported), and
+* a missing or broken implementation of one command does not break the others.
+
+Where a command's code lives is written in ``COMMANDS`` as ``"module:function"``. By default that
+is ``drovisio.commands.<name>:run``: adding ``drovisio/commands/detect.py`` with
+``def run(args: argparse.Namespace) -> int`` makes ``drovisio detect`` work, with no change here.
+Until that module exists the command says so plainly on stderr and exits 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+PROG = "drovisio"
+EXIT_NOT_IMPLEMENTED = 2
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+
+        return version("drovisio")
+    except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
+        return "0+unknown"
+
+
+def repo_root() -> Path:
+    """The folder that holds ``drovisio/``, ``templates/``, ``sample_sessions/`` (a checkout)."""
+    return Path(__file__).resolve().parents[1]
+
+
+def default_sample_sessions_dir() -> Path:
+    return repo_root() / "sample_sessions"
+
+
+# --------------------------------------------------------------------------------------------
+# Command table
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Command:
+    name: str
+    summary: str  # one line, shown in `drovisio --help`
+    description: str  # a paragraph, shown in `drovisio NAME --help`
+    example: str  # shown under "Example:" in `drovisio NAME --help`
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    target: str = ""  # "module:function"; default drovisio.commands.<name>:run
+    issue: str = ""  # where the missing implementation is tracked, e.g. "issue #3"
+
+    @property
+    def entry_point(self) -> str:
+        return self.target or f"drovisio.commands.{self.name}:run"
+
+
+def _add_detect(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
+                   help="camera file (OpenCV FileStorage YAML/XML/JSON or ROS camera_info YAML)")
+    p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types")
+    p.add_argument("--method", choices=("auto", "aruco", "dots"), default="auto",
+                   help="detector to use (default: auto, i.e. whatever the layouts need)")
+    p.add_argument("--gravity-file", metavar="FILE",
+                   help='JSON Lines {"file": ..., "gravity": [gx, gy, gz]} per frame, unit vector '
+                        "pointing down in the camera frame; resolves flip ambiguities")
+    p.add_argument("--out", metavar="FILE", help="write JSON Lines here instead of stdout")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="image files, folders of images, or video files")
+
+
+def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--board", required=True, metavar="KIND:COLSxROWS",
+                   help="calibration target, e.g. chessboard:9x6 (inner corners, columns x rows)")
+    p.add_argument("--square", required=True, type=float, metavar="METRES",
+                   help="side of one board square in metres, e.g. 0.025")
+    p.add_argument("--report", metavar="REPORT.json",
+                   help="write the calibration report (errors, rejected views, verdict) here")
+    p.add_argument("--out", required=True, metavar="CAMERA.yaml",
+                   help="camera file to write (OpenCV FileStorage form)")
+    p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
+                   help="calibration images, or folders of them")
+
+
+def _add_run(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--source", required=True, metavar="SOURCE",
+                   help="camera index (0), video file, folder of images (name order) or stream URL")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types")
+    p.add_argument("--mount", metavar="MOUNT_FILE",
+                   help="camera mount (body_from_camera, tilt included) for poses in the drone's "
+                        "FRD body frame")
+    p.add_argument("--sink", action="append", metavar="SINK",
+                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT or mavlink:CONNECTION; repeatable")
+    p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
+
+
+def _add_serve(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default: 127.0.0.1, this machine only; any other "
+                        "address turns on token access)")
+    p.add_argument("--port", type=int, default=8080, help="port to listen on (default: 8080)")
+    p.add_argument("--source", metavar="SOURCE",
+                   help="camera index, video file, folder of images or stream URL "
+                        "(default: the built-in sample session)")
+    p.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
+
+
+def _add_nothing(p: argparse.ArgumentParser) -> None:
+    """Arguments are added here when the command is implemented (the contract lives in this file)."""
+
+
+def _add_synth(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="synth_action", metavar="ACTION", required=True)
+    samples = sub.add_parser(
+        "samples",
+        help="regenerate the sample sessions the web tool runs on without a camera",
+        description="Render the sample sessions (images, camera file, ground truth) with "
+                    "drovisio's synthetic renderer.",
+        epilog="Example:\n  drovisio synth samples --out sample_sessions",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    samples.add_argument("--out", type=Path, default=None, metavar="DIR",
+                         help="output folder (default: sample_sessions/ of this checkout)")
+
+
+COMMANDS: dict[str, Command] = {
+    c.name: c
+    for c in [
+        Command(
+            name="detect",
+            summary="find bricks in images or videos and print their poses (JSON Lines)",
+            description="Detect bricks by their ArUco codes or colour dots and estimate each "
+                        "brick's pose relative to the camera (camera_from_brick: rvec, tvec in "
+                        "metres). One JSON object per frame, in input order, on stdout unless "
+                        "--out is given; timings and summaries go to stderr.",
+            example="drovisio detect --camera camera.yaml \\\n"
+                    "    --layout marker_layouts/drick-aruco-pyramids.json frames/ > poses.jsonl",
+            add_arguments=_add_detect,
+            issue="issue #3",
+        ),
+        Command(
+            name="calibrate",
+            summary="calibrate a camera from chessboard images",
+            description="Calibrate the pinhole camera and its Brown distortion (k1 k2 p1 p2 k3) "
+                        "from views of a chessboard. Writes the camera file and, with --report, "
+                        "the RMS reprojection error, per-view errors, rejected views and a verdict.",
+            example="drovisio calibrate --board chessboard:9x6 --square 0.025 \\\n"
+                    "    --report report.json --out camera.yaml calib_images/",
+            add_arguments=_add_calibrate,
+            issue="issue #5",
+        ),
+        Command(
+            name="run",
+            summary="run the positioning pipeline headless (on the drone)",
+            description="Read frames from a source, detect bricks, estimate and track their "
+                        "poses, and send the results to one or more sinks. A finite source (a "
+                        "video, a folder) ends the run when it is exhausted.",
+            example="drovisio run --source 0 --camera camera.yaml \\\n"
+                    "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.yaml \\\n"
+                    "    --sink jsonl:- --sink mavlink:udpout:127.0.0.1:14550",
+            add_arguments=_add_run,
+            issue="issue #7",
+        ),
+        Command(
+            name="serve",
+            summary="serve the web tool (calibration, marker designer, live view)",
+            description="Serve the browser tool used in the field: camera calibration, marker "
+                        "design on a brick's 3D mesh, and live detections. With no --source it "
+                        "runs on the built-in sample session. The default host 127.0.0.1 is "
+                        "reachable from this machine only; binding any other address (e.g. "
+                        "0.0.0.0 for a tablet on the drone's Wi-Fi) turns on token access: open "
+                        "the printed URL, which carries the token.",
+            example="drovisio serve\n"
+                    "  drovisio serve --host 0.0.0.0 --port 8080 --source 0 --camera camera.yaml",
+            add_arguments=_add_serve,
+            target="webtool.serve:run",
+        ),
+        Command(
+            name="bench",
+            summary="benchmarks and the evaluation study",
+            description="Measure detection accuracy and speed on synthetic and recorded sessions "
+                        "(the evaluation study).",
+            example="drovisio bench",
+            add_arguments=_add_nothing,
+            issue="issues #3 and #4",
+        ),
+        Command(
+            name="mission",
+            summary="check and simulate a mission strategy (finite-state machine)",
+            description="Check a mission scenario (take off, go to brick, align, descend, grab, "
+                        "climb, go to wall, place, release) before the flight and simulate it.",
+            example="drovisio mission",
+            add_arguments=_add_nothing,
+            issue="issue #8",
+        ),
+        Command(
+            name="synth",
+            summary="generate synthetic data (sample sessions, scenes)",
+            description="Generate synthetic data with drovisio's renderer. `samples` regenerates "
+                        "the sample sessions shipped in sample_sessions/.",
+            example="drovisio synth samples --out sample_sessions",
+            add_arguments=_add_synth,
+            target="drovisio.cli:_run_synth",
+        ),
+    ]
+}
+
+
+# --------------------------------------------------------------------------------------------
+# Parser and dispatch
+# --------------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Drovisio: local positioning for builder drones.\n"
+                    "Finds bricks by their colour dots or ArUco codes and gives each brick's "
+                    "6-DoF pose.",
+        epilog="Example:\n  drovisio serve          # then open the printed URL\n"
+               "Run `drovisio COMMAND --help` for a command's options and an example.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
+    for cmd in COMMANDS.values():
+        p = sub.add_parser(
+            cmd.name,
+            help=cmd.summary,
+            description=cmd.description,
+            epilog=f"Example:\n  {cmd.example}",
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        cmd.add_arguments(p)
+    return parser
+
+
+class NotImplementedYet(Exception):
+    pass
+
+
+def _is_missing(exc: ModuleNotFoundError, module_name: str) -> bool:
+    """True if *exc* says that *module_name* itself (or a parent package) does not exist.
+
+    An ImportError raised from *inside* an existing implementation (a missing third-party
+    package, a typo) is a real error and must not be disguised as "not implemented".
+    """
+    if exc.name is None:
+        return False
+    parts = module_name.split(".")
+    return exc.name in {".".join(parts[: i + 1]) for i in range(len(parts))}
+
+
+def resolve(entry_point: str) -> Callable[[argparse.Namespace], int | None]:
+    module_name, _, func_name = entry_point.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if _is_missing(exc, module_name):
+            raise NotImplementedYet(entry_point) from exc
+        raise
+    func = getattr(module, func_name or "run", None)
+    if func is None:
+        raise NotImplementedYet(entry_point)
+    return func
+
+
+def _not_implemented(label: str, issue: str) -> int:
+    where = f" (tracked in {issue})" if issue else ""
+    print(f"{PROG} {label}: not implemented yet{where}", file=sys.stderr)
+    return EXIT_NOT_IMPLEMENTED
+
+
+def _run_synth(args: argparse.Namespace) -> int:
+    if args.synth_action == "samples":
+        try:
+            generate = resolve("drovisio.synth_samples:main")
+        except NotImplementedYet:
+            return _not_implemented("synth samples", "")
+        out = args.out if args.out is not None else default_sample_sessions_dir()
+        result = generate(out)
+        return int(result or 0)
+    raise AssertionError(f"unhandled synth action {args.synth_action!r}")  # argparse guards this
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, usage errors: return, don't exit
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    cmd = COMMANDS[args.command]
+    try:
+        func = resolve(cmd.entry_point)
+    except NotImplementedYet:
+        return _not_implemented(cmd.name, cmd.issue)
+    try:
+        result = func(args)
+    except KeyboardInterrupt:
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

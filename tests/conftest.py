@@ -1,0 +1,155 @@
+"""Shared fixtures.
+
+* ``chromium_path``: path of Debian's Chromium (or $DROVISIO_CHROMIUM); skips the test if it is missing, or fails it when
+  DROVISIO_REQUIRE_BROWSER=1 (CI), so that browser tests can't silently vanish.
+* ``browser`` (session): a headless Playwright Chromium browser.
+* ``page``: a fresh browser page (own context) per test.
+* ``live_server`` (session): base URL (no trailing slash) of the web tool with default settings,
+  served by uvicorn in a background thread on a free port.
+* ``live_server_factory``: ``start(settings_or_app) -> base URL`` for tests needing other settings;
+  each server is stopped at the end of the test.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+# pytest puts tests/ on sys.path (no __init__.py there), which makes tests/webtool/ look like a
+# namespace package called `webtool` that hides the real one when pytest runs from another
+# folder. The checkout's root goes first so that `import webtool` is always the real package.
+REPO_ROOT = Path(__file__).resolve().parents[1]
+if str(REPO_ROOT) not in sys.path:
+    sys.path.insert(0, str(REPO_ROOT))
+
+# DROVISIO_CHROMIUM overrides the path (other distributions); the default is Debian's.
+CHROMIUM = Path(os.environ.get("DROVISIO_CHROMIUM", "/usr/bin/chromium"))
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+def _browser_required() -> bool:
+    return os.environ.get("DROVISIO_REQUIRE_BROWSER", "") == "1"
+
+
+@pytest.fixture(scope="session")
+def chromium_path() -> Path:
+    if not CHROMIUM.exists():
+        msg = (
+            f"{CHROMIUM} is missing: browser tests need Debian's chromium "
+            "(apt-get install -y chromium)"
+        )
+        if _browser_required():
+            pytest.fail(msg + " and DROVISIO_REQUIRE_BROWSER=1 forbids skipping them.",
+                        pytrace=False)
+        pytest.skip(msg)
+    return CHROMIUM
+
+
+@pytest.fixture(scope="session")
+def browser(chromium_path: Path):
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(chromium_path), headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context()
+    pg = context.new_page()
+    pg.set_default_timeout(15_000)
+    try:
+        yield pg
+    finally:
+        context.close()
+
+
+class _ServerThread:
+    """A uvicorn server on an already-bound socket (no port race), in a daemon thread."""
+
+    def __init__(self, app) -> None:
+        import uvicorn
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        config = uvicorn.Config(app, log_level="warning", lifespan="on")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(
+            target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True,
+            name=f"live-server-{self.port}",
+        )
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self, timeout: float = 20.0) -> str:
+        self.thread.start()
+        deadline = time.monotonic() + timeout
+        while not self.server.started:
+            if not self.thread.is_alive():
+                raise RuntimeError("the live server thread died during start-up")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the live server did not start within {timeout} s")
+            time.sleep(0.02)
+        return self.url
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=10)
+        self.sock.close()
+
+
+def _as_app(settings_or_app):
+    from fastapi import FastAPI
+
+    from webtool.app import create_app
+    from webtool.settings import Settings
+
+    if isinstance(settings_or_app, FastAPI):
+        return settings_or_app
+    return create_app(settings_or_app if settings_or_app is not None else Settings())
+
+
+@pytest.fixture
+def live_server_factory() -> Iterator:
+    servers: list[_ServerThread] = []
+
+    def start(settings_or_app=None) -> str:
+        srv = _ServerThread(_as_app(settings_or_app))
+        servers.append(srv)
+        return srv.start()
+
+    yield start
+    for srv in servers:
+        srv.stop()
+
+
+@pytest.fixture(scope="session")
+def live_server() -> Iterator[str]:
+    srv = _ServerThread(_as_app(None))
+    try:
+        yield srv.start()
+    finally:
+        srv.stop()

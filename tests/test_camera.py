@@ -1,0 +1,181 @@
+"""Camera model: file round trips at full precision, projection, undistortion, bad files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drovisio.camera import Camera, CameraFileError, load_camera, save_camera
+
+OPENCV_SAMPLE_YAML = """%YAML:1.0
+---
+calibration_time: "Sun Nov 22 10:00:00 2026"
+image_width: 640
+image_height: 480
+flags: 0
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 5.3280072497128633e+02, 0., 3.4215652571342125e+02, 0.,
+       5.3291936167637296e+02, 2.3355283829713541e+02, 0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 5
+   cols: 1
+   dt: d
+   data: [ -2.8131186449938911e-01, 2.4865571549548312e-02,
+       1.2112006620993484e-03, -1.3408640690051620e-04,
+       1.5855049604633488e-01 ]
+avg_reprojection_error: 1.9e-01
+"""
+
+ROS_SAMPLE_YAML = """image_width: 640
+image_height: 480
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [532.80072497128633, 0, 342.15652571342125, 0, 532.91936167637296, 233.55283829713541, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [-0.28131186449938911, 0.024865571549548312, 0.0012112006620993484, -0.0001340864069005162, 0.15855049604633488]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [532.8, 0, 342.1, 0, 0, 532.9, 233.5, 0, 0, 0, 1, 0]
+"""
+
+
+def awkward_camera(ncoef: int) -> Camera:
+    """Values with many significant digits, so that any rounding shows."""
+    K = np.array([[1600 / 3, 0.0, 320.123456789012345], [0, 533.987654321098765, 241.0 / 7],
+                  [0, 0, 1]])
+    d = np.array([-0.2813118644993891, 0.024865571549548312, 1.2112006620993484e-03,
+                  -1.340864069005162e-04, 1 / 7, 1e-17, -3.3e-5, 2 / 3, 1e-3, -2e-3, 3e-4,
+                  -4e-4, 1e-4, -2e-4])[:ncoef]
+    return Camera(K=K, dist=d, width=640, height=480, name="awkward")
+
+
+# ROS camera_info carries plumb_bob (5) or rational_polynomial (8) coefficients only
+ROUND_TRIPS = [(n, suffix, fmt) for n in (4, 5, 8, 12, 14)
+               for suffix, fmt in [(".yaml", None), (".xml", None), (".json", None),
+                                   (".json", "json"), (".yaml", "ros")]
+               if fmt != "ros" or n in (5, 8)]
+
+
+@pytest.mark.parametrize("ncoef,suffix,fmt", ROUND_TRIPS)
+def test_round_trip_full_precision(tmp_path: Path, ncoef: int, suffix: str, fmt):
+    cam = awkward_camera(ncoef)
+    path = save_camera(cam, tmp_path / f"cam{suffix}", fmt)
+    back = load_camera(path)
+    assert back.size == (640, 480)
+    np.testing.assert_allclose(back.K, cam.K, rtol=1e-12, atol=0)
+    assert back.dist.size == ncoef
+    np.testing.assert_allclose(back.dist, cam.dist, rtol=1e-12, atol=0)
+    assert list(tmp_path.iterdir()) == [path]  # atomic write leaves no temporary file
+
+
+def test_reads_opencv_sample_and_ros_alike(tmp_path: Path):
+    (tmp_path / "cv.yaml").write_text(OPENCV_SAMPLE_YAML)
+    (tmp_path / "ros.yaml").write_text(ROS_SAMPLE_YAML)
+    a = load_camera(tmp_path / "cv.yaml")
+    b = load_camera(tmp_path / "ros.yaml")
+    assert a.fx == pytest.approx(532.80072497128633, rel=1e-15)
+    assert a.dist.size == 5 and a.dist[4] == pytest.approx(0.15855049604633488, rel=1e-15)
+    assert b.name == "narrow_stereo"
+    assert a.almost_equal(b, rtol=1e-14)
+
+
+def test_size_guessed_from_principal_point_when_absent(tmp_path: Path):
+    text = "\n".join(line for line in OPENCV_SAMPLE_YAML.splitlines()
+                     if not line.startswith("image_"))
+    (tmp_path / "c.yaml").write_text(text)
+    cam = load_camera(tmp_path / "c.yaml")
+    assert cam.size == (685, 468)  # 2·cx + 1, the guess for a centred lens
+
+
+def test_project_matches_opencv_and_undistort_inverts_it():
+    cam = Camera.drone_webcam()
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-0.5, 0.5, (200, 2)), rng.uniform(1, 3, 200)]
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K, cam.dist)
+    px = cam.project(pts)
+    np.testing.assert_allclose(px, ref.reshape(-1, 2), atol=1e-9)
+    # undistortion inverts projection to 1e-9 px over the whole image, corners included
+    grid = np.stack(np.meshgrid(np.linspace(0, 639, 33), np.linspace(0, 479, 25)), -1)
+    grid = grid.reshape(-1, 2)
+    xy = cam.normalize(grid)
+    back = cam.project(np.c_[xy, np.ones(len(xy))])
+    assert np.abs(back - grid).max() < 1e-9
+    rays = cam.rays(grid)
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=1), 1.0)
+    und = cam.undistort_points(grid)
+    np.testing.assert_allclose(und, xy @ cam.K[:2, :2].T + cam.K[:2, 2])
+
+
+def test_scaled_keeps_pixel_centre_convention():
+    cam = Camera.drone_webcam()
+    half = cam.scaled(320, 240)
+    assert half.fx == pytest.approx(cam.fx / 2)
+    # pixel centres: x' = (x + 0.5)/2 − 0.5, so the same 3D point lands at the scaled pixel
+    p = np.array([[0.3, -0.2, 2.0], [-0.4, 0.25, 1.5]])
+    np.testing.assert_allclose(half.project(p), (cam.project(p) + 0.5) / 2 - 0.5, atol=1e-9)
+    assert cam.scaled(640, 480).almost_equal(cam)
+    assert cam.hfov_deg() == pytest.approx(60.0, abs=0.01)
+
+
+@pytest.mark.parametrize("content,needle", [
+    (None, "not found"),
+    ("%YAML:1.0\n---\nimage_width: 640\n", "camera_matrix: missing"),
+    ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n", "distortion_coefficients"),
+    ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 2\n   cols: 2\n   dt: d\n"
+     "   data: [ 500., 0., 0., 500. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
+     "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "3×3"),
+    ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: "
+     "!!opencv-matrix\n   rows: 1\n   cols: 3\n   dt: d\n   data: [ 0., 0., 0. ]\n",
+     "3 coefficients"),
+    ("{\"camera_matrix\": [1, 2", "invalid JSON"),
+    ("hello: [1, 2\n", "not valid YAML"),
+    ("just: text\n", "not a camera file"),
+    ("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 2, 3]\n", "rows×cols"),
+    ("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\n"
+     "distortion_model: equidistant\ndistortion_coefficients:\n  rows: 1\n  cols: 4\n"
+     "  data: [0, 0, 0, 0]\n", "distortion_model"),
+])
+def test_bad_files_name_file_and_field(tmp_path: Path, content, needle):
+    path = tmp_path / "bad_camera.yaml"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(CameraFileError) as err:
+        load_camera(path)
+    msg = str(err.value)
+    assert "bad_camera.yaml" in msg and needle in msg, msg
+
+
+def test_binary_file_is_refused(tmp_path: Path):
+    path = tmp_path / "photo.yaml"
+    path.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(CameraFileError, match="photo.yaml"):
+        load_camera(path)
+
+
+def test_ros_json_written_values_are_shortest_repr(tmp_path: Path):
+    cam = awkward_camera(5)
+    path = save_camera(cam, tmp_path / "c.ros.yaml", "ros")
+    text = path.read_text()
+    assert repr(cam.fy) in text and "distortion_model: plumb_bob" in text
+    # and the OpenCV JSON form is plain JSON other tools can read
+    data = json.loads(save_camera(cam, tmp_path / "c.json").read_text())
+    assert data["camera_matrix"]["rows"] == 3

@@ -1,0 +1,41 @@
+"""The web tool's FastAPI application factory."""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+from fastapi import FastAPI
+from fastapi.templating import Jinja2Templates
+
+from webtool.access import TokenAccessMiddleware
+from webtool.routes import health, pages
+from webtool.settings import TEMPLATES_DIR, Settings
+
+
+def drovisio_version() -> str:
+    try:
+        return version("drovisio")
+    except PackageNotFoundError:  # pragma: no cover - bare checkout without install
+        return "0+unknown"
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings if settings is not None else Settings()
+    app = FastAPI(
+        title="Drovisio web tool",
+        version=drovisio_version(),
+        docs_url="/api/docs",
+        redoc_url=None,
+        openapi_url="/api/openapi.json",
+    )
+    app.state.settings = settings
+    app.state.templates = Jinja2Templates(directory=str(TEMPLATES_DIR))
+    app.state.templates.env.globals["version"] = app.version
+
+    # One router per area. Calibration, designer and live APIs go here as they arrive, e.g.
+    # app.include_router(calibration.router, prefix="/api/calibration").
+    app.include_router(pages.router)
+    app.include_router(health.router, prefix="/api")
+
+    app.add_middleware(TokenAccessMiddleware, token=settings.token)
+    return app

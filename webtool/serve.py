@@ -1,0 +1,70 @@
+"""`drovisio serve`: run the web tool with uvicorn and say where to open it."""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+from pathlib import Path
+
+from webtool.settings import Settings, is_loopback
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
+def _lan_address() -> str | None:
+    """This machine's address on its default route, without sending anything."""
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.connect(("192.0.2.1", 9))  # TEST-NET-1: UDP connect sends no packet
+            addr = s.getsockname()[0]
+    except OSError:
+        return None
+    return None if addr.startswith("127.") or addr == "0.0.0.0" else addr
+
+
+def open_lines(settings: Settings) -> list[str]:
+    """What to print so that a person knows which URL to open."""
+    port = settings.port
+    query = f"?token={settings.token}" if settings.token else ""
+    if settings.host in ("0.0.0.0", "::", ""):
+        lines = [f"Drovisio web tool: open http://127.0.0.1:{port}/ on this machine"]
+        hosts = [socket.gethostname()]
+        lan = _lan_address()
+        if lan:
+            hosts.append(lan)
+        for h in hosts:
+            lines.append(f"  from another device on the network: http://{_url_host(h)}:{port}/{query}")
+    else:
+        lines = [f"Drovisio web tool: open http://{_url_host(settings.host)}:{port}/{query}"]
+    if settings.token and not is_loopback(settings.host):
+        lines.append("  (listening beyond this machine: other devices need the token in that link)")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from webtool.app import create_app
+
+    settings = Settings(
+        host=args.host,
+        port=args.port,
+        source=args.source,
+        camera=Path(args.camera) if args.camera else None,
+    )
+    app = create_app(settings)
+    src = settings.source_label
+    print("\n".join(open_lines(settings)), flush=True)
+    print(f"  source: {src}" + ("" if settings.source else "  (no --source given)"), flush=True)
+    print("  stop with Ctrl+C", flush=True)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level="info")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from drovisio.cli import main
+
+    sys.exit(main(["serve", *sys.argv[1:]]))

@@ -1,0 +1,65 @@
+"""Settings of one web-tool instance (what `drovisio serve` was asked to do)."""
+
+from __future__ import annotations
+
+import ipaddress
+import secrets
+from pathlib import Path
+
+from pydantic import BaseModel, model_validator
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+TEMPLATES_DIR = REPO_ROOT / "templates"
+DEFAULT_SAMPLE_SESSION = REPO_ROOT / "sample_sessions"
+
+
+def is_loopback(host: str | None) -> bool:
+    """True for 127.0.0.0/8, ::1 (also IPv4-mapped) and "localhost"; False for anything else."""
+    if not host:
+        return False
+    host = host.strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        addr = ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    if isinstance(addr, ipaddress.IPv6Address) and addr.ipv4_mapped is not None:
+        addr = addr.ipv4_mapped
+    return addr.is_loopback
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(16)
+
+
+class Settings(BaseModel):
+    host: str = "127.0.0.1"
+    port: int = 8080
+    source: str | None = None  # None: run on the sample session
+    camera: Path | None = None
+    sample_session: Path = DEFAULT_SAMPLE_SESSION
+    # Access token. None means "no token needed", which is only allowed on a loopback host:
+    # binding anywhere else generates one (see `token_required`).
+    token: str | None = None
+
+    @model_validator(mode="after")
+    def _token_when_exposed(self) -> "Settings":
+        if self.token is None and not is_loopback(self.host):
+            self.token = new_token()
+        return self
+
+    @property
+    def token_required(self) -> bool:
+        return self.token is not None
+
+    @property
+    def uses_sample_session(self) -> bool:
+        return self.source is None
+
+    @property
+    def source_label(self) -> str:
+        """The source as shown to people and in /api/health."""
+        if self.source is None:
+            return f"sample session: {self.sample_session}"
+        return self.source
