@@ -63,6 +63,13 @@ class Command:
         return self.target or f"drovisio.commands.{self.name}:run"
 
 
+def _add_bench(p: argparse.ArgumentParser) -> None:
+    p.add_argument("benchmark", metavar="NAME",
+                   help="which benchmark: renderer (exactness of the synthetic renderer), aruco (issue #3), dots (issue #4)")
+    p.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="...",
+                   help="options of that benchmark (drovisio bench NAME --help)")
+
+
 def _add_detect(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
                    help="camera file (OpenCV FileStorage YAML/XML/JSON or ROS camera_info YAML)")
@@ -191,8 +198,8 @@ COMMANDS: dict[str, Command] = {
             summary="benchmarks and the evaluation study",
             description="Measure detection accuracy and speed on synthetic and recorded sessions "
                         "(the evaluation study).",
-            example="drovisio bench",
-            add_arguments=_add_nothing,
+            example="drovisio bench aruco --frames 50\n  drovisio bench dots --help",
+            add_arguments=_add_bench,
             issue="issues #3 and #4",
         ),
         Command(

@@ -284,35 +284,72 @@ class _Canvas:
         self.color = np.empty((H, W, 3), np.float32)
         self.color[:] = np.asarray(background, np.float32)
         self.depth = np.full((H, W), np.inf, np.float64)
-        # Normalised radius beyond which the distortion polynomial is not trusted: projecting
-        # such points can fold back into the image, so their polygons get the whole image.
+        # Normalised radius beyond which the distortion polynomial is not trusted (projecting
+        # farther points can fold back into the image): a bit beyond the image's own rays.
         r = np.hypot(self.rays[..., 0], self.rays[..., 1])
-        self.max_r = float(np.nanmax(r)) * 1.3
+        self.max_r = float(np.nanmax(r)) * 1.2
+        # the image border's rays, to find where a polygon reaching beyond max_r covers it
+        ys = np.r_[np.zeros(W, int), np.full(W, H - 1), np.arange(H), np.arange(H)]
+        xs = np.r_[np.arange(W), np.arange(W), np.zeros(H, int), np.full(H, W - 1)]
+        ring = self.rays[ys, xs]
+        ok = np.isfinite(ring[:, 0])
+        self.border_xy, self.border_yx = ring[ok], np.stack([ys[ok], xs[ok]], axis=1)
 
     def _bbox(self, verts_c: np.ndarray) -> tuple[int, int, int, int] | None:
-        """Sample-space bounding box (y0, y1, x0, x1) of a polygon in the camera frame."""
+        """Sample-space bounding box (y0, y1, x0, x1) of a polygon in the camera frame.
+
+        The polygon's outline in the image is made of its edges (projected where they lie
+        within max_r, densely so that distorted, curved edges are enclosed) and of the parts
+        of the image border it covers.
+        """
         H, W = self.depth.shape
         z = verts_c[:, 2]
         if np.all(z <= 1e-6):
             return None
-        n = len(verts_c)
-        # dense samples along the edges so that curved (distorted) edges are enclosed
-        a = np.repeat(verts_c, 16, axis=0)
-        b = np.repeat(np.roll(verts_c, -1, axis=0), 16, axis=0)
-        s = np.tile(np.linspace(0, 1, 16, endpoint=False), n)[:, None]
-        pts = a * (1 - s) + b * s
-        if np.any(pts[:, 2] <= 1e-6):
+        if np.any(z <= 1e-6):
             return 0, H, 0, W
-        xy = pts[:, :2] / pts[:, 2:3]
-        if np.any(np.hypot(xy[:, 0], xy[:, 1]) > self.max_r):
-            return 0, H, 0, W
-        px = self.camera.project(pts)
+        p = verts_c[:, :2] / verts_c[:, 2:3]
+        R = self.max_r
+        pieces = []
+        for k in range(len(p)):
+            p0, d = p[k], p[(k + 1) % len(p)] - p[k]
+            a, b, c = float(d @ d), 2 * float(p0 @ d), float(p0 @ p0) - R * R
+            if a < 1e-30:
+                s0, s1 = (0.0, 0.0) if c <= 0 else (1.0, 0.0)
+            else:
+                disc = b * b - 4 * a * c
+                if disc < 0:
+                    continue
+                q = math.sqrt(disc)
+                s0, s1 = max(0.0, (-b - q) / (2 * a)), min(1.0, (-b + q) / (2 * a))
+            if s0 <= s1:
+                s = np.linspace(s0, s1, 17)[:, None]
+                pieces.append(p0 + s * d)
         ss = self.ss
-        x0 = int(math.floor((px[:, 0].min() + 0.5) * ss)) - 2 * ss
-        x1 = int(math.ceil((px[:, 0].max() + 0.5) * ss)) + 2 * ss
-        y0 = int(math.floor((px[:, 1].min() + 0.5) * ss)) - 2 * ss
-        y1 = int(math.ceil((px[:, 1].max() + 0.5) * ss)) + 2 * ss
-        x0, x1, y0, y1 = max(x0, 0), min(x1, W), max(y0, 0), min(y1, H)
+        lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])  # (x, y) sample
+        if pieces:
+            xy = np.concatenate(pieces)
+            px = self.camera.project(np.c_[xy, np.ones(len(xy))])
+            lo = np.minimum(lo, (px.min(axis=0) + 0.5) * ss)
+            hi = np.maximum(hi, (px.max(axis=0) + 0.5) * ss)
+        if not pieces or any(np.hypot(*q) > R for q in p):
+            e = np.roll(p, -1, axis=0) - p
+            area = float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+            sign = 1.0 if area >= 0 else -1.0
+            bx, by = self.border_xy[:, 0], self.border_xy[:, 1]
+            inside = np.ones(len(bx), bool)
+            for k in range(len(p)):
+                inside &= sign * (e[k, 0] * (by - p[k, 1]) - e[k, 1] * (bx - p[k, 0])) >= 0
+            if inside.any():
+                yx = self.border_yx[inside]
+                lo = np.minimum(lo, [yx[:, 1].min(), yx[:, 0].min()])
+                hi = np.maximum(hi, [yx[:, 1].max() + 1, yx[:, 0].max() + 1])
+        if not np.all(np.isfinite(lo)):
+            return None
+        x0 = max(int(math.floor(lo[0])) - 2 * ss, 0)
+        x1 = min(int(math.ceil(hi[0])) + 2 * ss, W)
+        y0 = max(int(math.floor(lo[1])) - 2 * ss, 0)
+        y1 = min(int(math.ceil(hi[1])) + 2 * ss, H)
         if x0 >= x1 or y0 >= y1:
             return None
         return y0, y1, x0, x1
@@ -342,29 +379,49 @@ class _Canvas:
         y0, y1, x0, x1 = box
         rx = self.rays[y0:y1, x0:x1, 0]
         ry = self.rays[y0:y1, x0:x1, 1]
-        denom = rx * normal[0] + ry * normal[1] + normal[2]
+        if np.all(verts[:, 2] > 1e-6):
+            # In front of the camera, a convex polygon projects to a convex polygon of
+            # normalised coordinates (the distortion is in the rays already): test samples
+            # against its edges there, and intersect only the samples inside with the plane.
+            p = verts[:, :2] / verts[:, 2:3]
+            e = np.roll(p, -1, axis=0) - p
+            area = float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+            if abs(area) < 1e-15:
+                return  # seen edge-on
+            sign = 1.0 if area > 0 else -1.0
+            inside = np.ones(rx.shape, bool)
+            for k in range(len(p)):
+                inside &= sign * (e[k, 0] * (ry - p[k, 1]) - e[k, 1] * (rx - p[k, 0])) >= 0
+            iy, ix = np.nonzero(inside)
+            if iy.size == 0:
+                return
+            sx, sy = rx[iy, ix], ry[iy, ix]
+        else:  # crosses the camera plane: work in the polygon's plane (slower, rare)
+            iy, ix = np.nonzero(np.ones(rx.shape, bool))
+            sx, sy = rx.ravel(), ry.ravel()
+        denom = sx * normal[0] + sy * normal[1] + normal[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = float(np.dot(normal, origin)) / denom  # depth z of the hit (ray z = 1)
-        ok = np.isfinite(t) & (t > 1e-6)
-        dx, dy, dz = rx * t - origin[0], ry * t - origin[1], t - origin[2]
+        zb = self.depth[y0:y1, x0:x1]
+        zcur = zb[iy, ix]
+        ok = np.isfinite(t) & (t > 1e-6) & ((t < zcur * (1 + 1e-6)) if decal else (t < zcur))
+        dx, dy, dz = sx * t - origin[0], sy * t - origin[1], t - origin[2]
         u = dx * axis_u[0] + dy * axis_u[1] + dz * axis_u[2]
         v = dx * axis_v[0] + dy * axis_v[1] + dz * axis_v[2]
-        e = np.roll(poly_uv, -1, axis=0) - poly_uv
-        for k in range(len(poly_uv)):  # inside all half-planes of a CCW convex polygon
-            ok &= e[k, 0] * (v - poly_uv[k, 1]) - e[k, 1] * (u - poly_uv[k, 0]) >= 0
-        zb = self.depth[y0:y1, x0:x1]
-        ok &= (t < zb * (1 + 1e-6)) if decal else (t < zb)
+        if not np.all(verts[:, 2] > 1e-6):
+            ep = np.roll(poly_uv, -1, axis=0) - poly_uv
+            for k in range(len(poly_uv)):  # inside all half-planes of a CCW convex polygon
+                ok &= ep[k, 0] * (v - poly_uv[k, 1]) - ep[k, 1] * (u - poly_uv[k, 0]) >= 0
         if not ok.any():
             return
-        bgr, mask = texture(u[ok], v[ok])
-        idx = np.nonzero(ok)
+        iy, ix, t, u, v = iy[ok], ix[ok], t[ok], u[ok], v[ok]
+        bgr, mask = texture(u, v)
         if mask is not None:
-            idx = (idx[0][mask], idx[1][mask])
-            bgr = bgr[mask]
-            if idx[0].size == 0:
+            iy, ix, t, bgr = iy[mask], ix[mask], t[mask], bgr[mask]
+            if iy.size == 0:
                 return
-        self.color[y0:y1, x0:x1][idx] = bgr * shade
-        zb[idx] = t[idx]
+        self.color[y0:y1, x0:x1][iy, ix] = bgr * shade
+        zb[iy, ix] = t
 
     def draw_world_plane_full(self, camera_from_plane: np.ndarray, texture: Texture,
                               shade: float) -> None:
@@ -527,6 +584,12 @@ def ground_texture(kind: str, seed: int, size: int = 1024) -> np.ndarray:
     else:
         raise ValueError(f"unknown ground kind {kind!r}; use concrete, gravel, grass, clutter "
                          "or plain")
+    # Make it tile without seams: blend with itself shifted by half a tile, weighting the
+    # shifted copy fully at the tile's borders (where it is continuous across the wrap).
+    ramp = np.sin(np.pi * (np.arange(size) + 0.5) / size) ** 2
+    w = (ramp[:, None] * ramp[None, :])[..., None].astype(np.float32)
+    img = np.asarray(img, np.float32)
+    img = w * img + (1 - w) * np.roll(img, (size // 2, size // 2), axis=(0, 1))
     out = np.clip(img, 0, 255).astype(np.float32)
     out.flags.writeable = False
     return out

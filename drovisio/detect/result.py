@@ -1,0 +1,98 @@
+"""The result of detecting bricks in one frame, and its JSON form (DESIGN.md contract).
+
+A pose is ``camera_from_brick``: ``X_cam = R(rvec) · X_brick + tvec`` (metres, radians,
+OpenCV camera frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["BrickPose", "FrameResult"]
+
+
+def _r(x: float, nd: int = 6) -> float:
+    return float(round(float(x), nd))
+
+
+@dataclass
+class BrickPose:
+    """One brick found in one frame.
+
+    Args:
+        layout: Layout name.
+        instance: Instance number k, or None where the layout has no ids (dots).
+        method: ``"aruco"`` or ``"dots"`` (``"fused"`` downstream).
+        rvec: Rotation vector of ``camera_from_brick`` (3,).
+        tvec: Translation of ``camera_from_brick`` in metres (3,).
+        reprojection_rmse_px: RMS distance between measured and reprojected image points.
+        markers: Code ids used (aruco) or indices of the layout's dots used (dots).
+        ambiguous: The image alone cannot decide between this pose and ``alternatives``.
+        alternatives: Other candidate poses as (rvec, tvec) when ambiguous.
+        symmetric: The layout is symmetric; the yaw is reported in one canonical half-turn.
+        covariance: 6×6 covariance of (rvec, tvec), from the Jacobian and the corner noise.
+        image_points: (N, 2) measured image points the pose was fitted to (for drawing).
+    """
+
+    layout: str
+    instance: int | None
+    method: str
+    rvec: np.ndarray
+    tvec: np.ndarray
+    reprojection_rmse_px: float
+    markers: list[int] = field(default_factory=list)
+    ambiguous: bool = False
+    alternatives: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    symmetric: bool = False
+    covariance: np.ndarray | None = None
+    image_points: np.ndarray | None = None
+
+    def camera_from_brick(self) -> np.ndarray:
+        """The pose as a 4×4 matrix."""
+        import cv2
+
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(np.asarray(self.rvec, np.float64).reshape(3, 1))[0]
+        T[:3, 3] = np.asarray(self.tvec, np.float64).ravel()
+        return T
+
+    def to_json(self, with_covariance: bool = False) -> dict:
+        """The DESIGN.md JSON object of one brick (flags only when they are true)."""
+        out: dict = {
+            "layout": self.layout,
+            "instance": self.instance,
+            "method": self.method,
+            "rvec": [_r(v, 7) for v in np.ravel(self.rvec)],
+            "tvec": [_r(v, 7) for v in np.ravel(self.tvec)],
+            "reprojection_rmse_px": _r(self.reprojection_rmse_px, 4),
+            "markers": [int(m) for m in self.markers],
+        }
+        if self.ambiguous:
+            out["ambiguous"] = True
+            out["alternatives"] = [{"rvec": [_r(v, 7) for v in np.ravel(r)],
+                                    "tvec": [_r(v, 7) for v in np.ravel(t)]}
+                                   for r, t in self.alternatives]
+        if self.symmetric:
+            out["symmetric"] = True
+        if with_covariance and self.covariance is not None:
+            out["covariance"] = [[float(f"{v:.6g}") for v in row] for row in self.covariance]
+        return out
+
+
+@dataclass
+class FrameResult:
+    """All bricks of one frame (one JSON Lines record of ``drovisio detect``)."""
+
+    file: str
+    frame: int
+    bricks: list[BrickPose] = field(default_factory=list)
+    error: str | None = None
+
+    def to_json(self, with_covariance: bool = False) -> dict:
+        out: dict = {"file": self.file, "frame": self.frame}
+        if self.error is not None:
+            out["error"] = self.error
+        out["bricks"] = [b.to_json(with_covariance) for b in self.bricks]
+        return out
