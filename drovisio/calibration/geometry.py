@@ -88,24 +88,35 @@ def fit_board(camera: Camera, board: BoardSpec, target_px, distance: float,
               tilt_deg: float = 0.0, tilt_axis_deg: float = 0.0, roll_deg: float = 0.0,
               margin_px: float = 4.0, max_distance: float | None = None
               ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Like :func:`place_board`, but moves the board toward the image centre (then farther
-    away) until all of it, margin included, is inside the image.
+    """Like :func:`place_board`, but shifts the board inward (and moves it farther away if it
+    is too big) until all of it, margin included, is inside the image.
 
     Returns:
         (camera_from_board, target_px actually used, distance actually used), or None if even
         centred at ``max_distance`` (default 4 × distance) it does not fit.
     """
-    centre = np.array([(camera.width - 1) / 2.0, (camera.height - 1) / 2.0])
-    target = np.asarray(target_px, float)
+    target = np.asarray(target_px, float).copy()
     d = float(distance)
     max_d = 4.0 * d if max_distance is None else max_distance
-    while d <= max_d + 1e-9:
-        for frac in np.linspace(0.0, 1.0, 21):
-            tp = target + (centre - target) * frac
-            T = place_board(camera, board, tp, d, tilt_deg, tilt_axis_deg, roll_deg)
-            if _inside(board_outline_px(camera, board, T), camera, margin_px):
-                return T, tp, d
-        d *= 1.15
+    lo = margin_px
+    hi = np.array([camera.width - 1 - margin_px, camera.height - 1 - margin_px])
+    for _ in range(40):
+        T = place_board(camera, board, target, d, tilt_deg, tilt_axis_deg, roll_deg)
+        o = board_outline_px(camera, board, T)
+        if not np.all(np.isfinite(o)):
+            d *= 1.15
+        else:
+            mn, mx = o.min(axis=0), o.max(axis=0)
+            if np.all(mn >= lo) and np.all(mx <= hi):
+                return T, target, d
+            too_big = (mx - mn) > (hi - lo)
+            if np.any(too_big):
+                d *= 1.15  # cannot fit at this size: farther away
+            shift = np.where(mn < lo, lo - mn + 0.5, 0.0) + np.where(mx > hi, hi - mx - 0.5, 0.0)
+            target = np.clip(target + np.where(too_big, 0.0, shift), 0,
+                             [camera.width - 1, camera.height - 1])
+        if d > max_d + 1e-9:
+            return None
     return None
 
 

@@ -11,7 +11,6 @@ sensor noise, so its true corners are known exactly.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

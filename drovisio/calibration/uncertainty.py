@@ -172,8 +172,10 @@ def grid_jacobians(camera: Camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray
 
 def sigma_max(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """√λ_max of J Σ Jᵀ for a stack of (G, 2, 9) Jacobians → (G,)."""
-    C = np.einsum("gik,kl,gjl->gij", J, cov, J)
-    a, b, c = C[:, 0, 0], C[:, 0, 1], C[:, 1, 1]
+    M = J @ cov  # (G, 2, n)
+    a = np.sum(M[:, 0, :] * J[:, 0, :], axis=1)
+    b = np.sum(M[:, 0, :] * J[:, 1, :], axis=1)
+    c = np.sum(M[:, 1, :] * J[:, 1, :], axis=1)
     lam = 0.5 * (a + c) + np.sqrt(np.maximum(0.25 * (a - c) ** 2 + b * b, 0.0))
     return np.sqrt(np.maximum(lam, 0.0))
 
@@ -186,12 +188,33 @@ def projection_uncertainty(camera: Camera, cov: np.ndarray, step: float = 16.0
     return UncertaintyMap(xs, ys, sigma_max(J, cov).reshape(ys.size, xs.size))
 
 
-def model_difference_px(a: Camera, b: Camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+def model_difference_px(a: Camera, b: Camera, xs: np.ndarray, ys: np.ndarray,
+                        compensate_rotation: bool = False) -> np.ndarray:
     """|π_b(ray_a(q)) − q| on the grid (gh, gw): how far model b moves the points that model a
-    sees at q (camera frame held fixed). Used for cross-validation and truth checks."""
+    sees at q. Used for cross-validation and truth checks.
+
+    With ``compensate_rotation`` the camera frame of b may first rotate by the small rotation
+    that best aligns the two models over the grid (least squares, Gauss-Newton): what remains is
+    the difference a pose estimator would feel, since it solves its own rotation anyway.
+    """
     gx, gy = np.meshgrid(xs, ys)
     q = np.stack([gx.ravel(), gy.ravel()], axis=1)
     xy = a.normalize(q)
     p = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-    d = np.hypot(*(b.project(p) - q).T)
+    if not compensate_rotation:
+        d = np.hypot(*(b.project(p) - q).T)
+        return d.reshape(ys.size, xs.size)
+    w = np.zeros(3)
+    for _ in range(5):
+        px, jac = cv2.projectPoints(p.reshape(-1, 1, 3), w.reshape(3, 1), np.zeros((3, 1)),
+                                    b.K, _dist5(b.dist))
+        r = (np.asarray(px, float).reshape(-1, 2) - q).ravel()
+        Jw = np.asarray(jac, float)[:, 0:3]
+        step = np.linalg.lstsq(Jw, -r, rcond=None)[0]
+        w = w + step
+        if np.linalg.norm(step) < 1e-12:
+            break
+    px = cv2.projectPoints(p.reshape(-1, 1, 3), w.reshape(3, 1), np.zeros((3, 1)), b.K,
+                           _dist5(b.dist))[0]
+    d = np.hypot(*(np.asarray(px, float).reshape(-1, 2) - q).T)
     return d.reshape(ys.size, xs.size)

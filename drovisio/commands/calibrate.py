@@ -1,0 +1,279 @@
+"""``drovisio calibrate``: calibrate a camera from chessboard images (DESIGN.md contract).
+
+::
+
+    drovisio calibrate --board chessboard:9x6 --square 0.025 [--report REPORT.json]
+                       --out CAMERA.yaml IMAGE_OR_FOLDER...
+
+Writes CAMERA.yaml (OpenCV FileStorage; ``.json``/``.xml`` suffixes give those OpenCV forms) and
+a ROS ``camera_info`` file beside it (``CAMERA.ros.yaml``), and with ``--report`` the report
+JSON of :mod:`drovisio.calibration.report`. Progress goes to stderr, one line per image.
+
+Exit codes: 0 calibrated (even when the verdict is "not ok": the verdict is in the report and
+on stderr); 1 nothing could be calibrated (no board found, too few usable views, degenerate
+views); 2 bad arguments (board spec, missing path, no images, unwritable output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+__all__ = ["run", "collect_images", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm",
+                  ".pbm", ".jp2"}
+PROG = "drovisio calibrate"
+
+
+class _UsageError(Exception):
+    pass
+
+
+def _err(msg: str) -> None:
+    print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
+
+
+def collect_images(inputs: list[str]) -> list[Path]:
+    """Image files from the arguments (folders: their image files in name order).
+
+    Raises:
+        _UsageError: a path is missing, or no image at all.
+    """
+    files: list[Path] = []
+    for raw in inputs:
+        p = Path(raw)
+        if not p.exists():
+            raise _UsageError(f"{raw}: no such file or folder")
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir()
+                           if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise _UsageError(f"{raw}: folder contains no images ("
+                                  + ", ".join(sorted(IMAGE_SUFFIXES)) + ")")
+            files.extend(found)
+        else:
+            files.append(p)
+    seen, unique = set(), []
+    for f in files:
+        key = f.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append(f)
+    if not unique:
+        raise _UsageError("no images given")
+    return unique
+
+
+def _ros_path(out: Path) -> Path:
+    return out.with_name(out.stem + ".ros.yaml")
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".json", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(data, f, indent=1)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _check_output(path: Path, what: str) -> None:
+    if path.exists() and path.is_dir():
+        raise _UsageError(f"{what} {path} is a folder; give a file name")
+    parent = path.parent if str(path.parent) else Path(".")
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK):
+        raise _UsageError(f"{what} {path}: cannot write in {probe}")
+
+
+def _probe_board_size(images: list[Path], board) -> str | None:
+    """On a few readable images, try nearby chessboard sizes; say which one is there
+    (at most ~2 s: the detector is slow on cluttered images)."""
+    import time
+
+    import cv2
+
+    from drovisio.calibration.board import to_gray
+
+    cands = []
+    for dc in (-1, 0, 1, -2, 2):
+        for dr in (-1, 0, 1, -2, 2):
+            c, r = board.cols + dc, board.rows + dr
+            if (dc or dr) and c >= 3 and r >= 3:
+                cands.append((c, r))
+    cands += [(9, 6), (7, 6), (8, 6), (7, 5), (6, 4), (10, 7), (11, 8), (8, 5)]
+    seen_c = []
+    for c in cands:
+        if c not in seen_c and c != (board.cols, board.rows):
+            seen_c.append(c)
+    deadline = time.monotonic() + 2.0
+    for path in images[:3]:
+        if time.monotonic() > deadline:
+            break
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            continue
+        gray = to_gray(img)
+        for c, r in seen_c:
+            if time.monotonic() > deadline:
+                break
+            found, _ = cv2.findChessboardCorners(
+                gray, (c, r), None, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+                | cv2.CALIB_CB_FAST_CHECK)
+            if found:
+                return (f"a {c}x{r} chessboard is visible in {path.name}: did you mean "
+                        f"--board chessboard:{c}x{r}? (inner corners: a board of "
+                        f"{c + 1}x{r + 1} squares is {c}x{r})")
+    return None
+
+
+def _read_image(path: Path):
+    """(BGR image, None) or (None, why it cannot be used)."""
+    import cv2
+    import numpy as np
+
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        return None, f"cannot be read ({e.strerror or e})"
+    if path.suffix.lower() in (".jpg", ".jpeg") and data[:2] == b"\xff\xd8":
+        if not data.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9"):
+            return None, "corrupt JPEG: truncated (no end-of-image marker)"
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        img = None
+    if img is None or img.size == 0:
+        return None, "cannot be read as an image (corrupt or not an image file)"
+    return img, None
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except _UsageError as e:
+        _err(str(e))
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    import cv2
+
+    from drovisio.camera import save_camera
+    from drovisio.calibration.board import BoardSpecError, parse_board
+    from drovisio.calibration.report import build_report, format_summary
+    from drovisio.calibration.session import CalibrationSession, SessionConfig
+    from drovisio.calibration.solve import CalibrationError
+
+    try:
+        board = parse_board(args.board, args.square)
+    except BoardSpecError as e:
+        raise _UsageError(str(e)) from None
+    out = Path(args.out)
+    report_path = Path(args.report) if getattr(args, "report", None) else None
+    _check_output(out, "--out")
+    if report_path is not None:
+        _check_output(report_path, "--report")
+    images = collect_images(list(args.images))
+    n = len(images)
+    width = len(str(n))
+
+    session = CalibrationSession(board, config=SessionConfig(camera_name=out.stem or "camera"))
+    frames = []  # (path name, FrameResult)
+    n_read = 0
+    for i, path in enumerate(images, 1):
+        name = str(path)
+        tag = f"[{i:>{width}}/{n}] {path.name}"
+        img, reason = _read_image(path)
+        if img is None:
+            session.add_rejected(name, reason)
+            print(f"{tag}: rejected: {reason}", file=sys.stderr, flush=True)
+            continue
+        n_read += 1
+        fr = session.evaluate(img, name)
+        del img
+        frames.append(fr)
+        if fr.usable:
+            es = fr.sharpness
+            print(f"{tag}: {fr.detection.n} corners, squares {fr.detection.square_px:.0f} px, "
+                  f"edges {es.width_px:.1f} px", file=sys.stderr, flush=True)
+        else:
+            print(f"{tag}: rejected: {'; '.join(fr.reasons)}", file=sys.stderr, flush=True)
+
+    if n_read == 0:
+        _err(f"none of the {n} file(s) could be read as an image")
+        _maybe_report(report_path, session, build_report)
+        return 1
+    # one resolution: the one most usable views (then most images) have
+    sizes = Counter(fr.image_size for fr in frames if fr.usable) or Counter(
+        fr.image_size for fr in frames)
+    size, _ = sizes.most_common(1)[0]
+    all_sizes = Counter(fr.image_size for fr in frames)
+    if len(all_sizes) > 1:
+        desc = ", ".join(f"{c} at {w}x{h}" for (w, h), c in all_sizes.most_common())
+        _err(f"mixed image sizes ({desc}); calibrating the {size[0]}x{size[1]} images (a "
+             "calibration belongs to one resolution)")
+    for fr in frames:
+        if fr.image_size != size:
+            session.add_rejected(fr.name, f"image size {fr.image_size[0]}x{fr.image_size[1]} "
+                                          f"differs from the {size[0]}x{size[1]} of the others")
+        elif fr.usable:
+            session.keep(fr)
+        else:
+            session.add_rejected(fr.name, "; ".join(fr.reasons) or "not usable")
+
+    kept = len(session.views)
+    if not any(fr.detection is not None for fr in frames):
+        _err(f"no {board.spec()} board found in any of the {n_read} image(s)")
+        hint = _probe_board_size(images, board) if board.kind == "chessboard" else None
+        print("  " + (hint or f"check --board: {board.cols}x{board.rows} counts INNER corners "
+                      f"(a board of {board.cols + 1}x{board.rows + 1} squares)"
+                      + ("; the whole board must be visible" if board.kind == "chessboard"
+                         else "")), file=sys.stderr)
+        _maybe_report(report_path, session, build_report)
+        return 1
+    if kept < 3:
+        _err(f"only {kept} usable view(s) of {n} image(s); a calibration needs at least 3 "
+             "(10 or more, varied, for a good one)")
+        _maybe_report(report_path, session, build_report)
+        return 1
+    print(f"solving with {kept} views...", file=sys.stderr, flush=True)
+    try:
+        result = session.solve()
+    except CalibrationError as e:
+        _err(f"calibration failed: {e}")
+        _maybe_report(report_path, session, build_report)
+        return 1
+    cam = result.camera
+    save_camera(cam, out)
+    ros = _ros_path(out)
+    save_camera(cam, ros, fmt="ros")
+    report = build_report(session)
+    if report_path is not None:
+        _write_json_atomic(report_path, report)
+    print(format_summary(report), file=sys.stderr)
+    print(f"wrote {out} (OpenCV) and {ros} (ROS camera_info)"
+          + (f", report {report_path}" if report_path else ""), file=sys.stderr)
+    return 0
+
+
+def _maybe_report(path: Path | None, session, build_report) -> None:
+    if path is None:
+        return
+    try:
+        _write_json_atomic(path, build_report(session))
+        print(f"report written to {path}", file=sys.stderr)
+    except OSError as e:
+        _err(f"could not write the report {path}: {e}")
