@@ -42,21 +42,29 @@ def _progress(msg: str) -> None:
 
 
 def calibration_poses(camera: Camera, square: float = 0.025) -> list[np.ndarray]:
-    """20 board poses in the order a person would take them: centre first, then outward."""
-    spots = [(0.5, 0.5, 0.0, 0.0), (0.5, 0.5, 0.6, 0.0), (0.5, 0.5, 0.0, 0.6),
-             (0.3, 0.3, 0.5, -0.4), (0.7, 0.3, 0.5, 0.4), (0.7, 0.7, -0.5, 0.4),
-             (0.3, 0.7, -0.5, -0.4), (0.5, 0.25, 0.7, 0.0), (0.5, 0.75, -0.7, 0.0),
-             (0.25, 0.5, 0.0, -0.7), (0.75, 0.5, 0.0, 0.7), (0.24, 0.28, 0.3, 0.3),
-             (0.76, 0.28, 0.3, -0.3), (0.76, 0.72, -0.3, -0.3), (0.24, 0.72, -0.3, 0.3),
-             (0.5, 0.5, 0.35, 0.35), (0.35, 0.5, -0.4, 0.5), (0.65, 0.5, 0.4, -0.5),
-             (0.5, 0.35, -0.6, -0.2), (0.5, 0.65, 0.6, 0.2)]
+    """20 board poses in the order a person would take them: centre first, then outward,
+    each board filling about half the image width and kept wholly inside it."""
+    from drovisio.calibration.board import parse_board
+    from drovisio.calibration.geometry import fit_board
+
+    board = parse_board("chessboard:9x6", square)
+    # (x, y) image position as fractions, tilt (deg) and the direction of its axis (deg)
+    spots = [(0.5, 0.5, 0, 0), (0.5, 0.5, 35, 0), (0.5, 0.5, 35, 90),
+             (0.3, 0.3, 35, -40), (0.7, 0.3, 35, 40), (0.7, 0.7, 35, 140),
+             (0.3, 0.7, 35, -140), (0.5, 0.2, 40, 0), (0.5, 0.8, 40, 180),
+             (0.2, 0.5, 40, -90), (0.8, 0.5, 40, 90), (0.1, 0.1, 25, 45),
+             (0.9, 0.1, 25, -45), (0.9, 0.9, 25, -135), (0.1, 0.9, 25, 135),
+             (0.5, 0.5, 45, 45), (0.35, 0.5, 30, 120), (0.65, 0.5, 30, -60),
+             (0.5, 0.35, 35, -160), (0.5, 0.65, 35, 20)]
     out = []
-    for k, (fx, fy, ax, ay) in enumerate(spots):
-        d = (0.5, 0.62, 0.75)[k % 3] if k >= 3 else 0.6
-        R = cv2.Rodrigues(np.array([ax, ay, 0.15 * math.sin(k)]))[0]
-        ray = np.r_[camera.normalize(np.array([[fx * (camera.width - 1),
-                                                fy * (camera.height - 1)]]))[0], 1.0]
-        out.append(transform(R, ray * d - R @ np.array([4 * square, 2.5 * square, 0.0])))
+    for k, (fx, fy, tilt, axis) in enumerate(spots):
+        frac = (0.62, 0.52, 0.45)[k % 3]  # board width / image width
+        dist = camera.fx * board.width_m / (frac * camera.width)
+        target = [fx * (camera.width - 1), fy * (camera.height - 1)]
+        fit = fit_board(camera, board, target, dist, tilt, axis, 8.0 * math.sin(k), margin_px=6)
+        if fit is None:
+            raise RuntimeError(f"calibration sample view {k} does not fit in the image")
+        out.append(fit[0])
     return out
 
 
