@@ -5,11 +5,12 @@ from __future__ import annotations
 from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 
 from webtool.access import TokenAccessMiddleware
-from webtool.routes import health, pages
-from webtool.settings import TEMPLATES_DIR, Settings
+from webtool.routes import calibration, health, pages
+from webtool.settings import STATIC_DIR, TEMPLATES_DIR, Settings
 
 
 def drovisio_version() -> str:
@@ -36,6 +37,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # app.include_router(calibration.router, prefix="/api/calibration").
     app.include_router(pages.router)
     app.include_router(health.router, prefix="/api")
+    app.include_router(calibration.router, prefix="/api/calibration")
+    app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")
 
     app.add_middleware(TokenAccessMiddleware, token=settings.token)
     return app

@@ -10,6 +10,7 @@ from pydantic import BaseModel, model_validator
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TEMPLATES_DIR = REPO_ROOT / "templates"
+STATIC_DIR = Path(__file__).resolve().parent / "static"
 DEFAULT_SAMPLE_SESSION = REPO_ROOT / "sample_sessions"
 
 
@@ -39,14 +40,33 @@ class Settings(BaseModel):
     source: str | None = None  # None: run on the sample session
     camera: Path | None = None
     sample_session: Path = DEFAULT_SAMPLE_SESSION
+    # Calibration page (webtool.calibration_service). Sessions are saved under
+    # calibration_dir/<session-id>/ (None: $XDG_DATA_HOME or ~/.local/share, then
+    # drovisio/calibration); a new session uses this board unless the page asks for another.
+    calibration_dir: Path | None = None
+    calibration_board: str = "chessboard:9x6"
+    calibration_square_m: float = 0.025
+    # With no source, the sample calibration views play as if live, this many seconds each.
+    sample_seconds_per_view: float = 1.5
+    # Marker designer (webtool.designer_scene): designs are saved into this folder (None: the
+    # repository's marker_layouts/); mesh uploads larger than this are refused before reading.
+    designer_layouts_dir: Path | None = None
+    designer_max_upload_mb: float = 50.0
     # Access token. None means "no token needed", which is only allowed on a loopback host:
     # binding anywhere else generates one (see `token_required`).
     token: str | None = None
+    # Read-only viewer token (webtool.access): watches pages and streams, cannot change
+    # anything (writes answer 403). Made together with `token` when token access is on.
+    viewer_token: str | None = None
 
     @model_validator(mode="after")
     def _token_when_exposed(self) -> "Settings":
         if self.token is None and not is_loopback(self.host):
             self.token = new_token()
+        if self.token is not None and self.viewer_token is None:
+            self.viewer_token = new_token()
+        if self.viewer_token is not None and self.viewer_token == self.token:
+            raise ValueError("the viewer token must differ from the access token")
         return self
 
     @property

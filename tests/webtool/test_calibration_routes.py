@@ -1,0 +1,368 @@
+"""The calibration API (webtool.routes.calibration + webtool.calibration_service) through
+FastAPI's TestClient: live auto-capture and persistence, a camera that disappears, manual capture,
+delete, uploads with bad files, solve / result / downloads / use, resume after a restart, token
+access. Frames come from small scripted sources (the sample session's views), so each test takes
+a second or two."""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from drovisio.camera import load_camera
+from webtool.app import create_app
+from webtool.calibration_service import CalibrationService, SamplePlayback
+from webtool.settings import Settings
+
+REPO = Path(__file__).resolve().parents[2]
+SAMPLE = REPO / "sample_sessions" / "calibration"
+TRUE_CAMERA = REPO / "sample_sessions" / "camera.yaml"
+API = "/api/calibration"
+
+
+def _img(i: int) -> np.ndarray:
+    return cv2.imread(str(SAMPLE / f"view_{i:02d}.jpg"))
+
+
+def _jpeg_bytes(i: int) -> bytes:
+    return (SAMPLE / f"view_{i:02d}.jpg").read_bytes()
+
+
+BLANK = np.full((480, 640, 3), 128, np.uint8)
+# sample views at least 60 px apart (mean corner distance): the novelty gate keeps each one
+NOVEL = [0, 4, 5, 7, 8, 12, 14, 16]
+
+
+class ScriptedSource:
+    """Frames from a list (each view twice, so that the stillness gate passes), then nothing
+    (a lost camera) — or the last frame forever with ``hold=True``."""
+
+    label = "scripted test camera"
+
+    def __init__(self, frames: list[np.ndarray], hold: bool = False) -> None:
+        self.frames = list(frames)
+        self.hold = hold
+        self.i = 0
+
+    def read(self):
+        time.sleep(0.01)
+        if self.i < len(self.frames):
+            self.i += 1
+            return self.frames[self.i - 1]
+        return self.frames[-1] if (self.hold and self.frames) else None
+
+    def close(self) -> None:
+        pass
+
+
+def still(views) -> list[np.ndarray]:
+    return [f for i in views for f in (_img(i), _img(i))]
+
+
+@pytest.fixture
+def make_client(tmp_path):
+    made: list[CalibrationService] = []
+
+    def make(factory=None, folder: Path | None = None, **kw) -> TestClient:
+        settings = Settings(calibration_dir=folder or tmp_path / "cal", **kw)
+        app = create_app(settings)
+        if factory is not None:
+            app.state.calibration = CalibrationService(settings, source_factory=factory)
+            made.append(app.state.calibration)
+        client = TestClient(app)
+        if factory is None:
+            client.get(f"{API}/state")  # creates the service from the settings
+            made.append(app.state.calibration)
+        return client
+
+    yield make
+    for svc in made:
+        svc.close()
+
+
+def no_camera():
+    return ScriptedSource([])
+
+
+def wait_state(client: TestClient, pred, timeout: float = 10.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        s = client.get(f"{API}/state").json()
+        if pred(s):
+            return s
+        if time.monotonic() > deadline:
+            raise AssertionError(f"state never matched; last: camera={s['camera']} "
+                                 f"views={len(s['views'])} feedback={s['feedback']}")
+        time.sleep(0.05)
+
+
+def upload(client: TestClient, files: list[tuple[str, bytes]]) -> dict:
+    r = client.post(f"{API}/upload",
+                    files=[("files", (name, io.BytesIO(data), "application/octet-stream"))
+                           for name, data in files])
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def session_dir(client: TestClient) -> Path:
+    return Path(client.get(f"{API}/state").json()["session"]["folder"])
+
+
+# ---------------------------------------------------------------------------------- tests
+def test_page_and_static_files(make_client):
+    c = make_client(no_camera)
+    html = c.get("/calibration").text
+    for needle in ('id="live"', 'id="heatmap"', 'id="hint-outline"', 'id="auto"',
+                   'id="capture"', 'id="solve"', 'id="views"', 'webkitdirectory',
+                   "/static/calibration.js"):
+        assert needle in html, needle
+    assert c.get("/static/calibration.js").status_code == 200
+    assert c.get("/static/calibration.css").status_code == 200
+    s = c.get(f"{API}/state").json()
+    assert s["views"] == [] and s["session"]["board"] == "chessboard:9x6"
+    assert s["progress"]["next"].startswith("Hold the printed chessboard")
+    assert (session_dir(c) / "session.json").is_file()
+
+
+def test_live_auto_capture_saves_each_view_at_once(make_client):
+    c = make_client(lambda: ScriptedSource(still(NOVEL[:5]), hold=True))
+    s = wait_state(c, lambda s: len(s["views"]) == 5)
+    folder = Path(s["session"]["folder"])
+    saved = json.loads((folder / "session.json").read_text())
+    assert len(saved["session"]["views"]) == 5
+    names = [v["name"] for v in s["views"]]
+    assert all((folder / "images" / n).is_file() for n in names)
+    assert not list((folder / "images").glob(".*"))  # no temporary files left behind
+    assert s["coverage"]["image_covered_fraction"] > 0
+    assert s["suggestion"]["sentence"].startswith("Hold the board")
+    assert len(s["suggestion"]["outline_px"]) >= 4
+    r = c.get(f"{API}/frame.jpg")
+    assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+    assert int(r.headers["x-frame-seq"]) > 0
+    r = c.get(s["views"][0]["thumb"])
+    assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+
+
+def test_sample_playback_auto_captures(make_client):
+    c = make_client(sample_seconds_per_view=0.3)
+    s = wait_state(c, lambda s: len(s["views"]) >= 3, timeout=20)
+    assert s["session"]["sample"] is True and s["camera"]["state"] == "ok"
+
+
+def test_sample_playback_still_and_moving_frames():
+    files = sorted(SAMPLE.glob("view_*.jpg"))[:2]
+    src = SamplePlayback(files, seconds_per_view=0.4, fps=40)
+    frames = [src.read() for _ in range(24)]  # ~0.6 s: view 0 still, then the move to view 1
+    from drovisio.calibration import parse_board
+    from drovisio.calibration.board import detect
+    board = parse_board("chessboard:9x6", 0.025)
+    dets = [detect(f, board) for f in frames]
+    assert dets[0] is not None and dets[1] is not None
+    assert np.abs(dets[0].corners - dets[1].corners).max() < 1.5  # still: jitter only
+    assert any(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
+
+
+def test_camera_lost_mid_session_keeps_views_and_recovers(make_client):
+    back = threading.Event()
+    calls = {"n": 0}
+
+    def factory():
+        calls["n"] += 1
+        if calls["n"] == 1:
+            return ScriptedSource(still(NOVEL[:3]))  # then the camera "is unplugged"
+        if not back.is_set():
+            raise OSError("/dev/video0: no such device")
+        return ScriptedSource(still(NOVEL[3:4]), hold=True)
+
+    c = make_client(factory)
+    s = wait_state(c, lambda s: s["camera"]["state"] == "disconnected")
+    assert "Camera disconnected — retrying" in s["camera"]["message"]
+    assert "The 3 views captured so far are saved." in s["camera"]["message"]
+    assert len(s["views"]) == 3
+    assert "disconnected" in s["progress"]["next"]
+    r = c.get(f"{API}/frame.jpg")
+    assert r.status_code == 503 and "disconnected" in r.json()["detail"]
+    r = c.post(f"{API}/capture")
+    assert r.status_code == 409 and "No picture from the camera" in r.json()["detail"]
+    folder = Path(s["session"]["folder"])
+    assert len(json.loads((folder / "session.json").read_text())["session"]["views"]) == 3
+    back.set()
+    s = wait_state(c, lambda s: s["camera"]["state"] == "ok" and len(s["views"]) == 4,
+                   timeout=15)
+    assert [v["id"] for v in s["views"]] == [0, 1, 2, 3]
+
+
+def test_manual_capture_with_auto_off(make_client):
+    frames = {"f": _img(0)}
+
+    class Live:
+        label = "test"
+
+        def read(self):
+            time.sleep(0.01)
+            return frames["f"]
+
+        def close(self):
+            pass
+
+    c = make_client(Live)
+    assert c.post(f"{API}/auto", json={"on": False}).json() == {"auto_capture": False}
+    s = wait_state(c, lambda s: s["feedback"]["detected"])
+    assert "Press Capture" in s["feedback"]["message"] and s["views"] == []
+    r = c.post(f"{API}/capture")
+    assert r.status_code == 200 and r.json()["view_id"] == 0
+    r = c.post(f"{API}/capture")
+    assert r.status_code == 409 and "already kept (view #0)" in r.json()["detail"]
+    frames["f"] = BLANK
+    wait_state(c, lambda s: not s["feedback"]["detected"])
+    r = c.post(f"{API}/capture")
+    assert r.status_code == 422 and "No board in view" in r.json()["detail"]
+    s = c.get(f"{API}/state").json()
+    assert len(s["views"]) == 1 and s["auto_capture"] is False
+    saved = json.loads((Path(s["session"]["folder"]) / "session.json").read_text())
+    assert saved["auto_capture"] is False
+
+
+def test_delete_view_moves_its_image_aside(make_client):
+    c = make_client(no_camera)
+    upload(c, [(f"v{i}.jpg", _jpeg_bytes(i)) for i in range(3)])
+    s = c.get(f"{API}/state").json()
+    vid, name = s["views"][1]["id"], s["views"][1]["name"]
+    r = c.delete(f"{API}/views/{vid}")
+    assert r.status_code == 200 and r.json()["views"] == 2
+    folder = Path(s["session"]["folder"])
+    assert not (folder / "images" / name).exists()
+    assert (folder / "deleted" / name).is_file()
+    assert c.delete(f"{API}/views/{vid}").status_code == 404
+    assert c.get(f"{API}/views/{vid}/thumb.jpg").status_code == 404
+
+
+def test_upload_gives_a_message_per_file(make_client):
+    c = make_client(no_camera)  # no camera at all: uploads still work
+    good = [(f"folder/view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(4)]
+    corrupt = ("folder/cut.jpg", _jpeg_bytes(5)[:4000])
+    _, buf = cv2.imencode(".png", BLANK)
+    blank = ("folder/blank.png", buf.tobytes())
+    _, buf = cv2.imencode(".jpg", cv2.resize(_img(6), (320, 240)))
+    small = ("folder/small.jpg", buf.tobytes())
+    notes = ("folder/notes.txt", b"hello")
+    rep = upload(c, good + [corrupt, blank, small, notes])
+    msgs = {f["file"]: f for f in rep["files"]}
+    assert rep["kept"] == 4 and rep["summary"].startswith("4 of 7 images kept")
+    assert all(msgs[n]["ok"] for n, _ in good)
+    assert "corrupt JPEG" in msgs["folder/cut.jpg"]["message"]
+    assert "no board found" in msgs["folder/blank.png"]["message"]
+    assert "wrong size: 320×240" in msgs["folder/small.jpg"]["message"]
+    assert "640×480" in msgs["folder/small.jpg"]["message"]
+    assert msgs["folder/notes.txt"]["message"] == "skipped: not an image file"
+    s = c.get(f"{API}/state").json()
+    assert [v["origin"] for v in s["views"]] == ["upload"] * 4
+    again = upload(c, good[:1])  # the same photo twice is not counted twice
+    assert again["kept"] == 0 and "already in this session" in again["files"][0]["message"]
+    assert all((Path(s["session"]["folder"]) / "images" / v["name"]).is_file()
+               for v in s["views"])
+
+
+def test_upload_of_a_folder_without_the_board(make_client):
+    c = make_client(no_camera)
+    _, buf = cv2.imencode(".jpg", BLANK)
+    rep = upload(c, [("a.jpg", buf.tobytes()), ("b.jpg", buf.tobytes())])
+    assert rep["kept"] == 0
+    assert "No chessboard:9x6 board was found in any of them" in rep["summary"]
+    # a session for the wrong board size says which board is in the pictures
+    r = c.post(f"{API}/session", json={"board": "chessboard:7x6", "square_m": 0.025})
+    assert r.status_code == 200 and r.json()["board"] == "chessboard:7x6"
+    rep = upload(c, [("view.jpg", _jpeg_bytes(0))])
+    assert rep["kept"] == 0 and "9×6 inner corners is visible in view.jpg" in rep["summary"]
+
+
+def test_new_session_with_a_bad_board_is_refused(make_client):
+    c = make_client(no_camera)
+    r = c.post(f"{API}/session", json={"board": "chessboard:2x6", "square_m": 0.025})
+    assert r.status_code == 422 and "at least 3x3" in r.json()["detail"]
+    r = c.post(f"{API}/session", json={"board": "chessboard:9x6", "square_m": 25})
+    assert r.status_code == 422 and "metres" in r.json()["detail"]
+
+
+def test_nothing_to_solve_yet(make_client):
+    c = make_client(no_camera)
+    r = c.post(f"{API}/solve")
+    assert r.status_code == 409 and "at least 4 views" in r.json()["detail"]
+    assert c.get(f"{API}/result").status_code == 404
+    assert c.get(f"{API}/camera-file").status_code == 404
+    assert c.get(f"{API}/uncertainty.png").status_code == 404
+    assert c.post(f"{API}/use").status_code == 409
+
+
+def test_solve_result_downloads_and_use(make_client, tmp_path):
+    c = make_client(no_camera)
+    upload(c, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(10)])
+    r = c.post(f"{API}/solve")
+    assert r.status_code == 202
+    s = wait_state(c, lambda s: s["solve"]["has_result"] and s["solve"]["current"]
+                   and not s["solve"]["solving"])
+    assert s["solve"]["show_result"] is True
+    assert s["progress"]["p95_px"] is not None
+    assert all(v["rms_px"] is not None for v in s["views"])
+    rep = c.get(f"{API}/result").json()
+    assert set(rep["std"]) == {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"}
+    assert rep["rms_px"] < 0.5 and "root mean square" in rep["rms_definition"]
+    assert isinstance(rep["verdict"]["ok"], bool) and rep["current"] is True
+    png = c.get(f"{API}/uncertainty.png")
+    assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
+    true_fx = load_camera(TRUE_CAMERA).fx
+    for fmt, suffix in (("opencv", ".yaml"), ("ros", ".ros.yaml"), ("json", ".json")):
+        r = c.get(f"{API}/camera-file", params={"format": fmt})
+        assert r.status_code == 200, fmt
+        assert r.headers["content-disposition"].startswith("attachment;")
+        assert r.headers["content-disposition"].rstrip('"').endswith(suffix)
+        p = tmp_path / f"cam{suffix}"
+        p.write_bytes(r.content)
+        assert abs(load_camera(p).fx - true_fx) / true_fx < 0.01, fmt
+    assert c.get(f"{API}/camera-file", params={"format": "xml2"}).status_code == 422
+    r = c.post(f"{API}/use")
+    assert r.status_code == 200
+    used = Path(r.json()["camera_file"])
+    assert used.is_file() and c.app.state.settings.camera == used
+    assert abs(load_camera(used).fx - true_fx) / true_fx < 0.01
+    s = c.get(f"{API}/state").json()
+    assert s["in_use"] == {"camera_file": str(used), "this_session": True}
+    assert str(used) in c.get("/").text  # the start page shows the camera now in use
+
+
+def test_resume_after_restart_and_recover_orphans(make_client, tmp_path):
+    folder = tmp_path / "cal"
+    c1 = make_client(no_camera, folder=folder)
+    upload(c1, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(5)])
+    s1 = c1.get(f"{API}/state").json()
+    c1.app.state.calibration.close()
+    # a crash right after an image was written, before session.json named it
+    (Path(s1["session"]["folder"]) / "images" / "capture-0042.png").write_bytes(
+        cv2.imencode(".png", _img(7))[1].tobytes())
+    c2 = make_client(no_camera, folder=folder)
+    s2 = c2.get(f"{API}/state").json()
+    assert s2["session"]["id"] == s1["session"]["id"]
+    assert [v["name"] for v in s2["views"]][:5] == [v["name"] for v in s1["views"]]
+    assert "capture-0042.png" in [v["name"] for v in s2["views"]]
+    # another source does not mix its views into this session
+    c3 = make_client(no_camera, folder=folder, source="/dev/video9")
+    s3 = c3.get(f"{API}/state").json()
+    assert s3["session"]["id"] != s1["session"]["id"] and s3["views"] == []
+
+
+def test_writes_work_with_the_token(make_client):
+    c = make_client(no_camera, host="0.0.0.0", token="tok-123")
+    assert c.get(f"{API}/state").status_code == 401
+    assert c.post(f"{API}/auto", json={"on": False}).status_code == 401
+    assert c.get("/calibration?token=tok-123").status_code == 200  # sets the cookie
+    assert c.post(f"{API}/auto", json={"on": False}).status_code == 200
+    assert c.get(f"{API}/state").json()["auto_capture"] is False

@@ -1,0 +1,1167 @@
+"""The calibration page's server side: one live calibration session, fed by the server's camera.
+
+A :class:`CalibrationService` per app (``app.state.calibration``, made on first use by
+``webtool.routes.calibration``) owns:
+
+* a **frame source**: the server's camera (``--source``: a V4L2 index such as ``0``, a stream URL
+  or a video file, through ``cv2.VideoCapture``), a folder of images, or — with no source — the
+  sample calibration session played *as if live* (:class:`SamplePlayback`);
+* a **worker thread** that pulls frames, offers each to the
+  :class:`~drovisio.calibration.session.CalibrationSession` (auto-capture: sharp + still + novel
+  frames are kept) or only detects the board (auto-capture off), draws the detected corners and
+  keeps the latest frame as a JPEG for the page. When the camera gives no frame, the page is told
+  "camera disconnected — retrying" and the source is reopened with a growing pause (0.5 s → 4 s);
+  everything captured stays. The thread stops and releases the camera after ``idle_timeout`` s
+  without a request (so the camera is free for other parts of the tool) and restarts on the next
+  one;
+* **persistence**: every kept view is written at once — its image first (``images/NAME``), then
+  ``session.json`` (the session's state: board, image size, detections), each through a
+  temporary file renamed over the target — under ``calibration_dir/<session-id>/``. On start the
+  last session of the same source is resumed (``calibration_dir/current`` names it); images that
+  a crash left without an entry in ``session.json`` are detected again and added back. Deleted
+  views are moved to ``deleted/``, not erased;
+* **solves in the background**: after each change (≥ the solve's minimum views) the session's own
+  worker solves; the next-pose hint, the verdict and the report are derived from the latest
+  solve and cached, so that requests never wait for a solve.
+
+Frame sources are small classes with ``read() -> BGR image | None`` and ``close()``; tests give
+their own through ``source_factory``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import secrets
+import tempfile
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Protocol
+
+import cv2
+import numpy as np
+
+from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, to_gray
+from drovisio.calibration.report import _clean, build_report, uncertainty_image
+from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
+from drovisio.calibration.verdict import Verdict
+from drovisio.camera import Camera, load_camera, save_camera
+from drovisio.commands.calibrate import IMAGE_SUFFIXES
+
+__all__ = [
+    "SESSION_SCHEMA",
+    "CalibrationService",
+    "CaptureSource",
+    "FrameSource",
+    "SamplePlayback",
+    "ServiceError",
+    "atomic_write_bytes",
+    "decode_image",
+    "default_calibration_dir",
+]
+
+log = logging.getLogger(__name__)
+
+SESSION_SCHEMA = "drovisio/calibration-web-session@1"
+MAX_UPLOAD_BYTES = 64 * 1024 * 1024  # per file
+THUMB_WIDTH = 200
+
+
+class ServiceError(Exception):
+    """A request that cannot be done now; ``status`` is the HTTP status to answer with and the
+    message is meant for the person at the page."""
+
+    def __init__(self, message: str, status: int = 409) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+# ==================================================================================== helpers
+def default_calibration_dir() -> Path:
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "drovisio" / "calibration"
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder, flushed to disk,
+    then renamed over ``path``: a reader (or a crash) sees the old file or the new one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray | None, str | None]:
+    """(BGR image, None), or (None, why it cannot be used) in plain words."""
+    if not data:
+        return None, "the file is empty"
+    if (name.lower().endswith((".jpg", ".jpeg")) and data[:2] == b"\xff\xd8"
+            and not data.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9")):
+        return None, "corrupt JPEG: the file is cut short (copy it again from the camera)"
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        img = None
+    if img is None or img.size == 0:
+        return None, "cannot be read as an image (corrupt, or not an image file)"
+    return img, None
+
+
+def _safe_name(name: str) -> str:
+    base = re.split(r"[\\/]", name or "")[-1]
+    base = re.sub(r"[^A-Za-z0-9._-]+", "_", base).strip("._") or "image"
+    return base[:80]
+
+
+def _jpeg(img: np.ndarray, quality: int = 80) -> bytes:
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:  # pragma: no cover - OpenCV always encodes a BGR uint8 image
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def _draw_corners(img: np.ndarray, board: BoardSpec, det, colour=(0, 220, 0)) -> None:
+    if det is None:
+        return
+    if board.kind == "chessboard" and det.n == board.n_corners:
+        cv2.drawChessboardCorners(img, board.pattern_size,
+                                  det.corners.astype(np.float32).reshape(-1, 1, 2), True)
+    else:
+        r = max(2, round(img.shape[1] / 200))
+        for x, y in det.corners:
+            cv2.circle(img, (round(x), round(y)), r, colour, -1, cv2.LINE_AA)
+
+
+# ============================================================================= frame sources
+class FrameSource(Protocol):
+    label: str
+
+    def read(self) -> np.ndarray | None:
+        """The next frame (BGR), or None when the camera gives nothing (lost, unplugged)."""
+
+    def close(self) -> None: ...
+
+
+class SamplePlayback:
+    """Images played as if a camera filmed them, looping, at up to ``fps`` frames per second.
+
+    Each image is one board placement, held for ``seconds_per_view``: first the board "moves"
+    there (a quarter of the time: a blurred blend sliding from the previous image), then it is
+    held still (the image itself, shifted by a random sub-pixel jitter, with a little sensor
+    noise), so that the sharpness and stillness gates see what a real camera would give. On a
+    busy machine a placement is held for at least ``min_still_frames`` frames, so that no
+    placement is skipped however slowly frames are processed.
+    """
+
+    MOVE_FRACTION = 0.25
+
+    def __init__(self, files: list[Path], seconds_per_view: float = 1.5, fps: float = 12.0,
+                 seed: int = 0, label: str = "sample session", min_still_frames: int = 3
+                 ) -> None:
+        if not files:
+            raise FileNotFoundError("no images to play")
+        self.files = list(files)
+        spv = max(0.05, float(seconds_per_view))
+        self.move_s = self.MOVE_FRACTION * spv
+        self.still_s = spv - self.move_s
+        self.min_still = max(2, int(min_still_frames))
+        self.period = 1.0 / max(1.0, float(fps))
+        self.label = label
+        self._rng = np.random.default_rng(seed)
+        # a few precomputed noise fields (drawing fresh Gaussian noise costs more than the rest)
+        self._noise: list[np.ndarray] = []
+        self._next = time.monotonic()
+        self._k = 0                # index of the placement shown
+        self._moving = False       # first placement: already there
+        self._since = time.monotonic()
+        self._n = 0                # frames given in the current phase
+        self._cache: dict[int, np.ndarray] = {}
+
+    @classmethod
+    def from_folder(cls, folder: Path, **kw) -> SamplePlayback:
+        files = sorted(f for f in Path(folder).iterdir()
+                       if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+        return cls(files, label=kw.pop("label", f"images in {folder}"), **kw)
+
+    def _image(self, k: int) -> np.ndarray:
+        k %= len(self.files)
+        if k not in self._cache:
+            if len(self._cache) >= 2:  # only the current and the previous placement are kept
+                self._cache.pop(next(iter(self._cache)))
+            img = cv2.imread(str(self.files[k]), cv2.IMREAD_COLOR)
+            if img is None:
+                raise OSError(f"cannot read {self.files[k]}")
+            self._cache[k] = img
+        return self._cache[k]
+
+    def _advance(self, now: float) -> None:
+        if self._moving:
+            if now - self._since >= self.move_s and self._n >= 1:
+                self._moving, self._since, self._n = False, now, 0
+        elif now - self._since >= self.still_s and self._n >= self.min_still:
+            self._k += 1
+            self._moving, self._since, self._n = True, now, 0
+
+    def _noisy(self, img: np.ndarray) -> np.ndarray:
+        if not self._noise or self._noise[0].shape != img.shape:
+            self._noise = [np.round(self._rng.normal(0.0, 1.5, img.shape)).astype(np.int16)
+                           for _ in range(3)]
+        noise = self._noise[int(self._rng.integers(len(self._noise)))]
+        return np.clip(img.astype(np.int16) + noise, 0, 255).astype(np.uint8)
+
+    def read(self) -> np.ndarray | None:
+        now = time.monotonic()
+        if self._next > now:
+            time.sleep(self._next - now)
+        now = time.monotonic()
+        self._next = max(self._next + self.period, now)
+        self._advance(now)
+        self._n += 1
+        try:
+            cur = self._image(self._k)
+            h, w = cur.shape[:2]
+            if self._moving:
+                prev = self._image(self._k - 1)
+                if prev.shape != cur.shape:
+                    prev = cv2.resize(prev, (w, h))
+                a = min(1.0, (now - self._since) / self.move_s, 0.5 * self._n)
+                mixed = cv2.addWeighted(prev, 1.0 - a, cur, a, 0.0)
+                dx = 4.0 + (1.0 - a) * 12.0
+                m = np.float32([[1, 0, dx], [0, 1, 0.3 * dx]])
+                mixed = cv2.warpAffine(mixed, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+                return cv2.blur(mixed, (17, 1))  # horizontal motion blur
+            dx, dy = self._rng.uniform(-0.2, 0.2, 2)
+            m = np.float32([[1, 0, dx], [0, 1, dy]])
+            img = cv2.warpAffine(cur, m, (w, h), flags=cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE)
+            return self._noisy(img)
+        except OSError:
+            return None
+
+    def close(self) -> None:
+        self._cache.clear()
+
+
+class CaptureSource:
+    """The server's camera through ``cv2.VideoCapture``: a V4L2 index (``"0"``), a stream URL
+    or a video file (which loops). ``read`` returns None while the camera is lost; the next
+    ``read`` tries to open it again."""
+
+    def __init__(self, spec: str) -> None:
+        self.spec = spec
+        self.label = f"camera {spec}"
+        self._cap = None
+        self._is_file = Path(spec).is_file()
+
+    def _open(self) -> bool:
+        target: int | str = int(self.spec) if self.spec.strip().isdigit() else self.spec
+        cap = cv2.VideoCapture(target)
+        if not cap.isOpened():
+            cap.release()
+            return False
+        try:
+            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the latest frame, not a queue of old ones
+        except cv2.error:  # pragma: no cover - backend without the property
+            pass
+        self._cap = cap
+        return True
+
+    def read(self) -> np.ndarray | None:
+        if self._cap is None and not self._open():
+            return None
+        ok, frame = self._cap.read()
+        if not ok and self._is_file:  # end of a video file: start again
+            self.close()
+            if self._open():
+                ok, frame = self._cap.read()
+        if not ok or frame is None or frame.size == 0:
+            self.close()
+            return None
+        return frame
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+def sample_files(settings) -> list[Path]:
+    folder = Path(settings.sample_session)
+    for cand in (folder / "calibration", folder):
+        if cand.is_dir():
+            files = sorted(f for f in cand.iterdir()
+                           if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            if files:
+                return files
+    return []
+
+
+def default_source_factory(settings) -> Callable[[], FrameSource]:
+    """The frame source ``settings`` ask for (a fresh one per call)."""
+    if settings.source is None:
+        def sample() -> FrameSource:
+            files = sample_files(settings)
+            if not files:
+                raise FileNotFoundError(f"no sample calibration images in "
+                                        f"{settings.sample_session}")
+            return SamplePlayback(files, settings.sample_seconds_per_view,
+                                  label="sample session (no camera)")
+        return sample
+    if Path(settings.source).is_dir():
+        return lambda: SamplePlayback.from_folder(Path(settings.source),
+                                                  seconds_per_view=settings
+                                                  .sample_seconds_per_view)
+    return lambda: CaptureSource(settings.source)
+
+
+def source_label(settings) -> str:
+    return "sample" if settings.source is None else f"source:{settings.source}"
+
+
+# ================================================================================== feedback
+def _saved_views(n: int) -> str:
+    if n == 0:
+        return ""
+    return f"The {n} view{'s' if n != 1 else ''} captured so far {'are' if n != 1 else 'is'} saved."
+
+
+def frame_feedback(fr: FrameResult | None, auto: bool) -> dict:
+    """What the last frame means, in plain words, for the page."""
+    if fr is None:
+        return {"detected": False, "kept": False, "message": "Waiting for the camera…",
+                "detail": ""}
+    detail = "; ".join(fr.reasons)
+    if fr.kept:
+        return {"detected": True, "kept": True, "view_id": fr.view_id,
+                "message": f"Captured view #{fr.view_id}. Move the board to the next place.",
+                "detail": ""}
+    if fr.detection is None:
+        if any("image size" in r for r in fr.reasons):
+            msg = ("The camera's image size differs from this session's: start a new session "
+                   "(below) to calibrate this camera.")
+        else:
+            msg = "No board in view: show the whole chessboard to the camera."
+        return {"detected": False, "kept": False, "message": msg, "detail": detail}
+    failed = [g.name for g in fr.gates if not g.ok]
+    n = fr.detection.n
+    if "size" in failed:
+        msg = "The board looks too small: bring it closer to the camera."
+    elif "sharpness" in failed:
+        msg = "The image is blurred: hold the board steady (or add light)."
+    elif "still" in failed:
+        msg = "Board found. Hold it still…"
+    elif "novel" in failed:
+        msg = ("You already have a view like this one: move the board to the place shown in "
+               "yellow.")
+    elif not auto:
+        msg = f"Board found ({n} corners). Press Capture to keep this view."
+    else:
+        msg = f"Board found ({n} corners)."
+    return {"detected": True, "kept": False, "message": msg, "detail": detail}
+
+
+# =================================================================================== service
+@dataclass
+class _CameraStatus:
+    state: str = "stopped"  # stopped | starting | ok | disconnected
+    message: str = ""
+    since: float = 0.0
+    failures: int = 0
+
+
+class CalibrationService:
+    """See the module docstring.
+
+    Args:
+        settings: The web tool's :class:`~webtool.settings.Settings` (``calibration_dir``,
+            board, source, sample playback speed; ``camera`` is set by :meth:`use_result`).
+        source_factory: Makes a frame source (default: from ``settings``).
+        idle_timeout: Seconds without a request after which the camera is released.
+    """
+
+    def __init__(self, settings, source_factory: Callable[[], FrameSource] | None = None,
+                 idle_timeout: float = 45.0) -> None:
+        self.settings = settings
+        self.root = Path(settings.calibration_dir) if settings.calibration_dir \
+            else default_calibration_dir()
+        self._factory = source_factory or default_source_factory(settings)
+        self.idle_timeout = float(idle_timeout)
+        self.source_key = source_label(settings)
+        self._lock = threading.RLock()        # session swap, state file, caches
+        self._keep_lock = threading.RLock()   # offering / adding views and persisting them
+        self._frame_cond = threading.Condition()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._closed = False
+        self._last_request = time.monotonic()
+        self._camera = _CameraStatus()
+        self._source_label = ""
+        self._latest_raw: np.ndarray | None = None
+        self._latest_raw_at = 0.0
+        self._latest_jpeg: bytes | None = None
+        self._frame_seq = 0
+        self._frame_size: tuple[int, int] | None = None
+        self._feedback = frame_feedback(None, True)
+        self._gen = 0                 # bumps whenever the kept views change
+        self._result_seq = 0          # bumps whenever a solve finishes
+        self._solve_pending = False
+        self._derived_cache: tuple | None = None
+        self._report_cache: tuple | None = None
+        self._png_cache: tuple | None = None
+        self._thumbs: dict[tuple[str, int], bytes] = {}
+        self._capture_counter = 1
+        # session fields (set by _open_session)
+        self.session: CalibrationSession
+        self.session_id = ""
+        self.folder = Path()
+        self.created = 0.0
+        self.auto_capture = True
+        self.show_result = False
+        self.used_camera: str | None = None
+        self._open_session()
+
+    # ----------------------------------------------------------------------- session files
+    @property
+    def images_dir(self) -> Path:
+        return self.folder / "images"
+
+    def _board_from_settings(self) -> BoardSpec:
+        return parse_board(self.settings.calibration_board, self.settings.calibration_square_m)
+
+    def _camera_guess(self) -> Camera | None:
+        cam = getattr(self.settings, "camera", None)
+        if cam:
+            try:
+                return load_camera(cam)
+            except Exception:  # noqa: BLE001 - a bad --camera file is reported elsewhere
+                return None
+        return None
+
+    def _config(self, session_id: str) -> SessionConfig:
+        return SessionConfig(camera_name=f"drovisio-{session_id}")
+
+    def _open_session(self) -> None:
+        """Resume the last session of this source, or start a new one."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        candidates = []
+        cur = self.root / "current"
+        try:
+            candidates.append(cur.read_text(encoding="utf-8").strip())
+        except OSError:
+            pass
+        others = sorted((p for p in self.root.iterdir() if (p / "session.json").is_file()),
+                        key=lambda p: (p / "session.json").stat().st_mtime, reverse=True)
+        candidates += [p.name for p in others]
+        for sid in candidates:
+            if sid and self._try_resume(sid):
+                return
+        self._new_session(self._board_from_settings())
+
+    def _try_resume(self, sid: str) -> bool:
+        folder = self.root / sid
+        path = folder / "session.json"
+        if not path.is_file():
+            return False
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            if data.get("schema") != SESSION_SCHEMA or data.get("source") != self.source_key:
+                return False
+            sess = CalibrationSession.from_state(data["session"], self._config(sid),
+                                                 self._camera_guess())
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            # keep the broken file for inspection; the images are still there
+            try:
+                os.replace(path, folder / f"session.json.broken-{int(time.time())}")
+            except OSError:
+                pass
+            self._feedback = {**frame_feedback(None, True),
+                              "message": f"Session {sid} could not be read ({e}); started anew."}
+            return False
+        with self._lock:
+            self.session = sess
+            self.session_id = sid
+            self.folder = folder
+            self.created = float(data.get("created", time.time()))
+            self.auto_capture = bool(data.get("auto_capture", True))
+            self.show_result = bool(data.get("show_result", False))
+            self.used_camera = data.get("used_camera")
+            self._after_session_change()
+        self._recover_orphans()
+        self._save()
+        self._maybe_solve()
+        return True
+
+    def _new_session(self, board: BoardSpec) -> None:
+        sid = time.strftime("%Y%m%d-%H%M%S") + "-" + secrets.token_hex(2)
+        sess = CalibrationSession(board, config=self._config(sid),
+                                  camera_guess=self._camera_guess())
+        old = getattr(self, "session", None)
+        with self._keep_lock, self._lock:
+            self.session = sess
+            self.session_id = sid
+            self.folder = self.root / sid
+            self.created = time.time()
+            self.auto_capture = True
+            self.show_result = False
+            self.used_camera = None
+            self._after_session_change()
+            self.images_dir.mkdir(parents=True, exist_ok=True)
+            self._save()
+        if old is not None:
+            threading.Thread(target=old.close, daemon=True).start()
+
+    def _after_session_change(self) -> None:
+        self._gen += 1
+        self._derived_cache = self._report_cache = self._png_cache = None
+        self._thumbs.clear()
+        nums = [0]
+        for d in (self.folder / "images", self.folder / "deleted"):
+            if d.is_dir():
+                nums += [int(m.group(1)) for f in d.iterdir()
+                         if (m := re.match(r"capture-(\d+)", f.name))]
+        self._capture_counter = max(nums) + 1
+        atomic_write_bytes(self.root / "current", self.session_id.encode())
+
+    def _recover_orphans(self) -> None:
+        """Images written just before a crash, whose view never reached session.json."""
+        if not self.images_dir.is_dir():
+            return
+        known = {v.name for v in self.session.views}
+        known |= {r.get("file") for r in self.session.rejected}
+        for f in sorted(self.images_dir.iterdir()):
+            if f.name in known or f.name.startswith(".") or \
+                    f.suffix.lower() not in IMAGE_SUFFIXES:
+                continue
+            img, why = decode_image(f.read_bytes(), f.name)
+            if img is None:
+                self.session.add_rejected(f.name, why)
+                continue
+            fr = self.session.add_image(img, f.name)
+            if fr.kept:
+                self._gen += 1
+
+    def _save(self) -> None:
+        """Write session.json atomically (after the images it names)."""
+        with self._lock:
+            data = {"schema": SESSION_SCHEMA, "id": self.session_id, "created": self.created,
+                    "saved": time.time(), "source": self.source_key,
+                    "auto_capture": self.auto_capture, "show_result": self.show_result,
+                    "used_camera": self.used_camera, "session": self.session.state()}
+            atomic_write_bytes(self.folder / "session.json",
+                               json.dumps(_clean(data), indent=1).encode())
+
+    # ----------------------------------------------------------------------- worker thread
+    def touch(self) -> None:
+        """A request came in: keep the camera running (start it if it was stopped)."""
+        self._last_request = time.monotonic()
+        if self._closed:
+            return
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive():
+                self._stop.clear()
+                self._camera = _CameraStatus("starting", "Starting the camera…", time.time())
+                self._thread = threading.Thread(target=self._run, daemon=True,
+                                                name="calibration-camera")
+                self._thread.start()
+
+    def close(self) -> None:
+        """Stop the worker and the session's solver (app shutdown)."""
+        self._closed = True
+        self._stop.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout=5)
+        with self._frame_cond:
+            self._frame_cond.notify_all()
+        self.session.close()
+
+    @property
+    def camera_message(self) -> str:
+        """What the camera is doing, for people ("Camera disconnected — retrying…")."""
+        return self._camera.message
+
+    def _set_camera(self, state: str, message: str) -> None:
+        with self._lock:
+            c = self._camera
+            if c.state != state:
+                self._camera = _CameraStatus(state, message, time.time(),
+                                             c.failures if state == "disconnected" else 0)
+            else:
+                c.message = message
+
+    def _run(self) -> None:
+        src: FrameSource | None = None
+        try:
+            while not self._stop.is_set():
+                if time.monotonic() - self._last_request > self.idle_timeout:
+                    self._set_camera("stopped", "Camera paused: nobody is watching this page.")
+                    break
+                if src is None:
+                    try:
+                        src = self._factory()
+                        self._source_label = getattr(src, "label", "")
+                    except Exception as e:  # noqa: BLE001 - any failure: retry later
+                        self._lost(f"cannot open the camera ({e})")
+                        continue
+                try:
+                    frame = src.read()
+                except Exception as e:  # noqa: BLE001
+                    frame = None
+                    self._feedback = {**self._feedback, "detail": str(e)}
+                if frame is None:
+                    try:
+                        src.close()
+                    except Exception:
+                        log.debug("closing the lost camera failed", exc_info=True)
+                    src = None
+                    self._lost("")
+                    continue
+                if self._camera.state != "ok":
+                    self._set_camera("ok", "Camera connected.")
+                self._process(frame)
+        finally:
+            if src is not None:
+                src.close()
+            with self._frame_cond:
+                self._frame_cond.notify_all()
+
+    def _lost(self, why: str) -> None:
+        with self._lock:
+            fails = self._camera.failures + 1
+        detail = f" ({why})" if why else ""
+        if self._frame_seq:
+            msg = f"Camera disconnected — retrying…{detail}."
+        else:
+            msg = (f"No picture from {self._source_label or 'the camera'} — retrying…{detail}. "
+                   "Check that the camera is plugged in.")
+        self._set_camera("disconnected", (msg + " " + _saved_views(len(self.session.views)))
+                         .strip())
+        with self._lock:
+            self._camera.failures = fails
+        with self._frame_cond:
+            self._frame_cond.notify_all()
+        self._stop.wait(min(4.0, 0.5 * 2 ** min(fails - 1, 3)))
+
+    def _process(self, frame: np.ndarray) -> None:
+        with self._keep_lock:
+            sess = self.session
+            auto = self.auto_capture
+            if auto:
+                name = f"capture-{self._capture_counter:04d}.png"
+                fr = sess.offer_frame(frame, name)
+                if fr.kept:
+                    self._capture_counter += 1
+                    if not self._persist_view(sess, fr, self._png(frame)):
+                        fr = None
+            else:
+                fr = sess.evaluate(frame)
+        annotated = frame.copy()
+        if fr is not None:
+            _draw_corners(annotated, sess.board, fr.detection,
+                          (0, 220, 0) if fr.usable else (0, 140, 255))
+        jpeg = _jpeg(annotated)
+        with self._frame_cond:
+            self._latest_raw = frame
+            self._latest_raw_at = time.monotonic()
+            self._latest_jpeg = jpeg
+            self._frame_seq += 1
+            self._frame_size = (frame.shape[1], frame.shape[0])
+            if fr is not None:
+                fb = frame_feedback(fr, auto)
+                # a capture message stays readable for a moment
+                if not (self._feedback.get("kept") and not fb["kept"]
+                        and time.monotonic() - self._feedback.get("_at", 0) < 1.5):
+                    self._feedback = {**fb, "_at": time.monotonic()}
+            self._frame_cond.notify_all()
+
+    @staticmethod
+    def _png(frame: np.ndarray) -> bytes:
+        _, buf = cv2.imencode(".png", frame, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        return buf.tobytes()
+
+    def _persist_view(self, sess: CalibrationSession, fr: FrameResult, data: bytes) -> bool:
+        """Write a just-kept view's image, then the state; on failure take the view back."""
+        try:
+            atomic_write_bytes(self.images_dir / fr.name, data)
+            with self._lock:
+                if sess is not self.session:
+                    return False
+                self._gen += 1
+            self._save()
+        except OSError as e:
+            sess.remove_view(fr.view_id)
+            self._feedback = {"detected": True, "kept": False,
+                              "message": f"Could not save the capture: {e.strerror or e}. "
+                                         "Check the disk space of the server.",
+                              "detail": str(e), "_at": time.monotonic()}
+            return False
+        self._maybe_solve()
+        return True
+
+    # ---------------------------------------------------------------------------- solving
+    def _maybe_solve(self) -> None:
+        sess = self.session
+        with self._lock:
+            if sess.solving:
+                self._solve_pending = True
+                return
+            if len(sess.views) < sess.config.solve.min_views:
+                return
+            self._solve_pending = False
+        sess.solve_async(lambda f, s=sess: self._solved(s, f))
+
+    def _solved(self, sess: CalibrationSession, fut) -> None:
+        if sess is not self.session:
+            return
+        with self._lock:
+            self._result_seq += 1
+            again = self._solve_pending or not sess.result_is_current
+        if fut.exception() is None:
+            try:  # warm the caches (hint, verdict) here, not in a request
+                self._derived()
+            except Exception:
+                log.debug("deriving hint and verdict failed", exc_info=True)
+        if again and sess.views and fut.exception() is None:
+            self._maybe_solve()
+        elif again:
+            with self._lock:
+                self._solve_pending = False
+
+    def request_solve(self) -> dict:
+        """The page's Solve button: show the result, solving first if needed."""
+        sess = self.session
+        n = len(sess.views)
+        need = sess.config.solve.min_views
+        if n < need:
+            raise ServiceError(f"Keep going: a solve needs at least {need} views and you have "
+                               f"{n}. Show the board at the place shown in yellow.")
+        with self._lock:
+            self.show_result = True
+        self._save()
+        if not sess.result_is_current and not sess.solving:
+            self._maybe_solve()
+        return {"solving": sess.solving or not sess.result_is_current,
+                "has_result": sess.result is not None}
+
+    # -------------------------------------------------------------------------- derived
+    def _derived(self) -> dict:
+        sess = self.session
+        key = (self.session_id, self._gen, self._result_seq, id(sess.result))
+        with self._lock:
+            if self._derived_cache is not None and self._derived_cache[0] == key:
+                return self._derived_cache[1]
+        cov = sess.coverage()
+        try:
+            sug = sess.suggestion().to_json()
+        except ValueError as e:  # the board cannot fit in the image
+            sug = {"sentence": str(e)}
+        except Exception:  # noqa: BLE001 - a degenerate solve must not break the page
+            sug = {"sentence": "Move the board to a part of the picture it has not covered yet."}
+        try:
+            verdict = sess.verdict()
+        except Exception as e:  # noqa: BLE001
+            verdict = Verdict(False, [f"the calibration could not be judged ({e})"])
+        out = {"coverage": cov, "suggestion": sug, "verdict": verdict}
+        with self._lock:
+            self._derived_cache = (key, out)
+        return out
+
+    # ----------------------------------------------------------------------------- views
+    def _view_rows(self) -> list[dict]:
+        with self._keep_lock:  # a view is listed once its image is on disk
+            sess = self.session
+            views = sess.views
+        res = sess.result
+        fits = {f.name: f for f in res.per_view} if res is not None else {}
+        rejected = {r["file"]: r["reason"] for r in (res.rejected if res is not None else [])}
+        rows = []
+        for v in views:
+            f = fits.get(v.name)
+            rows.append({
+                "id": v.id, "name": v.name, "corners": v.detection.n,
+                "origin": "upload" if v.name.startswith("upload-") else "camera",
+                "rms_px": None if f is None else round(float(f.rms_px), 3),
+                "max_px": None if f is None else round(float(f.max_px), 3),
+                "note": rejected.get(v.name, ""),
+                "thumb": f"/api/calibration/views/{v.id}/thumb.jpg?s={self.session_id}",
+            })
+        return rows
+
+    def thumbnail(self, view_id: int) -> bytes:
+        key = (self.session_id, int(view_id))
+        if key in self._thumbs:
+            return self._thumbs[key]
+        v = next((v for v in self.session.views if v.id == view_id), None)
+        if v is None:
+            raise ServiceError(f"view #{view_id} is not in this session", 404)
+        path = self.images_dir / v.name
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+        missing = img is None
+        if missing:  # only the corners, on grey (not cached: the image may still be coming)
+            img = np.full((v.detection.image_size[1], v.detection.image_size[0], 3), 200,
+                          np.uint8)
+        _draw_corners(img, self.session.board, v.detection)
+        scale = THUMB_WIDTH / img.shape[1]
+        img = cv2.resize(img, (THUMB_WIDTH, max(1, round(img.shape[0] * scale))),
+                         interpolation=cv2.INTER_AREA)
+        data = _jpeg(img, 75)
+        if not missing:
+            self._thumbs[key] = data
+        return data
+
+    def delete_view(self, view_id: int) -> None:
+        with self._keep_lock:
+            sess = self.session
+            v = next((v for v in sess.views if v.id == view_id), None)
+            if v is None or not sess.remove_view(view_id):
+                raise ServiceError(f"view #{view_id} is not in this session", 404)
+            src = self.images_dir / v.name
+            if src.exists():
+                (self.folder / "deleted").mkdir(exist_ok=True)
+                os.replace(src, self.folder / "deleted" / v.name)
+            with self._lock:
+                self._gen += 1
+                self._thumbs.pop((self.session_id, view_id), None)
+            self._save()
+        self._maybe_solve()
+
+    def set_auto(self, on: bool) -> None:
+        with self._lock:
+            self.auto_capture = bool(on)
+        self._save()
+
+    def capture(self) -> dict:
+        """Keep the current camera frame (the manual Capture button)."""
+        with self._frame_cond:
+            frame, at = self._latest_raw, self._latest_raw_at
+        if frame is None or self._camera.state != "ok" or time.monotonic() - at > 3.0:
+            raise ServiceError("No picture from the camera right now, so nothing to capture. "
+                               + (self._camera.message or ""), 409)
+        with self._keep_lock:
+            sess = self.session
+            name = f"capture-{self._capture_counter:04d}.png"
+            fr = sess.evaluate(frame, name)
+            dup = self._duplicate_of(fr.detection) if fr.usable else None
+            if dup is not None:
+                raise ServiceError(f"This view is already kept (view #{dup}): move the board "
+                                   "first.", 409)
+            fr = sess.keep(fr) if fr.usable else fr
+            if not fr.kept:
+                raise ServiceError(frame_feedback(fr, False)["message"] + (
+                    f" ({'; '.join(fr.reasons)})" if fr.reasons else ""), 422)
+            self._capture_counter += 1
+            if not self._persist_view(sess, fr, self._png(frame)):
+                raise ServiceError(self._feedback["message"], 507)
+        self._feedback = {**frame_feedback(fr, False), "_at": time.monotonic()}
+        return {"view_id": fr.view_id, "message": f"Captured view #{fr.view_id}."}
+
+    def _duplicate_of(self, det) -> int | None:
+        """The id of a kept view with the same corners (within 0.5 px on average), if any."""
+        for v in self.session.views:
+            d = v.detection
+            if d.n == det.n and np.array_equal(d.ids, det.ids) and \
+                    float(np.mean(np.hypot(*(d.corners - det.corners).T))) < 0.5:
+                return v.id
+        return None
+
+    # ---------------------------------------------------------------------------- upload
+    def upload(self, files: Iterable[tuple[str, BinaryIO]]) -> dict:
+        """Images taken elsewhere: each kept (detected, sharp, right size) or rejected with a
+        message. Reads the files twice (sizes first) so that big folders never sit decoded in
+        memory at once."""
+        files = list(files)
+        results: list[dict | None] = [None] * len(files)
+        sizes: dict[int, tuple[int, int]] = {}
+        for i, (name, fh) in enumerate(files):
+            label = name or f"file {i + 1}"
+            if Path(label).suffix.lower() not in IMAGE_SUFFIXES:
+                results[i] = {"file": label, "ok": False, "skipped": True,
+                              "message": "skipped: not an image file"}
+                continue
+            data = self._read(fh)
+            if data is None:
+                results[i] = {"file": label, "ok": False, "message": "too large (over "
+                              f"{MAX_UPLOAD_BYTES // (1024 * 1024)} MB): not a camera image?"}
+                continue
+            img, why = decode_image(data, label)
+            if img is None:
+                results[i] = {"file": label, "ok": False, "message": why}
+                self.session.add_rejected(label, why)
+                continue
+            sizes[i] = (img.shape[1], img.shape[0])
+            del img, data
+        sess = self.session
+        target = sess.image_size
+        if target is None and sizes:
+            target = Counter(sizes.values()).most_common(1)[0][0]
+        mixed = len(set(sizes.values())) > 1
+        kept = 0
+        found_any = False
+        boardless: list[tuple[str, np.ndarray]] = []
+        for i, size in sizes.items():
+            name, fh = files[i]
+            label = name or f"file {i + 1}"
+            if tuple(size) != tuple(target):
+                msg = (f"wrong size: {size[0]}×{size[1]}, but this session's images are "
+                       f"{target[0]}×{target[1]} (a calibration belongs to one image size"
+                       + ("; the most common size of this upload was kept" if mixed and
+                          sess.image_size is None else "; start a new session for these")
+                       + ")")
+                results[i] = {"file": label, "ok": False, "message": msg}
+                sess.add_rejected(label, msg)
+                continue
+            data = self._read(fh)
+            img, _ = decode_image(data, label)
+            fr = sess.evaluate(img, self._upload_name(label))
+            if fr.detection is not None:
+                found_any = True
+            elif len(boardless) < 3:
+                boardless.append((label, to_gray(img)))
+            msg = None
+            if fr.usable:
+                with self._keep_lock:
+                    if sess is not self.session:
+                        raise ServiceError("A new session was started during the upload.")
+                    dup = self._duplicate_of(fr.detection)
+                    if dup is not None:
+                        msg = f"already in this session (the same picture as view #{dup})"
+                    else:
+                        fr = sess.keep(fr)
+                        if fr.kept and self._persist_view(sess, fr, data):
+                            kept += 1
+                            results[i] = {"file": label, "ok": True, "view_id": fr.view_id,
+                                          "message": f"kept as view #{fr.view_id} "
+                                                     f"({fr.detection.n} corners)"}
+                            continue
+                        msg = self._feedback.get("message") if fr.kept else None
+            msg = msg or self._plain_reason(fr)
+            results[i] = {"file": label, "ok": False, "message": msg}
+            sess.add_rejected(label, msg)
+            del img, data
+        hint = None
+        if sizes and not found_any:
+            hint = self._probe_board(boardless)
+        n_images = sum(1 for r in results if not (r or {}).get("skipped"))
+        summary = (f"{kept} of {n_images} image{'s' if n_images != 1 else ''} kept"
+                   if n_images else "No images in this upload (.jpg, .png …).")
+        if sizes and not found_any:
+            summary += f". No {sess.board.spec()} board was found in any of them"
+            summary += f": {hint}" if hint else (
+                f" — check that the whole board is visible and that it has "
+                f"{sess.board.cols + 1}×{sess.board.rows + 1} squares")
+        self._save()
+        return {"summary": summary, "kept": kept, "files": results, "hint": hint}
+
+    @staticmethod
+    def _read(fh: BinaryIO) -> bytes | None:
+        fh.seek(0)
+        data = fh.read(MAX_UPLOAD_BYTES + 1)
+        return None if len(data) > MAX_UPLOAD_BYTES else data
+
+    def _upload_name(self, label: str) -> str:
+        base = "upload-" + _safe_name(label)
+        stem, suf = os.path.splitext(base)
+        names = {v.name for v in self.session.views}
+        cand, k = base, 2
+        while cand in names or (self.images_dir / cand).exists():
+            cand, k = f"{stem}-{k}{suf}", k + 1
+        return cand
+
+    def _plain_reason(self, fr: FrameResult) -> str:
+        b = self.session.board
+        if fr.detection is None:
+            if fr.reasons and "image size" in fr.reasons[0]:
+                return fr.reasons[0]
+            return (f"no board found (looking for a chessboard with {b.cols}×{b.rows} inner "
+                    f"corners, i.e. {b.cols + 1}×{b.rows + 1} squares, fully visible)")
+        return "; ".join(fr.reasons) or "not usable"
+
+    def _probe_board(self, grays: list[tuple[str, np.ndarray]]) -> str | None:
+        """Which other chessboard size is visible (at most ~3 s)."""
+        b = self.session.board
+        if b.kind != "chessboard":
+            return None
+        # the usual printed boards first (each wrong size costs ~0.15 s), then near misses
+        cands = [(9, 6), (7, 6), (8, 6), (7, 5), (6, 4), (10, 7), (11, 8), (8, 5)]
+        cands += [(b.cols + dc, b.rows + dr) for dc in (-1, 0, 1, -2, 2)
+                  for dr in (-1, 0, 1, -2, 2)
+                  if (dc or dr) and b.cols + dc >= 3 and b.rows + dr >= 3]
+        cands = [c for i, c in enumerate(cands) if c not in cands[:i] and c != (b.cols, b.rows)]
+        deadline = time.monotonic() + 3.0
+        for label, gray in grays:
+            for c in cands:
+                if time.monotonic() > deadline:
+                    return None
+                found, _ = cv2.findChessboardCorners(
+                    gray, c, None, cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+                    | cv2.CALIB_CB_FAST_CHECK)
+                if found:
+                    return (f"a chessboard with {c[0]}×{c[1]} inner corners is visible in "
+                            f"{label}: start a new session with that board size")
+        return None
+
+    # ----------------------------------------------------------------------- new session
+    def new_session(self, board: str | None = None, square_m: float | None = None) -> None:
+        try:
+            b = parse_board(board or self.session.board.spec(),
+                            square_m if square_m is not None else self.session.board.square)
+        except BoardSpecError as e:
+            raise ServiceError(str(e), 422) from None
+        self._new_session(b)
+
+    # ---------------------------------------------------------------------------- result
+    def report(self) -> dict:
+        sess = self.session
+        res = sess.result
+        if res is None:
+            raise ServiceError(sess.last_error and f"The solve failed: {sess.last_error}"
+                               or "Not solved yet.", 404)
+        key = (self.session_id, self._gen, self._result_seq, id(res))
+        with self._lock:
+            if self._report_cache is not None and self._report_cache[0] == key:
+                return self._report_cache[1]
+        rep = build_report(sess)
+        rep["current"] = sess.result_is_current
+        rep["session_id"] = self.session_id
+        rep["result_seq"] = self._result_seq
+        with self._lock:
+            self._report_cache = (key, rep)
+        return rep
+
+    def uncertainty_png(self) -> bytes:
+        res = self.session.result
+        if res is None:
+            raise ServiceError("Not solved yet.", 404)
+        key = (self.session_id, self._result_seq, id(res))
+        with self._lock:
+            if self._png_cache is not None and self._png_cache[0] == key:
+                return self._png_cache[1]
+        img = uncertainty_image(res, threshold_px=self.session.config.verdict
+                                .max_uncertainty_p95_px)
+        _, buf = cv2.imencode(".png", img)
+        data = buf.tobytes()
+        with self._lock:
+            self._png_cache = (key, data)
+        return data
+
+    def camera_file(self, fmt: str = "opencv") -> tuple[bytes, str]:
+        res = self.session.result
+        if res is None:
+            raise ServiceError("Not solved yet: there is no camera file to download.", 404)
+        ext = {"opencv": ".yaml", "ros": ".ros.yaml", "json": ".json"}.get(fmt)
+        if ext is None:
+            raise ServiceError(f"unknown format {fmt!r}: use opencv, ros or json", 422)
+        with tempfile.TemporaryDirectory() as d:
+            p = save_camera(res.camera, Path(d) / f"camera{ext}", fmt=fmt)
+            data = p.read_bytes()
+        return data, f"camera-{self.session_id}{ext}"
+
+    def use_result(self) -> dict:
+        """Make the last result the server's current camera (``settings.camera``)."""
+        res = self.session.result
+        if res is None:
+            raise ServiceError("Not solved yet: solve first, then use the calibration.", 409)
+        path = self.folder / "camera.yaml"
+        save_camera(res.camera, path)
+        save_camera(res.camera, self.folder / "camera.ros.yaml", fmt="ros")
+        self.settings.camera = path
+        with self._lock:
+            self.used_camera = str(path)
+        self._save()
+        return {"camera_file": str(path),
+                "message": f"In use: this server's camera file is now {path}."}
+
+    # ----------------------------------------------------------------------------- state
+    def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
+        """The latest annotated frame (JPEG), waiting up to ``wait`` s for one newer than
+        ``after``; (None, seq) when there is no live picture (camera lost or not started)."""
+        deadline = time.monotonic() + wait
+        with self._frame_cond:
+            while (self._frame_seq <= after and self._camera.state in ("ok", "starting")
+                   and not self._closed):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                self._frame_cond.wait(left)
+            if self._camera.state != "ok":
+                return None, self._frame_seq
+            return self._latest_jpeg, self._frame_seq
+
+    def state(self) -> dict:
+        sess = self.session
+        d = self._derived()
+        cov, sug, verdict = d["coverage"], d["suggestion"], d["verdict"]
+        res = sess.result
+        rules = sess.config.verdict
+        p95 = res.uncertainty.stats(sess.config.roi)["p95"] if res is not None else None
+        n = len(sess.views)
+        cam = self._camera
+        solving = sess.solving
+        current = sess.result_is_current
+        if cam.state == "disconnected":
+            nxt = ("The camera is disconnected. Check its cable or connection; Drovisio keeps "
+                   "trying. " + _saved_views(n)).strip()
+        elif n == 0:
+            nxt = ("Hold the printed chessboard in front of the camera, the whole board "
+                   "visible and still.")
+        elif verdict.ok and current:
+            nxt = ("The calibration is good: download the camera file, or press “Use this "
+                   "calibration”." if self.show_result
+                   else "The calibration is good. Press Solve to see the result.")
+        else:
+            nxt = sug.get("sentence", "")
+        cov_json = cov.to_json()
+        grid = cov_json["grid"]
+        used = self.used_camera
+        in_use = bool(used) and str(getattr(self.settings, "camera", "") or "") == used
+        state = {
+            "session": {"id": self.session_id, "folder": str(self.folder),
+                        "board": sess.board.spec(), "square_mm": round(sess.board.square * 1000,
+                                                                      3),
+                        "cols": sess.board.cols, "rows": sess.board.rows,
+                        "created": self.created, "source": self._source_label or (
+                            "sample session (no camera)" if self.settings.source is None
+                            else f"camera {self.settings.source}"),
+                        "sample": self.settings.source is None},
+            "camera": {"state": cam.state, "message": cam.message, "since": cam.since,
+                       "frame_seq": self._frame_seq,
+                       "image_size": list(sess.image_size or self._frame_size or (640, 480))},
+            "auto_capture": self.auto_capture,
+            "feedback": {k: v for k, v in self._feedback.items() if not k.startswith("_")},
+            "generation": self._gen,
+            "views": self._view_rows(),
+            "coverage": {"cols": grid["cols"], "rows": grid["rows"],
+                         "covered": grid["covered_fraction"],
+                         "image_covered_fraction": round(cov.covered_fraction, 4),
+                         "uncovered_regions": cov.uncovered_regions(),
+                         "distance_spread": cov_json["distance_spread"],
+                         "tilt_spread": cov_json["tilt_spread"]},
+            "suggestion": sug,
+            "progress": {"views": n, "views_needed": rules.min_views,
+                         "solve_needs": sess.config.solve.min_views,
+                         "covered_fraction": round(cov.covered_fraction, 4),
+                         "p95_px": None if p95 is None else round(p95, 4),
+                         "p95_limit_px": rules.max_uncertainty_p95_px,
+                         "ok": bool(verdict.ok and current),
+                         "reasons": list(verdict.reasons), "next": nxt},
+            "solve": {"solving": solving, "has_result": res is not None, "current": current,
+                      "error": None if res is not None or n < sess.config.solve.min_views
+                      else sess.last_error,
+                      "show_result": self.show_result, "result_seq": self._result_seq},
+            "in_use": {"camera_file": str(self.settings.camera) if getattr(
+                self.settings, "camera", None) else None, "this_session": in_use},
+        }
+        return _clean(state)
