@@ -327,6 +327,14 @@ def _size_or_guess(p: Path, w, h, K: np.ndarray) -> tuple[int, int]:
     return int(round(2 * K[0, 2] + 1)), int(round(2 * K[1, 2] + 1))
 
 
+def _node_mat(p: Path, node, field_name: str) -> np.ndarray | None:
+    try:
+        return node.mat()
+    except cv2.error:
+        raise CameraFileError(f"{p}: {field_name}: not a valid opencv-matrix (rows × cols must "
+                              "match the number of values in data)") from None
+
+
 def _load_opencv(p: Path) -> Camera:
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
@@ -340,7 +348,7 @@ def _load_opencv(p: Path) -> Camera:
         if node.empty():
             raise CameraFileError(f"{p}: camera_matrix: missing (an OpenCV camera file needs "
                                   "'camera_matrix' and 'distortion_coefficients')")
-        K = node.mat()
+        K = _node_mat(p, node, "camera_matrix")
         if K is None:
             raise CameraFileError(f"{p}: camera_matrix: not an opencv-matrix")
         K = _check_K(p, np.asarray(K, dtype=np.float64), "camera_matrix")
@@ -348,7 +356,7 @@ def _load_opencv(p: Path) -> Camera:
         if dnode.empty():
             raise CameraFileError(f"{p}: distortion_coefficients: missing (write zeros for a "
                                   "lens without distortion)")
-        d = dnode.mat()
+        d = _node_mat(p, dnode, "distortion_coefficients")
         if d is None:
             raise CameraFileError(f"{p}: distortion_coefficients: not an opencv-matrix")
         d = _check_dist(p, np.asarray(d, dtype=np.float64), "distortion_coefficients")

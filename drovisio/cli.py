@@ -108,8 +108,25 @@ def _add_run(p: argparse.ArgumentParser) -> None:
                    help="camera mount (body_from_camera, tilt included) for poses in the drone's "
                         "FRD body frame")
     p.add_argument("--sink", action="append", metavar="SINK",
-                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT or mavlink:CONNECTION; repeatable")
+                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION or ws://HOST:PORT "
+                        "(WebSocket feed); repeatable (default jsonl:-)")
     p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
+    # issue #7 additions (optional; the contract above is unchanged)
+    p.add_argument("--target", default="nearest", metavar="TARGET",
+                   help="brick sent to the flight controller: nearest (default), LAYOUT, "
+                        "LAYOUT:INSTANCE, track:N or none; changeable at run time through a "
+                        "ws:// sink")
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
+                        "distance, default) or px4 (LOCAL_NED from the link's attitude and "
+                        "position)")
+    p.add_argument("--max-age", type=float, default=0.5, metavar="SECONDS",
+                   help="drop a brick not seen for this long (default 0.5 s)")
+    p.add_argument("--pace", choices=("realtime", "max"), default="realtime",
+                   help="files and recordings: play at their own frame rate like a camera "
+                        "(realtime, default) or process every frame as fast as possible (max)")
+    p.add_argument("--frames", type=int, metavar="N", help="stop after N processed frames")
+    p.add_argument("--quiet", action="store_true", help="no status line every second")
 
 
 def _add_serve(p: argparse.ArgumentParser) -> None:
@@ -125,6 +142,65 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
 
 def _add_nothing(p: argparse.ArgumentParser) -> None:
     """Arguments are added here when the command is implemented (the contract lives in this file)."""
+
+
+def _add_mission(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="mission_action", metavar="ACTION")
+    fmt = argparse.RawDescriptionHelpFormatter
+    scenario_help = ("scenario file (YAML/JSON), or the name of a shipped one "
+                     "(wall-2-courses)")
+    c = sub.add_parser(
+        "check", help="validate a scenario and simulate it with injected faults",
+        description="Validate the scenario, then simulate it once per injected fault (a missed "
+                    "grab, vision lost during descent, a total-station dropout, a total-station/"
+                    "vision disagreement, three failed drops, ...) and print a table: fault, "
+                    "what the machine did, outcome, whether every safety rule held. Exit 1 if "
+                    "a rule broke or an outcome was not the expected one, 2 if the scenario is "
+                    "invalid.",
+        epilog="Example:\n  drovisio mission check drovisio/mission/scenarios/wall-2-courses.yaml",
+        formatter_class=fmt)
+    c.add_argument("scenario", metavar="SCENARIO", help=scenario_help)
+    c.add_argument("--fault", action="append", metavar="NAME",
+                   help="run only this fault case (name prefix, e.g. 'missed grab'); repeatable")
+    c.add_argument("--seed", type=int, default=0, help="simulator seed (default: 0)")
+    c.add_argument("--json", metavar="FILE", help="also write the table as JSON here")
+    s = sub.add_parser(
+        "simulate", help="simulate one mission and record it for 3D replay",
+        description="Simulate the mission (kinematic drone with gusts, total station, picker, "
+                    "vision from a detector model or from rendered images through the real "
+                    "detectors) and record every tick (time, drone pose, setpoint, state, "
+                    "events, bricks' poses) as JSON Lines with a manifest, for the live page "
+                    "to replay. Prints each brick's placement error against the plan.",
+        epilog="Example:\n  drovisio mission simulate wall-2-courses --record runs/wall\n"
+               "  drovisio mission simulate wall-2-courses --vision render --record runs/render",
+        formatter_class=fmt)
+    s.add_argument("scenario", metavar="SCENARIO", help=scenario_help)
+    s.add_argument("--vision", choices=("model", "render"), default="model",
+                   help="detector model (fast, default) or renders through the real detectors")
+    s.add_argument("--record", required=True, metavar="DIR", help="folder to write the run to")
+    s.add_argument("--seed", type=int, default=0, help="simulator seed (default: 0)")
+    s.add_argument("--fault", action="append", metavar="NAME",
+                   help="inject the faults of a fault case (see `check`); repeatable")
+    s.add_argument("--bricks", type=int, metavar="N", help="build only the first N bricks")
+    s.add_argument("--ss", type=int, default=2,
+                   help="render: samples per pixel per axis (default: 2)")
+    s.add_argument("--render-rate", type=float, default=4.0, metavar="HZ",
+                   help="render: frames per second while vision is in use (default: 4)")
+    s.add_argument("--render-bricks", metavar="IDS",
+                   help="render: only while working on these bricks (comma-separated); the "
+                        "others use the detector model")
+    s.add_argument("--heading-bias", type=float, metavar="DEG",
+                   help="compass bias of the simulated autopilot (default: 1)")
+    s.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
+    d = sub.add_parser(
+        "diagram", help="print the state machine as Mermaid, Graphviz DOT or SVG",
+        description="Draw the mission state machine from its transition table (the code).",
+        epilog="Example:\n  drovisio mission diagram --format mermaid > machine.mmd\n"
+               "  drovisio mission diagram --format svg --out machine.svg",
+        formatter_class=fmt)
+    d.add_argument("--format", choices=("mermaid", "dot", "svg"), default="mermaid",
+                   help="output format (default: mermaid)")
+    d.add_argument("--out", metavar="FILE", help="write here instead of stdout")
 
 
 def _add_synth(p: argparse.ArgumentParser) -> None:
@@ -206,9 +282,14 @@ COMMANDS: dict[str, Command] = {
             name="mission",
             summary="check and simulate a mission strategy (finite-state machine)",
             description="Check a mission scenario (take off, go to brick, align, descend, grab, "
-                        "climb, go to wall, place, release) before the flight and simulate it.",
-            example="drovisio mission",
-            add_arguments=_add_nothing,
+                        "climb, go to wall, place, release) before the flight and simulate it. "
+                        "Actions: check (validate, then simulate injected faults and print the "
+                        "fault table), simulate (one run recorded for 3D replay), diagram (the "
+                        "state machine drawn from its transition table).",
+            example="drovisio mission check wall-2-courses\n"
+                    "  drovisio mission simulate wall-2-courses --record runs/wall\n"
+                    "  drovisio mission diagram --format mermaid",
+            add_arguments=_add_mission,
             issue="issue #8",
         ),
         Command(

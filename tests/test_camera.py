@@ -146,6 +146,8 @@ def test_scaled_keeps_pixel_centre_convention():
      "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: "
      "!!opencv-matrix\n   rows: 1\n   cols: 3\n   dt: d\n   data: [ 0., 0., 0. ]\n",
      "3 coefficients"),
+    ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     "   data: [ 500., 0., 320., 0., 500., 240. ]\n", "camera_matrix: not a valid"),
     ("{\"camera_matrix\": [1, 2", "invalid JSON"),
     ("hello: [1, 2\n", "not valid YAML"),
     ("just: text\n", "not a camera file"),

@@ -1,0 +1,174 @@
+"""``drovisio mission``: check, simulate and draw the pick-and-place strategy (issue #8).
+
+* ``check SCENARIO`` — validate the scenario, then simulate it with each injected fault of
+  :data:`drovisio.mission.faults.CHECK_FAULTS` and print the fault table; exit 1 if a safety
+  rule broke or an outcome was not the expected one, 2 if the scenario is invalid.
+* ``simulate SCENARIO [--vision model|render] --record DIR`` — one run, recorded for replay
+  (:mod:`drovisio.mission.record`); prints the placements and their errors.
+* ``diagram [--format mermaid|dot|svg]`` — the machine drawn from its transition table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["run"]
+
+
+def _err(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _resolve_scenario(arg: str) -> Path:
+    p = Path(arg)
+    if not p.exists() and not p.suffix:
+        from drovisio.mission.scenario import shipped_scenario
+
+        q = shipped_scenario(arg)
+        if q.exists():
+            return q
+    return p
+
+
+def _load(arg: str):
+    from drovisio.mission.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(_resolve_scenario(arg))
+    except ScenarioError as e:
+        _err(f"drovisio mission: invalid scenario:\n{e}")
+        return None
+
+
+def _params(args: argparse.Namespace):
+    from drovisio.mission.sim import SimParams
+
+    p = SimParams(seed=args.seed)
+    if getattr(args, "vision", "model") == "render":
+        p.vision = "render"
+        p.render_ss = args.ss
+        p.render_rate_hz = args.render_rate
+        if args.render_bricks:
+            p.render_bricks = tuple(b.strip() for b in args.render_bricks.split(",") if b.strip())
+    if getattr(args, "heading_bias", None) is not None:
+        p.heading_bias_deg = args.heading_bias
+    return p
+
+
+def _check(args: argparse.Namespace) -> int:
+    from drovisio.mission.check import format_table, run_fault_table
+    from drovisio.mission.faults import CHECK_FAULTS, preset
+
+    scn = _load(args.scenario)
+    if scn is None:
+        return 2
+    cases = CHECK_FAULTS
+    if args.fault:
+        try:
+            cases = tuple(preset(f) for f in args.fault)
+        except KeyError as e:
+            _err(f"drovisio mission check: {e.args[0]}")
+            return 2
+    _err(f"scenario {scn.name!r} is valid ({len(scn.order)} bricks); simulating "
+         f"{len(cases)} fault case(s), seed {args.seed}")
+    t0 = time.perf_counter()
+    results = run_fault_table(scn, cases, _params(args), progress=_err)
+    print(format_table(results))
+    bad = [r for r in results if not r.all_held or not r.as_expected]
+    for r in results:
+        for x in r.rules:
+            if not x.held:
+                print(f"  rule {x.rule} broken in '{r.case.name}': {x.detail}")
+        if not r.as_expected:
+            print(f"  '{r.case.name}': expected {r.case.expect}, got {r.outcome}")
+    if args.json:
+        Path(args.json).write_text(json.dumps([{
+            "fault": r.case.name, "did": r.narrative, "outcome": r.outcome,
+            "expected": r.case.expect,
+            "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
+            "placements": r.trace.placements} for r in results], indent=1))
+    _err(f"{len(results)} case(s) in {time.perf_counter() - t0:.1f} s: "
+         + ("every safety rule held, every outcome as expected" if not bad else
+            f"{len(bad)} case(s) FAILED"))
+    return 1 if bad else 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from drovisio.mission.check import check_rules, narrate
+    from drovisio.mission.faults import preset
+    from drovisio.mission.record import write_recording
+    from drovisio.mission.sim import simulate
+
+    scn = _load(args.scenario)
+    if scn is None:
+        return 2
+    faults = ()
+    if args.fault:
+        try:
+            faults = tuple(f for name in args.fault
+                           for f in preset(name).for_order(scn.order).faults)
+        except KeyError as e:
+            _err(f"drovisio mission simulate: {e.args[0]}")
+            return 2
+    params = _params(args)
+    if args.bricks:
+        scn = scn.subset(scn.order[:args.bricks])
+    _err(f"simulating {scn.name!r} ({len(scn.order)} bricks), vision {params.vision}, "
+         f"seed {params.seed}")
+    t0 = time.perf_counter()
+    tr = simulate(scn, faults, params, progress=_err if args.verbose else None)
+    wall = time.perf_counter() - t0
+    rules = check_rules(tr)
+    out = write_recording(tr, args.record, extra={"wall_time_s": round(wall, 1),
+                                                  "rules": {r.rule: r.held for r in rules}})
+    print(f"outcome: {tr.final_state} after {tr.ticks[-1].t:.1f} s simulated "
+          f"({wall:.1f} s wall); vision: {tr.detector}"
+          + (f"; {tr.render_frames} rendered frames (render + detect "
+             f"{tr.render_seconds:.0f} s), {tr.vision_frames - tr.render_frames} model frames"
+             if params.vision == "render" else ""))
+    print(f"what the machine did: {narrate(tr)}")
+    if tr.placements:
+        print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
+        for b, p in tr.placements.items():
+            print(f"{b:6} {p['error_m'] * 100:6.2f}cm {p['error_along_m'] * 100:6.2f}cm "
+                  f"{p['yaw_error_deg']:6.2f}°  {p['verified']}")
+        pos, yaw = tr.placement_errors()
+        print(f"placement error: max {pos.max() * 100:.2f} cm, p95 "
+              f"{np.percentile(pos, 95) * 100:.2f} cm; yaw max {yaw.max():.2f}°, p95 "
+              f"{np.percentile(yaw, 95):.2f}° (tolerance "
+              f"{scn.placement_tolerance.position_m * 100:.0f} cm, "
+              f"{scn.placement_tolerance.yaw_deg:g}°)")
+    for r in rules:
+        print(f"rule {r.rule}: {'held' if r.held else 'BROKEN'} ({r.detail})")
+    print(f"recorded {out / 'manifest.json'}")
+    return 0 if all(r.held for r in rules) else 1
+
+
+def _diagram(args: argparse.Namespace) -> int:
+    from drovisio.mission import diagram
+
+    text = {"mermaid": diagram.mermaid, "dot": diagram.dot, "svg": diagram.svg}[args.format]()
+    if args.out:
+        Path(args.out).write_text(text)
+        _err(f"wrote {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    action = getattr(args, "mission_action", None)
+    if action == "check":
+        return _check(args)
+    if action == "simulate":
+        return _simulate(args)
+    if action == "diagram":
+        return _diagram(args)
+    _err("drovisio mission: give an action: check, simulate or diagram (see --help)")
+    return 2

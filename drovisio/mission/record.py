@@ -1,0 +1,173 @@
+"""Recording of a simulated mission, in a form a 3D page can replay.
+
+``drovisio mission simulate SCENARIO --record DIR`` writes three files into ``DIR``:
+
+``manifest.json``
+    ``{"schema": "drovisio/mission-recording@1", "scenario": NAME, "scenario_file":
+    "scenario.yaml", "ticks_file": "ticks.jsonl", "frame": "site: x east, y north, z up,
+    metres", "quaternion_order": "wxyz", "dt": 0.05, "ticks": N, "duration_s": T,
+    "outcome": "DONE" | "SHUTDOWN" | ..., "vision": "model" | "render", "detector": ...,
+    "site": {"bounds", "home", "safe_zone", "pick_area"}, "layouts": {NAME: {"dimensions":
+    [l, w, h], "mesh": "marker_layouts/meshes/drick.stl"}}, "bricks": [{"id", "layout",
+    "instance", "plan": POSE, "pick": POSE}], "camera": {"width", "height", "K",
+    "body_from_camera"}, "states": [...], "transitions": [{"source", "trigger", "target"}],
+    "placements": {ID: {"error_m", "yaw_error_deg", ...}}, "faults": [...]}``
+
+    where a POSE is ``{"position": [x, y, z], "yaw": rad, "quat_wxyz": [w, x, y, z]}`` — for a
+    brick the centre of its top face, for the drone its body origin.
+
+``ticks.jsonl``
+    one JSON object per recorded tick (every ``every``-th simulator tick; events of the
+    skipped ticks are carried into the next recorded one), in time order::
+
+        {"t": 12.35, "state": "ALIGN_BRICK",
+         "drone": {"position": [x, y, z], "yaw": rad, "quat_wxyz": [w, x, y, z]},
+         "setpoint": {"position": [x, y, z], "yaw": rad} | null,
+         "picker": "open" | "closed", "holding": "b3" | null,
+         "ts": [x, y, z] | null, "vision": ["drick-aruco-pyramids#2", ...] | null,
+         "events": [{"t": ..., "kind": "transition", "source": ..., "target": ...,
+                     "trigger": ...}, ...],
+         "bricks": {"b1": [x, y, z, yaw], ...}}
+
+    The drone's quaternion is that of ``site_from_body`` for the FRD body (so a viewer that
+    draws the body's +x as its nose needs no extra turn); a brick's pose is its top-face centre
+    and yaw (level bricks; quaternion = rotation ``yaw`` about +z).
+
+``scenario.yaml``
+    a copy of the scenario that was flown.
+
+:func:`load_recording` reads a recording back (manifest, list of ticks).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drovisio.mission.frames import site_from_body
+from drovisio.mission.machine import TRANSITIONS, State
+from drovisio.mission.sim import Trace, body_from_camera_for, camera_for
+
+__all__ = ["SCHEMA_ID", "write_recording", "load_recording", "quat_wxyz"]
+
+SCHEMA_ID = "drovisio/mission-recording@1"
+
+
+def quat_wxyz(R: np.ndarray) -> list[float]:
+    """Unit quaternion (w, x, y, z) of a rotation matrix, w ≥ 0."""
+    R = np.asarray(R, float)
+    w = math.sqrt(max(0.0, 1.0 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
+    x = math.sqrt(max(0.0, 1.0 + R[0, 0] - R[1, 1] - R[2, 2])) / 2
+    y = math.sqrt(max(0.0, 1.0 - R[0, 0] + R[1, 1] - R[2, 2])) / 2
+    z = math.sqrt(max(0.0, 1.0 - R[0, 0] - R[1, 1] + R[2, 2])) / 2
+    x = math.copysign(x, R[2, 1] - R[1, 2])
+    y = math.copysign(y, R[0, 2] - R[2, 0])
+    z = math.copysign(z, R[1, 0] - R[0, 1])
+    q = np.array([w, x, y, z])
+    q /= np.linalg.norm(q)
+    return [round(float(v), 6) for v in q]
+
+
+def _r(v, nd=4):
+    return [round(float(x), nd) for x in v]
+
+
+def _pose(position, yaw: float, body: bool = False) -> dict:
+    if body:
+        R = site_from_body(position, yaw)[:3, :3]
+    else:
+        c, s = math.cos(yaw), math.sin(yaw)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    return {"position": _r(position), "yaw": round(float(yaw), 5), "quat_wxyz": quat_wxyz(R)}
+
+
+def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
+                    extra: dict[str, Any] | None = None) -> Path:
+    """Write ``manifest.json``, ``ticks.jsonl`` and ``scenario.yaml`` into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scn = trace.scenario
+    lines = []
+    pending: list[dict] = []
+    n = len(trace.ticks)
+    for i, tk in enumerate(trace.ticks):
+        pending.extend(tk.events)
+        if i % every and i != n - 1 and not any(e["kind"] == "transition" for e in tk.events):
+            continue
+        lines.append(json.dumps({
+            "t": round(tk.t, 3), "state": tk.state,
+            "drone": _pose(tk.position, tk.yaw, body=True),
+            "setpoint": tk.setpoint, "picker": tk.picker, "holding": tk.holding,
+            "ts": _r(tk.ts) if tk.ts is not None else None, "vision": tk.vision,
+            "events": pending,
+            "bricks": {b: _r(p[:3]) + [round(p[3], 5)] for b, p in tk.bricks.items()},
+        }, separators=(",", ":")))
+        pending = []
+    (out / "ticks.jsonl").write_text("\n".join(lines) + "\n")
+    if scn.source is not None and Path(scn.source).exists():
+        (out / "scenario.yaml").write_text(Path(scn.source).read_text())
+    else:
+        import yaml
+
+        (out / "scenario.yaml").write_text(yaml.safe_dump(scn.model_dump(by_alias=True),
+                                                          sort_keys=False))
+    cam = camera_for(scn)
+    layouts = {}
+    for name in scn.layouts:
+        lay = scn.layout(name)
+        mesh = lay.mesh_path()
+        layouts[name] = {"dimensions": _r(lay.dimensions_m),
+                         "mesh": (f"marker_layouts/{lay.mesh}" if lay.mesh else None),
+                         "mesh_exists": bool(mesh and mesh.exists())}
+    site = scn.site
+    manifest = {
+        "schema": SCHEMA_ID,
+        "scenario": scn.name,
+        "scenario_file": "scenario.yaml",
+        "ticks_file": "ticks.jsonl",
+        "frame": "site: x east, y north, z up, metres; yaw from east, counter-clockwise",
+        "body_frame": "FRD (x forward, y right, z down)",
+        "quaternion_order": "wxyz",
+        "dt": trace.params.dt,
+        "record_every": every,
+        "ticks": len(lines),
+        "duration_s": round(trace.ticks[-1].t, 3) if trace.ticks else 0.0,
+        "outcome": trace.final_state,
+        "vision": trace.params.vision,
+        "detector": trace.detector,
+        "seed": trace.params.seed,
+        "site": {"bounds": site.bounds.model_dump(), "home": site.home,
+                 "safe_zone": site.safe_zone.model_dump(),
+                 "pick_area": site.pick_area.model_dump()},
+        "layouts": layouts,
+        "bricks": [{"id": b.id, "layout": b.layout, "instance": b.instance,
+                    "plan": _pose(scn.slot_pose(b.id).xyz, scn.slot_pose(b.id).yaw),
+                    "pick": _pose(scn.pick_pose(b.id).xyz, scn.pick_pose(b.id).yaw)}
+                   for b in scn.bricks],
+        "camera": {"width": cam.width, "height": cam.height, "K": cam.K.tolist(),
+                   "dist": cam.dist.tolist(),
+                   "body_from_camera": body_from_camera_for(scn).tolist()},
+        "states": [s.value for s in State],
+        "transitions": [{"source": t.source.value, "trigger": t.trigger,
+                         "target": t.target.value} for t in TRANSITIONS],
+        "placements": trace.placements,
+        "faults": [f.describe() for f in trace.faults],
+        **(extra or {}),
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return out
+
+
+def load_recording(path: str | Path) -> tuple[dict, list[dict]]:
+    """(manifest, ticks) of a recording folder."""
+    p = Path(path)
+    manifest = json.loads((p / "manifest.json").read_text())
+    if manifest.get("schema") != SCHEMA_ID:
+        raise ValueError(f"{p / 'manifest.json'}: schema: expected {SCHEMA_ID!r}")
+    ticks = [json.loads(line) for line in (p / manifest["ticks_file"]).read_text().splitlines()
+             if line.strip()]
+    return manifest, ticks

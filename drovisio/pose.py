@@ -1,0 +1,547 @@
+"""Pose of a rigid object from 2D–3D point correspondences, with its ambiguity handled.
+
+One entry point, :func:`solve_brick_pose`, used by every detector (ArUco corners, colour
+dots) and by the pipeline:
+
+1. **Candidates.** Planar point sets (every code of a drick's top, a dot pattern) have, seen
+   from afar or nearly head-on, two poses that reproject almost equally well (the "flip"
+   ambiguity). IPPE (``cv2.SOLVEPNP_IPPE``) returns both; it is fed exactly undistorted,
+   normalised coordinates (our own undistortion, not OpenCV's 5-step one) and points
+   expressed in their own plane (OpenCV's IPPE is wrong for a plane z = const ≠ 0, e.g. the
+   drick's pyramid tops at z = 0.02). Non-planar sets use SQPnP (one global solution).
+2. **Choice, with evidence** (:class:`PoseEvidence`), in this order:
+   gravity (a brick lies roughly flat: its ``up_axis`` ≈ −gravity), a reference "up" from
+   other, decided bricks of the same frame, a previous pose of the same object (a stream,
+   see :class:`PoseHistory`), then the reprojection: after refining both candidates, the
+   alternative is rejected when its χ² exceeds the best one's by ``chi2_margin`` at the
+   measured corner noise and the best fit is consistent with that noise. Candidates closer
+   than ``ambiguity_min_deg`` are not an ambiguity. When nothing decides, the result says
+   so (``ambiguous``) and carries the alternative.
+3. **Refinement.** Gauss–Newton (Levenberg-damped) in *pixels* through the full lens model,
+   weighted by the image points' covariance; with gravity known, an optional soft "lies
+   flat" prior.
+4. **Quality.** RMS reprojection error (px) and the 6×6 covariance of (rvec, tvec) from the
+   Jacobian of the projection and the image points' covariance (Gauss–Newton:
+   ``(Jᵀ Σ⁻¹ J)⁻¹``), inflated when the residuals say the noise is larger than assumed.
+
+Conventions: ``camera_from_object``: ``X_cam = R(rvec) · X_obj + tvec``; metres, radians;
+pixels are distorted image pixels, (0, 0) the centre of the top-left pixel; gravity is a unit
+vector in the camera frame pointing down.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from drovisio.camera import Camera
+
+__all__ = [
+    "PoseCandidate",
+    "PoseEvidence",
+    "PoseHistory",
+    "PoseResult",
+    "is_planar",
+    "rotation_angle_deg",
+    "solve_brick_pose",
+    "tilt_deg",
+    "yaw_about_axis_deg",
+]
+
+
+
+@dataclass
+class PoseCandidate:
+    """One pose hypothesis: ``camera_from_object`` as (rvec, tvec), and its fit."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    rmse_px: float
+    """RMS reprojection error, pixels (distance per point)."""
+    chi2: float
+    """Σ of squared residuals weighted by the image points' noise."""
+
+    @property
+    def R(self) -> np.ndarray:
+        """Rotation matrix (computed once)."""
+        R = self.__dict__.get("_R")
+        if R is None:
+            R = cv2.Rodrigues(np.asarray(self.rvec, np.float64).reshape(3, 1))[0]
+            self.__dict__["_R"] = R
+        return R
+
+
+@dataclass
+class PoseEvidence:
+    """What is known besides the image points, to decide between flip candidates.
+
+    Args:
+        gravity: Unit vector of gravity in the camera frame (pointing down), or None.
+        gravity_tol_deg: How far from flat an object may lie (its ``up_axis`` vs −gravity)
+            for the gravity test; also the attitude error budget.
+        reference_up: Unit "up" direction in the camera frame from other objects of the same
+            frame (e.g. the median z axis of unambiguous bricks on the same ground), or None.
+        previous: A recent pose of the same object (rvec, tvec), e.g. from
+            :class:`PoseHistory`, or None.
+        previous_tol_deg: Rotation within which the previous pose supports a candidate.
+        min_separation_deg: When both candidates are within the tolerance of the reference
+            up (or of the previous pose), the closer one is chosen only if it is closer by
+            at least this much (those references are uncertain by a few degrees).
+    """
+
+    gravity: np.ndarray | None = None
+    gravity_tol_deg: float = 25.0
+    reference_up: np.ndarray | None = None
+    reference_tol_deg: float = 20.0
+    previous: tuple[np.ndarray, np.ndarray] | None = None
+    previous_tol_deg: float = 15.0
+    min_separation_deg: float = 6.0
+
+
+@dataclass
+class PoseResult:
+    """The chosen pose, its quality and the alternative(s) when undecided."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    rmse_px: float
+    covariance: np.ndarray
+    """6×6 covariance of (rvec, tvec) (rad², m²)."""
+    ambiguous: bool = False
+    alternatives: list[PoseCandidate] = field(default_factory=list)
+    decided_by: str = "unique"
+    """``unique`` (one candidate), ``gravity``, ``reference``, ``previous``, ``reprojection``,
+    ``close`` (candidates nearly equal) or ``none`` (ambiguous)."""
+    candidates: list[PoseCandidate] = field(default_factory=list)
+    """All candidates after refinement, the chosen one first."""
+
+    def camera_from_object(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(np.asarray(self.rvec, np.float64).reshape(3, 1))[0]
+        T[:3, 3] = np.ravel(self.tvec)
+        return T
+
+
+# ----------------------------------------------------------------------------- geometry
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
+    """Angle of the rotation between two rotation matrices, degrees."""
+    c = (np.trace(np.asarray(R_a).T @ np.asarray(R_b)) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def tilt_deg(R: np.ndarray, gravity: np.ndarray, up_axis=(0.0, 0.0, 1.0)) -> float:
+    """Angle between the object's ``up_axis`` (in the camera frame) and −gravity, degrees."""
+    up = np.asarray(R) @ np.asarray(up_axis, np.float64)
+    g = np.asarray(gravity, np.float64)
+    c = float(-up @ g / math.sqrt(float(up @ up) * float(g @ g)))
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def yaw_about_axis_deg(R_true: np.ndarray, R_est: np.ndarray, axis=(0.0, 0.0, 1.0)) -> float:
+    """Signed rotation about the object's ``axis`` between truth and estimate, degrees.
+
+    Computed from ``R_true.T @ R_est`` (the error in the object frame) by the swing–twist
+    decomposition: the twist about ``axis``.
+    """
+    dR = np.asarray(R_true).T @ np.asarray(R_est)
+    q = _quat_wxyz(dR)
+    a = np.asarray(axis, np.float64)
+    a = a / np.linalg.norm(a)
+    p = float(q[1:] @ a)
+    ang = 2.0 * math.atan2(p, q[0])
+    ang = (ang + math.pi) % (2 * math.pi) - math.pi
+    return math.degrees(ang)
+
+
+def _quat_wxyz(R: np.ndarray) -> np.ndarray:
+    rvec = cv2.Rodrigues(np.asarray(R, np.float64))[0].ravel()
+    th = float(np.linalg.norm(rvec))
+    if th < 1e-15:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[math.cos(th / 2)], math.sin(th / 2) * rvec / th])
+
+
+def is_planar(points: np.ndarray, rel_tol: float = 1e-3) -> bool:
+    """True if 3D points lie on one plane within ``rel_tol`` of their extent."""
+    P = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(P) < 4:
+        return True
+    if np.ptp(P[:, 2]) == 0.0:  # the common case: a flat face at z = const
+        return True
+    c = P - P.mean(axis=0)
+    s = np.linalg.svd(c, compute_uv=False)
+    return bool(s[-1] <= rel_tol * max(s[0], 1e-12))
+
+
+# ----------------------------------------------------------------------------- solving
+_PLANE_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
+def _plane_frame(obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, c): columns of R are two in-plane axes and the normal of the points' plane, c a
+    point of it; ``(obj - c) @ R`` has z = 0. Points already on a plane z = const keep
+    their x, y axes. Cached (a brick's point sets repeat from frame to frame)."""
+    key = obj.tobytes()
+    hit = _PLANE_CACHE.get(key)
+    if hit is None:
+        hit = _plane_frame_uncached(obj)
+        if len(_PLANE_CACHE) > 256:
+            _PLANE_CACHE.clear()
+        _PLANE_CACHE[key] = hit
+    return hit
+
+
+def _plane_frame_uncached(obj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    z = obj[:, 2]
+    if np.ptp(z) <= 1e-9 * max(1.0, float(np.abs(obj).max())):
+        return _EYE3, np.array([0.0, 0.0, float(z.mean())])
+    c = obj.mean(axis=0)
+    _, _, Vt = np.linalg.svd(obj - c)
+    R = Vt.T.copy()
+    if np.linalg.det(R) < 0:
+        R[:, 2] = -R[:, 2]
+    return R, c
+
+
+def _sigma_inv(points_cov: np.ndarray | None, n: int, default_sigma: float) -> np.ndarray:
+    """Inverse covariance (2n, 2n) of the image points."""
+    if points_cov is None:
+        return np.eye(2 * n) / default_sigma ** 2
+    C = np.asarray(points_cov, np.float64)
+    if C.ndim == 0 or C.size == 1:
+        return np.eye(2 * n) / float(C) ** 2  # a scalar sigma
+    if C.ndim == 1:  # per-point sigma
+        return np.diag(np.repeat(1.0 / C ** 2, 2))
+    try:
+        return np.linalg.inv(C)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(C)
+
+
+def _project(obj: np.ndarray, rvec, tvec, camera: Camera, jac: bool = False):
+    px, J = cv2.projectPoints(obj.reshape(-1, 1, 3), np.asarray(rvec, np.float64).reshape(3, 1),
+                              np.asarray(tvec, np.float64).reshape(3, 1), camera.K, camera.dist)
+    return px.reshape(-1, 2), (J[:, :6] if jac else None)
+
+
+def _candidate(obj, img, rvec, tvec, camera, Winv) -> PoseCandidate:
+    px, _ = _project(obj, rvec, tvec, camera)
+    r = (px - img).ravel()
+    return PoseCandidate(np.asarray(rvec, np.float64).ravel().copy(),
+                         np.asarray(tvec, np.float64).ravel().copy(),
+                         float(np.sqrt(np.mean(np.sum((px - img) ** 2, axis=1)))),
+                         float(r @ Winv @ r))
+
+
+def _up_residual(rvec: np.ndarray, up_axis: np.ndarray, g: np.ndarray, sigma: float):
+    """Residual (3,) of the flat-lying prior, (R·up + g)/sigma, and its Jacobian (3, 3)."""
+    R, dR = cv2.Rodrigues(rvec.reshape(3, 1))  # dR: (3, 9), dR[k, 3 i + j] = d R_ij / d r_k
+    r0 = (R @ up_axis + g) / sigma
+    J = (dR.reshape(3, 3, 3) @ up_axis).T / sigma  # J[i, k] = sum_j dR_ij/dr_k up_j
+    return r0, J
+
+
+def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iterations: int = 2,
+                  prior: tuple[np.ndarray, np.ndarray, float] | None = None
+                  ) -> tuple[PoseCandidate, np.ndarray]:
+    """Weighted Gauss–Newton in pixels (Levenberg-damped), optionally with the flat-lying
+    prior ``(up_axis, gravity, sigma_rad)``. Returns the refined candidate (χ² of the image
+    part) and the information matrix (6×6, prior included) at it."""
+    rvec, tvec = cand.rvec.copy(), cand.tvec.copy()
+    best_rt = (rvec, tvec)
+    best_cost = np.inf
+    best_chi2 = np.inf
+    best_sq = np.inf
+    info = None
+    lam = 1e-6
+    obj3 = obj.reshape(-1, 1, 3)
+    for it in range(iterations + 1):
+        last = it == iterations
+        if last and it > 0:  # the final check needs no Jacobian (the information matrix
+            # is taken at the previous point: one small step away)
+            px, _ = cv2.projectPoints(obj3, rvec, tvec, camera.K, camera.dist)
+            J = None
+        else:
+            px, J = cv2.projectPoints(obj3, rvec, tvec, camera.K, camera.dist)
+            J = J[:, :6]
+        d = img - px.reshape(-1, 2)
+        r = d.ravel()
+        chi2 = float(r @ Winv @ r)
+        cost = chi2
+        if J is not None:
+            JW = J.T @ Winv
+            A = JW @ J
+            b = JW @ r
+        if prior is not None:
+            rp, Jp = _up_residual(rvec, *prior)
+            cost += float(rp @ rp)
+            if J is not None:
+                A[:3, :3] += Jp.T @ Jp
+                b[:3] -= Jp.T @ rp
+        if cost <= best_cost:
+            best_cost, best_chi2, best_rt = cost, chi2, (rvec, tvec)
+            if J is not None:
+                info = A
+            best_sq = float((d * d).sum())
+            lam = max(lam * 0.1, 1e-9)
+        else:  # worse: back to the best, damp more
+            rvec, tvec = best_rt
+            lam *= 100.0
+            continue
+        if it == iterations:
+            break
+        A_d = A.copy()
+        A_d.flat[::7] *= 1.0 + lam
+        ok, step = cv2.solve(A_d, b.reshape(6, 1), flags=cv2.DECOMP_CHOLESKY)
+        if not ok:
+            ok, step = cv2.solve(A_d, b.reshape(6, 1), flags=cv2.DECOMP_SVD)
+            if not ok:
+                break
+        step = step.ravel()
+        rvec = rvec + step[:3]
+        tvec = tvec + step[3:]
+    n = len(obj)
+    out = PoseCandidate(best_rt[0].copy(), best_rt[1].copy(), math.sqrt(best_sq / n), best_chi2)
+    return out, info
+
+
+def _covariance(info: np.ndarray, chi2: float, dof: int) -> np.ndarray:
+    """(Jᵀ Σ⁻¹ J)⁻¹, inflated by χ²/dof when the residuals show more noise than assumed."""
+    ok, cov = cv2.invert(info, flags=cv2.DECOMP_CHOLESKY)
+    if not ok:  # not positive definite (a degenerate view): the pseudo-inverse
+        cov = np.linalg.pinv(info)
+    if dof > 0 and chi2 / dof > 1.0:
+        cov = cov * (chi2 / dof)
+    return 0.5 * (cov + cov.T)
+
+
+def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Camera,
+                     gravity: np.ndarray | None = None, planar: bool | None = None, *,
+                     image_pts_norm: np.ndarray | None = None,
+                     points_cov: np.ndarray | None = None, default_sigma_px: float = 0.2,
+                     points_info: np.ndarray | None = None,
+                     up_axis=(0.0, 0.0, 1.0), evidence: PoseEvidence | None = None,
+                     chi2_margin: float = 25.0, ambiguity_min_deg: float = 5.0,
+                     gravity_prior_deg: float | None = None,
+                     refine: bool = True) -> PoseResult | None:
+    """Pose of an object from ≥ 4 point correspondences, flip ambiguity resolved with evidence.
+
+    Args:
+        object_pts: (N, 3) points in the object (brick) frame, metres.
+        image_pts: (N, 2) their measured positions, distorted pixels.
+        camera: The calibrated camera.
+        gravity: Unit gravity vector in the camera frame (shortcut for
+            ``evidence.gravity``).
+        planar: Whether the points are coplanar (None: decide from the points).
+        image_pts_norm: (N, 2) the same points undistorted and normalised, if already known
+            (saves the undistortion).
+        points_cov: Noise of the image points: a scalar sigma (px), (N,) sigmas, or a
+            (2N, 2N) covariance in the order x0, y0, x1, y1, ... None: ``default_sigma_px``.
+        default_sigma_px: Image point noise when ``points_cov`` is None.
+        points_info: (2N, 2N) inverse covariance of the image points, instead of
+            ``points_cov`` (saves an inversion when the caller has it).
+        up_axis: The object axis that points up when it lies flat (for gravity).
+        evidence: Gravity, reference up, previous pose (see :class:`PoseEvidence`).
+        chi2_margin: The reprojection alone decides when the alternative's χ² exceeds the
+            best one's by this much (25 = a 5-sigma difference) and the best fit's χ² is
+            consistent with the noise (≤ 3·dof + 4).
+        ambiguity_min_deg: Candidates closer than this (rotation) are not reported as an
+            ambiguity: the better-fitting one is kept (``decided_by="close"``).
+        gravity_prior_deg: With gravity known, also pull the chosen pose toward lying flat
+            (its ``up_axis`` along −gravity) with this standard deviation (a soft prior:
+            strong image evidence wins; None or 0: gravity only chooses between candidates).
+            Applied only when the pose is within ``gravity_tol_deg`` of flat.
+        refine: Refine in pixels (weighted Gauss–Newton through the full lens model).
+
+    Returns:
+        The :class:`PoseResult`, or None when no pose in front of the camera fits.
+    """
+    obj = np.ascontiguousarray(np.asarray(object_pts, np.float64).reshape(-1, 3))
+    img = np.ascontiguousarray(np.asarray(image_pts, np.float64).reshape(-1, 2))
+    n = len(obj)
+    if n < 4 or len(img) != n:
+        raise ValueError(f"need at least 4 matching points, got {n} object and {len(img)} "
+                         "image points")
+    ev = evidence if evidence is not None else PoseEvidence()
+    if gravity is not None:
+        ev = PoseEvidence(**{**ev.__dict__, "gravity": np.asarray(gravity, np.float64)})
+    if planar is None:
+        planar = is_planar(obj)
+    xn = (np.asarray(image_pts_norm, np.float64).reshape(-1, 2) if image_pts_norm is not None
+          else camera.normalize(img))
+    if not np.all(np.isfinite(xn)):
+        return None
+    Winv = (np.asarray(points_info, np.float64) if points_info is not None
+            else _sigma_inv(points_cov, n, default_sigma_px))
+    I3 = np.eye(3)
+    rvecs, tvecs, errs, Rs = [], [], [], []
+    try:
+        if planar:
+            # OpenCV's IPPE is only right for points on z = 0: solve in the points' plane
+            Rp, c = _plane_frame(obj)
+            plane_pts = (obj - c) @ Rp
+            _, rv, tv, er = cv2.solvePnPGeneric(plane_pts.reshape(-1, 1, 3),
+                                                xn.reshape(-1, 1, 2), I3, None,
+                                                flags=cv2.SOLVEPNP_IPPE)
+            identity = Rp is _EYE3
+            for r, t_ in zip(rv, tv):
+                R = cv2.Rodrigues(r)[0]
+                if not identity:
+                    R = R @ Rp.T
+                    r = cv2.Rodrigues(R)[0]
+                rvecs.append(r)
+                Rs.append(R)
+                tvecs.append(np.ravel(t_) - R @ c)
+        else:
+            _, rvecs, tvecs, er = cv2.solvePnPGeneric(obj.reshape(-1, 1, 3),
+                                                      xn.reshape(-1, 1, 2), I3, None,
+                                                      flags=cv2.SOLVEPNP_SQPNP)
+        errs = list(np.ravel(er)) if er is not None else [np.nan] * len(rvecs)
+    except cv2.error:
+        rvecs, tvecs = [], []
+    # IPPE's RMS error is in normalised units: ~pixels / focal length (enough to tell a
+    # candidate that does not fit at all); χ² is computed only where the fit must decide
+    f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
+    cands = []
+    for i, (r, t, e) in enumerate(zip(rvecs, tvecs, errs)):
+        if float(np.ravel(t)[2]) <= 0:
+            continue
+        cand = PoseCandidate(np.ravel(r).astype(np.float64), np.ravel(t).astype(np.float64),
+                             float(e) * f if np.isfinite(e) else float("inf"), float("nan"))
+        if i < len(Rs):
+            cand.__dict__["_R"] = Rs[i]
+        cands.append(cand)
+    if not cands:
+        try:
+            ok, r, t = cv2.solvePnP(obj.reshape(-1, 1, 3), xn.reshape(-1, 1, 2), I3, None,
+                                    flags=cv2.SOLVEPNP_ITERATIVE)
+        except cv2.error:
+            ok = False
+        if not ok or float(np.ravel(t)[2]) <= 0:
+            return None
+        cands = [_candidate(obj, img, r, t, camera, Winv)]
+    dof = 2 * n - 6
+    cands.sort(key=lambda c: c.rmse_px)
+    up = np.asarray(up_axis, np.float64)
+    if len(cands) == 1:
+        chosen, decided_by = 0, "unique"
+    else:
+        # evidence first (it needs no refinement: flips differ by tens of degrees), then the
+        # reprojection on refined candidates
+        chosen, decided_by = _decide(cands, ev, up, chi2_margin, ambiguity_min_deg, dof,
+                                     use_fit=False)
+        if chosen is None:
+            cands = sorted((_gauss_newton(obj, img, c, camera, Winv,
+                                          iterations=1 if refine else 0)[0]
+                            for c in cands), key=lambda c: c.chi2)
+            chosen, decided_by = _decide(cands, ev, up, chi2_margin, ambiguity_min_deg, dof,
+                                         use_evidence=False)
+    if chosen is None:  # undecided: report the better-fitting one, flag it
+        chosen, amb, decided_by = 0, True, "none"
+    else:
+        amb = False
+    best = cands[chosen]
+    others = [c for i, c in enumerate(cands) if i != chosen]
+    prior = None
+    if (ev.gravity is not None and gravity_prior_deg and not amb
+            and tilt_deg(best.R, ev.gravity, up) <= ev.gravity_tol_deg):
+        prior = (up, np.asarray(ev.gravity, np.float64), math.radians(gravity_prior_deg))
+    # IPPE's solution from exact normalised coordinates is already close to the pixel-space
+    # optimum: one Gauss–Newton step gets it (the prior is nearly linear as well)
+    best, info = _gauss_newton(obj, img, best, camera, Winv, iterations=1 if refine else 0,
+                               prior=prior)
+    return PoseResult(best.rvec, best.tvec, best.rmse_px, _covariance(info, best.chi2, dof),
+                      amb, others if amb else [], decided_by, [best] + others)
+
+
+def _decide(cands: list[PoseCandidate], ev: PoseEvidence, up_axis: np.ndarray,
+            chi2_margin: float, ambiguity_min_deg: float, dof: int, use_evidence: bool = True,
+            use_fit: bool = True) -> tuple[int | None, str]:
+    """Index of the candidate the evidence supports, and which evidence; (None, '') if none.
+
+    ``cands`` are sorted by χ². ``use_evidence``: gravity, reference up, previous pose;
+    ``use_fit``: the reprojection test and the "close" rule.
+    """
+    a, b = cands[0], cands[1]
+    if not use_evidence:
+        return _decide_fit(a, b, chi2_margin, ambiguity_min_deg, dof)
+    # a candidate whose fit is far worse than the best one is out whatever else is said
+    if all(np.isfinite(c.chi2) for c in cands):
+        fit_ok = [c.chi2 - a.chi2 <= max(9.0 * chi2_margin, 3.0 * a.chi2) for c in cands]
+    else:  # before refinement: RMS reprojection errors (px)
+        fit_ok = [c.rmse_px <= 3.0 * a.rmse_px + 1.0 for c in cands]
+    if ev.gravity is not None:
+        tilts = [tilt_deg(c.R, ev.gravity, up_axis) for c in cands]
+        ok = [t <= ev.gravity_tol_deg and f for t, f in zip(tilts, fit_ok)]
+        if ok[0] != ok[1]:
+            return (0 if ok[0] else 1), "gravity"
+        if ok[0] and ok[1]:  # both roughly flat: the flatter one (the object lies flat)
+            return (0 if tilts[0] <= tilts[1] else 1), "gravity"
+    # a reference up or a previous pose is itself uncertain by a few degrees: when both
+    # candidates agree with it, the closer one wins only by a clear separation
+    if ev.reference_up is not None:
+        ups = [tilt_deg(c.R, -np.asarray(ev.reference_up, np.float64), up_axis) for c in cands]
+        ok = [t <= ev.reference_tol_deg and f for t, f in zip(ups, fit_ok)]
+        if ok[0] != ok[1]:
+            return (0 if ok[0] else 1), "reference"
+        if ok[0] and ok[1] and abs(ups[0] - ups[1]) >= ev.min_separation_deg:
+            return (0 if ups[0] < ups[1] else 1), "reference"
+    if ev.previous is not None:
+        R_prev = cv2.Rodrigues(np.asarray(ev.previous[0], np.float64).reshape(3, 1))[0]
+        ang = [rotation_angle_deg(R_prev, c.R) for c in cands]
+        ok = [t <= ev.previous_tol_deg and f for t, f in zip(ang, fit_ok)]
+        if ok[0] != ok[1]:
+            return (0 if ok[0] else 1), "previous"
+        if ok[0] and ok[1] and abs(ang[0] - ang[1]) >= ev.min_separation_deg:
+            return (0 if ang[0] < ang[1] else 1), "previous"
+    if not use_fit:
+        return None, ""
+    return _decide_fit(a, b, chi2_margin, ambiguity_min_deg, dof)
+
+
+def _decide_fit(a: PoseCandidate, b: PoseCandidate, chi2_margin: float,
+                ambiguity_min_deg: float, dof: int) -> tuple[int | None, str]:
+    # the reprojection decides only when the best fit is consistent with the assumed noise
+    # (else the noise model is wrong for these points and the difference means little)
+    if b.chi2 - a.chi2 >= chi2_margin and a.chi2 <= 3.0 * dof + 4.0:
+        return 0, "reprojection"
+    if rotation_angle_deg(a.R, b.R) < ambiguity_min_deg:
+        return 0, "close"  # the candidates differ less than the pose's own uncertainty
+    return None, ""
+
+
+class PoseHistory:
+    """Recent confident poses per object, for temporal consistency in a stream.
+
+    Keep one per stream; :meth:`previous` gives the evidence for a key (e.g.
+    ``(layout, instance)``), :meth:`update` records a decided pose. Entries older than
+    ``max_age`` frames are forgotten (memory stays bounded by the number of objects seen
+    within that window).
+    """
+
+    def __init__(self, max_age: int = 15):
+        self.max_age = int(max_age)
+        self.frame = 0
+        self._poses: dict[object, tuple[int, np.ndarray, np.ndarray]] = {}
+
+    def next_frame(self) -> None:
+        """Call once per frame, before the poses of that frame."""
+        self.frame += 1
+        if len(self._poses) > 64:
+            self._poses = {k: v for k, v in self._poses.items()
+                           if self.frame - v[0] <= self.max_age}
+
+    def previous(self, key) -> tuple[np.ndarray, np.ndarray] | None:
+        v = self._poses.get(key)
+        if v is None or self.frame - v[0] > self.max_age:
+            return None
+        return v[1], v[2]
+
+    def update(self, key, rvec: np.ndarray, tvec: np.ndarray) -> None:
+        self._poses[key] = (self.frame, np.asarray(rvec, np.float64).copy(),
+                            np.asarray(tvec, np.float64).copy())

@@ -1,0 +1,89 @@
+"""``drovisio mission check | simulate | diagram``."""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+
+import yaml
+
+from drovisio import cli
+from drovisio.mission import diagram
+from drovisio.mission.machine import TRANSITIONS, State
+
+
+def _write(scn, path):
+    path.write_text(yaml.safe_dump(scn.model_dump(by_alias=True, exclude_none=True),
+                                   sort_keys=False))
+    return str(path)
+
+
+def test_help_has_examples(capsys):
+    for action in ("check", "simulate", "diagram"):
+        assert cli.main(["mission", action, "--help"]) == 0
+        out = capsys.readouterr().out
+        assert "Example:" in out and f"drovisio mission {action}" in out.split("Example:")[1]
+    assert cli.main(["mission"]) == 2
+
+
+def test_diagram_covers_the_table(capsys):
+    assert cli.main(["mission", "diagram"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("stateDiagram-v2")
+    for s in State:
+        assert s.value in text
+    edges = diagram.grouped_edges()
+    groups = {g.key: set(g.members) for g in diagram.GROUPS}
+    covered = set()
+    for src, trig, dst, _ in edges:
+        for s in groups.get(src, {State(src)} if src in State.__members__ else set()):
+            covered.add((s, trig, State(dst)))
+    assert covered == {(t.source, t.trigger, t.target) for t in TRANSITIONS}
+    assert cli.main(["mission", "diagram", "--format", "dot"]) == 0
+    assert capsys.readouterr().out.startswith("digraph mission {")
+    ET.fromstring(diagram.svg())  # well-formed
+
+
+def test_check_prints_the_table_and_exits_0(small, tmp_path, capsys):
+    path = _write(small, tmp_path / "small.yaml")
+    rc = cli.main(["mission", "check", path, "--fault", "missed grab", "--fault",
+                   "three failed drops", "--json", str(tmp_path / "t.json")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "missed grab" in out and "three failed drops" in out and "all held" in out
+    rows = json.loads((tmp_path / "t.json").read_text())
+    assert [r["outcome"] for r in rows] == ["completed", "safe_zone"]
+
+
+def test_check_rejects_an_invalid_scenario(small, tmp_path, capsys):
+    d = small.model_dump(by_alias=True, exclude_none=True)
+    d["bricks"][0]["instance"] = 99
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(d))
+    assert cli.main(["mission", "check", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert f"{p}: bricks[0].instance" in err
+
+
+def test_simulate_records(small, tmp_path, capsys):
+    path = _write(small, tmp_path / "small.yaml")
+    rc = cli.main(["mission", "simulate", path, "--bricks", "1", "--record",
+                   str(tmp_path / "rec")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "outcome: DONE" in out and "placement error: max" in out
+    manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
+    assert manifest["outcome"] == "DONE" and manifest["rules"]["geofence"] is True
+    assert (tmp_path / "rec" / "ticks.jsonl").stat().st_size > 10_000
+
+
+def test_check_exits_1_when_an_outcome_is_not_the_expected_one(small, tmp_path, monkeypatch,
+                                                                capsys):
+    from drovisio.mission import faults
+
+    wrong = faults.FaultCase("no fault, wrongly expected to abort", (), "safe_zone")
+    monkeypatch.setattr(faults, "CHECK_FAULTS", (wrong,))
+    path = _write(small.subset(["b1"]), tmp_path / "one.yaml")
+    assert cli.main(["mission", "check", path]) == 1
+    out = capsys.readouterr().out
+    assert "expected safe_zone, got completed" in out
