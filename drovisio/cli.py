@@ -138,6 +138,9 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
                    help="camera index, video file, folder of images or stream URL "
                         "(default: the built-in sample session)")
     p.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
+    p.add_argument("--replay-dir", metavar="DIR",
+                   help="folder of mission recordings (drovisio mission simulate --record) to "
+                        "replay in 3D on the live page")
 
 
 def _add_nothing(p: argparse.ArgumentParser) -> None:

@@ -9,7 +9,9 @@ from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 
 from webtool.access import TokenAccessMiddleware
-from webtool.routes import calibration, health, pages
+from webtool.routes import calibration, designer, health, pages
+from webtool.routes import live as live_routes
+from webtool.routes import replay as replay_routes
 from webtool.settings import STATIC_DIR, TEMPLATES_DIR, Settings
 
 
@@ -38,6 +40,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(pages.router)
     app.include_router(health.router, prefix="/api")
     app.include_router(calibration.router, prefix="/api/calibration")
+    app.include_router(designer.router, prefix="/api/designer")
+    app.include_router(live_routes.router)  # /api/live/..., /live/3d (issue #7)
+    app.include_router(replay_routes.router)  # /api/replay/..., /replay/3d (issue #8)
     app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")
 
     app.add_middleware(TokenAccessMiddleware, token=settings.token)

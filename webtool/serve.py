@@ -7,6 +7,7 @@ import socket
 import sys
 from pathlib import Path
 
+from webtool.access import access_lines
 from webtool.settings import Settings, is_loopback
 
 
@@ -40,7 +41,14 @@ def open_lines(settings: Settings) -> list[str]:
     else:
         lines = [f"Drovisio web tool: open http://{_url_host(settings.host)}:{port}/{query}"]
     if settings.token and not is_loopback(settings.host):
-        lines.append("  (listening beyond this machine: other devices need the token in that link)")
+        lines.append("  (listening beyond this machine: other devices need a token link; a "
+                     "phone can scan a code below)")
+        if settings.host in ("0.0.0.0", "::", ""):
+            lan = _lan_address()
+            base = f"http://{_url_host(lan or socket.gethostname())}:{port}/"
+        else:
+            base = f"http://{_url_host(settings.host)}:{port}/"
+        lines.extend(access_lines(base, settings.token, settings.viewer_token))
     return lines
 
 
@@ -54,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         port=args.port,
         source=args.source,
         camera=Path(args.camera) if args.camera else None,
+        replay_dir=Path(args.replay_dir) if getattr(args, "replay_dir", None) else None,
     )
     app = create_app(settings)
     src = settings.source_label

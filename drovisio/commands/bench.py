@@ -11,7 +11,8 @@ import sys
 from drovisio.cli import NotImplementedYet, resolve
 
 #: benchmark name → issue that tracks it (shown while it does not exist yet)
-BENCHMARKS = {"aruco": "issue #3", "dots": "issue #4", "renderer": "issue #2"}
+BENCHMARKS = {"aruco": "issue #3", "dots": "issue #4", "renderer": "issue #2",
+              "pipeline": "issue #7"}
 
 
 def run(args: argparse.Namespace) -> int:

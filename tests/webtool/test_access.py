@@ -96,3 +96,14 @@ def test_printed_urls_carry_the_token_when_exposed():
     assert any(f":9000/?token={TOKEN}" in line for line in lines[1:])
     lines = open_lines(Settings(host="192.168.1.20", token=TOKEN))
     assert lines[0] == f"Drovisio web tool: open http://192.168.1.20:8080/?token={TOKEN}"
+
+
+def test_exposed_server_prints_full_and_view_only_links_with_qr_codes():
+    s = Settings(host="192.168.1.20", token=TOKEN)
+    text = "\n".join(open_lines(s))
+    assert f"full access (calibrate, design, control): http://192.168.1.20:8080/?token={TOKEN}" \
+        in text
+    assert f"view only (watch the live view): http://192.168.1.20:8080/live?token=" \
+        f"{s.viewer_token}" in text
+    assert text.count("▀▀▀▀▀▀▀▀▀▀") >= 2  # one QR code per link, for phones
+    assert "token" not in "\n".join(open_lines(Settings()))

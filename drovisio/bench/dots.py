@@ -1,0 +1,714 @@
+"""``drovisio bench dots``: accuracy, robustness, speed and memory of the colour-dot detector.
+
+Measured on the renderer's scenes (:mod:`drovisio.scenes`), with exact truth. Parts:
+
+* ``accuracy``  random scenes (0.4–2 m, tilt ≤ 40°, gravel/grass/clutter, blur, noise, JPEG,
+  lighting gain 0.8–1.2, gamma 0.9–1.1, a few red/blue props): recall, pose errors with and
+  without gravity, flips, false bricks, and the bias of the reported dot centres.
+* ``hidden``    the same with one or two dots of every brick unpainted, plus bricks partly
+  covered by a plain brick laid across them.
+* ``clutter``   scenes without any brick, photo clutter on the ground and red cups, blue
+  tarpaulins and boxes: every brick reported is a false brick.
+* ``lighting``  a gain × gamma grid (0.6–1.3 × 0.8–1.25) with the default palette.
+* ``timing``    per-frame time against a minimal pass (cvtColor to HSV + one cv2.inRange per
+  colour) on the same frames, with 1, 5 and 20 bricks in view; medians.
+* ``memory``    resident memory over many frames (a loop over cached frames).
+
+Definitions (printed with the table):
+
+* a brick is *eligible* when at least 4 of its dots are fully visible (inside the image,
+  painted, not hidden by its own pyramids, another brick or a prop) and their median size is
+  ≥ 6 px across (equivalent diameter of the projected dot, 2·√(area/π));
+* *lateral error*: √(Δx² + Δy²) of ``tvec`` in the camera frame (the brick origin, centre of
+  its top face); *depth error*: |Δz| / z; *yaw error*: the rotation about the brick's z axis
+  of R_trueᵀ·R_est, modulo 180° for a ``rot180_z`` layout; all at ≤ 2 m from the camera;
+* a *flip*: the reported orientation is more than 20° from the truth (modulo the layout's
+  symmetry); *unflagged* when the pose is not marked ``ambiguous``;
+* a *false brick*: a reported brick with no true brick of that layout within 8 cm.
+
+Rendered frames are cached (PNG + truth JSON) in ``--cache`` (default
+``~/.cache/drovisio/bench-dots``), so a second run only measures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import hashlib
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+EXAMPLE = """example:
+  drovisio bench dots                      # all parts, default frame counts (~15 min first run)
+  drovisio bench dots --quick              # small counts, a couple of minutes
+  drovisio bench dots --parts timing,memory --memory-frames 20000
+  drovisio bench dots --json report.json   # also write the figures as JSON
+"""
+
+PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="drovisio bench dots",
+        description="Benchmark of the colour-dot detector on rendered scenes (issue #4): "
+                    "recall, pose errors, flips, false bricks, lighting, speed, memory.",
+        epilog=EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--parts", default=",".join(PARTS),
+                   help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
+    p.add_argument("--quick", action="store_true", help="small frame counts (a smoke run)")
+    p.add_argument("--frames", type=int, default=None,
+                   help="frames of the accuracy part (default 300; quick 40)")
+    p.add_argument("--hidden-frames", type=int, default=None, help="default 200; quick 30")
+    p.add_argument("--clutter-frames", type=int, default=None, help="default 220; quick 30")
+    p.add_argument("--lighting-frames", type=int, default=None,
+                   help="frames per gain × gamma cell (default 12; quick 2)")
+    p.add_argument("--timing-frames", type=int, default=None,
+                   help="frames per brick count (default 6; quick 3)")
+    p.add_argument("--timing-repeats", type=int, default=None,
+                   help="timed runs per frame (default 40; quick 10)")
+    p.add_argument("--memory-frames", type=int, default=None,
+                   help="frames of the memory loop (default 20000; quick 2000)")
+    p.add_argument("--seed", type=int, default=0, help="first scene seed")
+    p.add_argument("--layout", default=None,
+                   help="layout file (default: the shipped drick-dots-2x3.json)")
+    p.add_argument("--cache", default=None,
+                   help="folder for rendered frames (default ~/.cache/drovisio/bench-dots)")
+    p.add_argument("--no-cache", action="store_true", help="render every frame afresh")
+    p.add_argument("--threads", type=int, default=None,
+                   help="cv2.setNumThreads for the timing part (default: OpenCV's own)")
+    p.add_argument("--json", metavar="FILE", help="write all figures as JSON")
+    return p
+
+
+# =============================================================================== frames
+@dataclass
+class DotTruth:
+    layout: str
+    camera_from_brick: list
+    centers_px: list
+    visible: list
+    size_px: list
+
+
+@dataclass
+class Frame:
+    image: np.ndarray
+    gravity: np.ndarray
+    bricks: list[DotTruth] = field(default_factory=list)
+
+
+_MODELS: dict = {}
+
+
+def _visibility(scene, result, camera) -> list[DotTruth]:
+    """Per brick and dot: fully visible? projected size (equivalent diameter, px)."""
+    import trimesh
+
+    from drovisio.detect.dots_match import DotModel, occluded_dots
+    from drovisio.synth import brick_mesh_for
+
+    cfw = result.camera_from_world
+    world_from_camera = np.linalg.inv(cfw)
+    cam_w = world_from_camera[:3, 3]
+    meshes = []
+    for prop in scene.props:
+        m = prop.mesh.copy()
+        m.apply_transform(prop.world_from_object)
+        meshes.append(m)
+    brick_meshes = []
+    for b in scene.bricks:
+        m = brick_mesh_for(b.layout).copy()
+        m.apply_transform(b.world_from_brick)
+        brick_meshes.append(m)
+    out = []
+    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    for k, (b, truth) in enumerate(zip(scene.bricks, result.bricks)):
+        lay = b.layout
+        cfb = truth.camera_from_brick
+        X = lay.dot_centers_m()
+        nrm = lay.dot_normals()
+        rad = lay.dot_diameters_m() / 2
+        dot_marker_index = [i for i, m in enumerate(lay.markers) if m.kind == "dot"]
+        model = _MODELS.get(id(lay))
+        if model is None:
+            colors = {c: i for i, c in enumerate(dict.fromkeys(lay.dot_colors()))}
+            model = _MODELS[id(lay)] = DotModel.from_layout(lay, colors)
+        own = occluded_dots(model, cfb[None, :3, :3], cfb[None, :3, 3])[0]
+        others = [m for j, m in enumerate(brick_meshes) if j != k] + meshes
+        other = trimesh.util.concatenate(others) if others else None
+        vis, size = [], []
+        for d in range(len(X)):
+            u = np.cross(nrm[d], [1.0, 0, 0] if abs(nrm[d][0]) < 0.9 else [0, 1.0, 0])
+            u /= np.linalg.norm(u)
+            v = np.cross(nrm[d], u)
+            rim = X[d] + rad[d] * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
+            px = camera.project_from(rim, cfb)
+            x, y = px[:, 0], px[:, 1]
+            x1, y1 = np.roll(x, -1), np.roll(y, -1)
+            area = abs(float((x * y1 - x1 * y).sum()) / 2)
+            size.append(2 * math.sqrt(area / math.pi))
+            ok = (dot_marker_index[d] not in b.hidden_markers) and not own[d]
+            ok = ok and bool(np.all((x >= 1) & (x <= camera.width - 2) & (y >= 1)
+                                    & (y <= camera.height - 2)))
+            Yc = rim @ cfb[:3, :3].T + cfb[:3, 3]
+            ok = ok and bool(np.all(Yc[:, 2] > 0)) and float(
+                -(cfb[:3, :3] @ nrm[d]) @ (cfb[:3, :3] @ X[d] + cfb[:3, 3])) > 0
+            if ok and other is not None:
+                rim_w = (world_from_camera[:3, :3] @ Yc.T).T + world_from_camera[:3, 3]
+                dirs = rim_w - cam_w
+                dist = np.linalg.norm(dirs, axis=1)
+                dirs /= dist[:, None]
+                locs, idx_ray, _ = other.ray.intersects_location(
+                    np.repeat(cam_w[None], len(dirs), 0), dirs, multiple_hits=False)
+                if len(idx_ray):
+                    hit_d = np.linalg.norm(locs - cam_w, axis=1)
+                    ok = not bool(np.any(hit_d < dist[idx_ray] - 1e-4))
+            vis.append(bool(ok))
+        out.append(DotTruth(layout=truth.layout, camera_from_brick=cfb.tolist(),
+                            centers_px=np.asarray(truth.dot_centers_px).tolist(), visible=vis,
+                            size_px=size))
+    return out
+
+
+class FrameSource:
+    """Renders (or loads from the cache) frames named by (part, seed, spec)."""
+
+    def __init__(self, layout, cache: Path | None):
+        from drovisio.camera import Camera
+
+        self.layout = layout
+        self.camera = Camera.drone_webcam()
+        self.cache = cache
+        if cache is not None:
+            cache.mkdir(parents=True, exist_ok=True)
+
+    def get(self, key: str, seed: int, spec, hide: tuple[int, int] | None = None) -> Frame:
+        import cv2
+
+        from drovisio.scenes import random_scene
+
+        tag = hashlib.sha1(repr((key, seed, _spec_repr(spec), hide, self.layout.name,
+                                 "v2")).encode()).hexdigest()[:16]
+        png = js = None
+        if self.cache is not None:
+            stem = f"{key}-{seed}-{tag}"
+            png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
+            if png.exists() and js.exists():
+                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
+                meta = json.loads(js.read_text())
+                if img is not None:
+                    return Frame(image=img, gravity=np.array(meta["gravity"]),
+                                 bricks=[DotTruth(**b) for b in meta["bricks"]])
+        scene, fx = random_scene(seed, spec, self.camera)
+        return self._render(scene, fx, png if self.cache else None,
+                            js if self.cache else None, seed, hide)
+
+    def get_scene(self, key: str, seed: int, build) -> Frame:
+        """A frame of a scene made by ``build() -> (Scene, Effects)`` (cached by key, seed)."""
+        import cv2
+
+        tag = hashlib.sha1(repr((key, seed, self.layout.name, "v2")).encode()).hexdigest()[:16]
+        png = js = None
+        if self.cache is not None:
+            stem = f"{key}-{seed}-{tag}"
+            png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
+            if png.exists() and js.exists():
+                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
+                meta = json.loads(js.read_text())
+                if img is not None:
+                    return Frame(image=img, gravity=np.array(meta["gravity"]),
+                                 bricks=[DotTruth(**b) for b in meta["bricks"]])
+        scene, fx = build()
+        return self._render(scene, fx, png, js, seed, None)
+
+    def _render(self, scene, fx, png, js, seed, hide) -> Frame:
+        import cv2
+
+        from drovisio.scenes import gravity_in_camera
+        from drovisio.synth import render
+
+        if hide is not None:
+            rng = np.random.default_rng(seed + 99991)
+            dots = [i for i, m in enumerate(self.layout.markers) if m.kind == "dot"]
+            for b in scene.bricks:
+                k = int(rng.integers(hide[0], hide[1] + 1))
+                b.hidden_markers = frozenset(int(i) for i in rng.choice(dots, k, replace=False))
+        res = render(scene, fx, ss=3)
+        frame = Frame(image=res.image, gravity=gravity_in_camera(res.camera_from_world),
+                      bricks=_visibility(scene, res, self.camera))
+        if png is not None:
+            cv2.imwrite(str(png), frame.image)
+            js.write_text(json.dumps({"gravity": frame.gravity.tolist(),
+                                      "bricks": [asdict(b) for b in frame.bricks]}))
+        return frame
+
+
+def _spec_repr(spec) -> str:
+    d = dict(vars(spec))
+    d["layouts"] = [x.name for x in spec.layouts]
+    return repr(sorted(d.items()))
+
+
+# ================================================================================ scoring
+def _rot(rvec) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
+
+
+def _angle(R: np.ndarray) -> float:
+    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+
+
+def _pose_errors(truth: DotTruth, R_est: np.ndarray, t_est: np.ndarray, symmetric: bool
+                 ) -> dict:
+    T = np.asarray(truth.camera_from_brick)
+    Rt, tt = T[:3, :3], T[:3, 3]
+    E = Rt.T @ R_est
+    yaw = math.degrees(math.atan2(E[1, 0] - E[0, 1], E[0, 0] + E[1, 1]))
+    period = 180.0 if symmetric else 360.0
+    yaw = (yaw + period / 2) % period - period / 2
+    rot = _angle(E)
+    if symmetric:
+        rot = min(rot, _angle(E @ np.diag([-1.0, -1.0, 1.0])))
+    return {"lateral_m": float(np.hypot(*(t_est - tt)[:2])),
+            "depth_rel": float(abs(t_est[2] - tt[2]) / tt[2]),
+            "yaw_deg": abs(yaw), "rot_deg": rot, "dist_m": float(np.linalg.norm(tt))}
+
+
+def _eligible(b: DotTruth) -> bool:
+    vis = np.asarray(b.visible, bool)
+    if vis.sum() < 4:
+        return False
+    return float(np.median(np.asarray(b.size_px)[vis])) >= 6.0
+
+
+class Tally:
+    """Accumulates the scores of one set of frames and one detector setting."""
+
+    def __init__(self):
+        self.eligible = 0
+        self.found = 0
+        self.eligible_full = 0
+        self.found_full = 0
+        self.errors: list[dict] = []
+        self.flips = 0
+        self.unflagged_flips = 0
+        self.ambiguous = 0
+        self.reported = 0
+        self.false = 0
+        self.bias: list[np.ndarray] = []
+        self.frames = 0
+        self.missed: list[str] = []
+
+    def add(self, frame: Frame, poses, symmetric_of, tag: str = "", perm_of=None) -> None:
+        self.frames += 1
+        matched = set()
+        for bi, b in enumerate(frame.bricks):
+            T = np.asarray(b.camera_from_brick)
+            best, bd = None, 0.08
+            for k, p in enumerate(poses):
+                if k in matched or p.layout != b.layout:
+                    continue
+                d = float(np.linalg.norm(np.asarray(p.tvec) - T[:3, 3]))
+                if d < bd:
+                    best, bd = k, d
+            elig = _eligible(b)
+            full = elig and all(b.visible)
+            self.eligible += elig
+            self.eligible_full += full
+            if best is None:
+                if elig:
+                    self.missed.append(f"{tag} brick {bi}")
+                continue
+            matched.add(best)
+            p = poses[best]
+            self.found += elig
+            self.found_full += full
+            e = _pose_errors(b, _rot(p.rvec), np.asarray(p.tvec, float),
+                             symmetric_of(p.layout))
+            e["eligible"] = elig
+            e["ambiguous"] = bool(p.ambiguous)
+            e["n_dots"] = len(p.markers)
+            self.errors.append(e)
+            flip = e["rot_deg"] > 20.0
+            self.flips += flip
+            self.unflagged_flips += flip and not p.ambiguous
+            if p.image_points is not None and len(p.markers):
+                mk = np.asarray(p.markers)
+                err = np.asarray(p.image_points) - np.asarray(b.centers_px)[mk]
+                perm = perm_of(p.layout) if perm_of else None
+                if perm is not None:  # a half-turned report labels the dots the other way
+                    err2 = np.asarray(p.image_points) - np.asarray(b.centers_px)[perm[mk]]
+                    if np.abs(err2).sum() < np.abs(err).sum():
+                        err = err2
+                self.bias.append(err)
+        for p in poses:
+            self.reported += 1
+            self.ambiguous += bool(p.ambiguous)
+        self.false += len(poses) - len(matched)
+
+    def summary(self, max_dist: float = 2.0) -> dict:
+        errs = [e for e in self.errors if e["dist_m"] <= max_dist and e["rot_deg"] <= 20.0]
+
+        def p95(key, scale=1.0):
+            v = [e[key] * scale for e in errs]
+            return float(np.percentile(v, 95)) if v else float("nan")
+
+        b = np.concatenate(self.bias) if self.bias else np.zeros((0, 2))
+        return {
+            "frames": self.frames,
+            "eligible": self.eligible, "found": self.found,
+            "recall": self.found / self.eligible if self.eligible else float("nan"),
+            "eligible_all_dots": self.eligible_full, "found_all_dots": self.found_full,
+            "recall_all_dots": (self.found_full / self.eligible_full if self.eligible_full
+                                else float("nan")),
+            "poses_scored": len(errs),
+            "lateral_p95_cm": p95("lateral_m", 100), "depth_p95_pct": p95("depth_rel", 100),
+            "yaw_p95_deg": p95("yaw_deg"), "rot_p95_deg": p95("rot_deg"),
+            "flips": self.flips, "unflagged_flips": self.unflagged_flips,
+            "ambiguous_share": self.ambiguous / self.reported if self.reported else 0.0,
+            "false_bricks": self.false,
+            "center_bias_px": b.mean(axis=0).tolist() if len(b) else [float("nan")] * 2,
+            "center_rms_px": float(np.sqrt((b ** 2).sum(axis=1).mean())) if len(b) else
+            float("nan"),
+            "centers": len(b),
+        }
+
+
+# ================================================================================= parts
+def _layout(path: str | None):
+    from drovisio.layout import load_layout, shipped_layouts_dir
+
+    return load_layout(path or shipped_layouts_dir() / "drick-dots-2x3.json")
+
+
+def _run_frames(src: FrameSource, det, key: str, seeds, spec, hide=None, gravity=(True, False),
+                progress: str = "") -> dict:
+    tallies = {g: Tally() for g in gravity}
+    sym = {m.name: m.sym_perm is not None for m in det.models}
+    perms = {m.name: m.sym_perm for m in det.models}
+    t0 = time.time()
+    for n, seed in enumerate(seeds):
+        fr = src.get(key, seed, spec, hide)
+        for g in gravity:
+            poses = det.detect(fr.image, gravity=fr.gravity if g else None)
+            tallies[g].add(fr, poses, lambda name: sym.get(name, False), tag=f"{key}:{seed}",
+                           perm_of=perms.get)
+        if progress and (n + 1) % 25 == 0:
+            print(f"  {progress}: {n + 1}/{len(seeds)} frames ({time.time() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+    return {("gravity" if g else "no_gravity"): tallies[g].summary() | {
+        "missed": tallies[g].missed[:20]} for g in gravity}
+
+
+def _scene_spec(layout, **kw):
+    from drovisio.scenes import SceneSpec
+
+    base = {"layouts": [layout], "n_bricks": 3, "props": 2}
+    base.update(kw)
+    return SceneSpec(**base)
+
+
+def part_accuracy(src, det, args, n) -> dict:
+    spec = _scene_spec(src.layout, n_bricks=3, props=2)
+    return _run_frames(src, det, "acc", range(args.seed, args.seed + n), spec,
+                       progress="accuracy")
+
+
+def part_hidden(src, det, args, n) -> dict:
+    out = {}
+    spec = _scene_spec(src.layout, n_bricks=3, props=1)
+    out["unpainted_1_2"] = _run_frames(src, det, "hid", range(args.seed, args.seed + n), spec,
+                                       hide=(1, 2), gravity=(True,), progress="hidden dots")
+    spec2 = _scene_spec(src.layout, n_bricks=3, props=1, stack_prob=0.6)
+    out["stacked"] = _run_frames(src, det, "stk", range(args.seed, args.seed + n // 2), spec2,
+                                 gravity=(True,), progress="stacked bricks")
+    return out
+
+
+def part_clutter(src, det, args, n) -> dict:
+    spec = _scene_spec(src.layout, n_bricks=0, props=8, grounds=("clutter",),
+                       distance=(0.4, 2.0))
+    res = _run_frames(src, det, "clu", range(args.seed, args.seed + n), spec,
+                      progress="clutter")
+    return {k: {"frames": v["frames"], "false_bricks": v["false_bricks"]}
+            for k, v in res.items()}
+
+
+def part_lighting(src, det, args, n) -> dict:
+    out = {}
+    for gain in (0.6, 0.8, 1.0, 1.3):
+        for gamma in (0.8, 1.0, 1.25):
+            spec = _scene_spec(src.layout, n_bricks=3, props=2, gain=(gain, gain),
+                               gamma=(gamma, gamma))
+            r = _run_frames(src, det, f"lit{gain}-{gamma}", range(args.seed, args.seed + n),
+                            spec, gravity=(True,))["gravity"]
+            out[f"gain {gain} gamma {gamma}"] = {k: r[k] for k in (
+                "eligible", "found", "recall", "lateral_p95_cm", "depth_p95_pct",
+                "yaw_p95_deg", "false_bricks")}
+    return out
+
+
+def _minimal_pass(palette_specs):
+    import cv2
+
+    ranges = [s.cv_ranges()[0] for s in palette_specs]
+
+    def run(img):
+        hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+        for lo, hi in ranges:
+            cv2.inRange(hsv, lo, hi)
+    return run
+
+
+_GROUNDS = ("gravel", "grass", "clutter")
+
+
+def _timing_frames(src, args, nbricks: int, n: int) -> list[Frame]:
+    """Bricks on a 5 × 4 grid seen from 1.75 m (so that 20 fit in view, dots ≈ 6–7 px): 1, 5
+    or 20 of its cells filled, on gravel, grass or photo clutter; the same camera poses for
+    every brick count."""
+    from drovisio.synth import (
+        BrickInstance,
+        Effects,
+        Ground,
+        Scene,
+        camera_over,
+        rot_z,
+        transform,
+    )
+
+    cells = [((c - 2) * 0.40, (r - 1.5) * 0.26) for r in range(4) for c in range(5)]
+    pick = {1: [7], 5: [6, 8, 11, 13, 2], 20: list(range(20))}.get(nbricks)
+    if pick is None:
+        pick = list(range(min(nbricks, 20)))
+    frames = []
+    for k in range(n):
+        seed = args.seed + k
+
+        def build(seed=seed):
+            rng = np.random.default_rng(1000 + seed)
+            bricks = [BrickInstance(src.layout, transform(rot_z(float(rng.uniform(-0.25, 0.25))),
+                                                          [cells[c][0], cells[c][1], 0.1]),
+                                    instance=None) for c in pick]
+            cfw = camera_over([0.0, 0.0, 0.1], 1.75, float(rng.uniform(0, 10)),
+                              float(rng.choice([0.0, 180.0])) + float(rng.uniform(-5, 5)))
+            scene = Scene(camera=src.camera, camera_from_world=cfw,
+                          ground=Ground(_GROUNDS[seed % 3], seed=seed % 4), bricks=bricks)
+            fx = Effects(blur_sigma_px=0.5, noise_sigma=2.0, jpeg_quality=90, seed=seed)
+            return scene, fx
+        frames.append(src.get_scene(f"tim{nbricks}", seed, build))
+    return frames
+
+
+def part_timing(src, det, args, n, repeats) -> dict:
+    import cv2
+
+    if args.threads is not None:
+        cv2.setNumThreads(args.threads)
+    minimal = _minimal_pass(det.specs)
+    out = {"threads": cv2.getNumThreads()}
+    base = None
+    for nb in (1, 5, 20):
+        frames = _timing_frames(src, args, nb, n)
+        t_min, t_det, c_min, c_det, found, inview = [], [], [], [], [], []
+        wall, cpu = time.perf_counter, time.process_time
+        for fr in frames:
+            a, b, ca, cb = [], [], [], []
+            for _ in range(3):  # warm-up
+                minimal(fr.image)
+                det.detect(fr.image, gravity=fr.gravity)
+            for _ in range(repeats):  # interleaved, so that load changes hit both alike
+                t, c = wall(), cpu()
+                minimal(fr.image)
+                a.append(wall() - t)
+                ca.append(cpu() - c)
+                t, c = wall(), cpu()
+                poses = det.detect(fr.image, gravity=fr.gravity)
+                b.append(wall() - t)
+                cb.append(cpu() - c)
+            t_min.append(float(np.median(a)))
+            t_det.append(float(np.median(b)))
+            c_min.append(float(np.median(ca)))
+            c_det.append(float(np.median(cb)))
+            found.append(len(poses))
+            inview.append(sum(int(np.sum(x.visible)) >= 4 for x in fr.bricks))
+        row = {"frames": len(frames), "bricks_in_view_median": float(np.median(inview)),
+               "bricks_found_median": float(np.median(found)),
+               "minimal_ms": 1e3 * float(np.median(t_min)),
+               "detect_ms": 1e3 * float(np.median(t_det)),
+               "ratio": float(np.median(np.asarray(t_det) / np.asarray(t_min))),
+               "minimal_cpu_ms": 1e3 * float(np.median(c_min)),
+               "detect_cpu_ms": 1e3 * float(np.median(c_det)),
+               "ratio_cpu": float(np.median(c_det) / max(np.median(c_min), 1e-9)),
+               "loadavg": os.getloadavg()[0]}
+        if base is None:
+            base = row
+        row["vs_1_brick"] = row["detect_ms"] / base["detect_ms"]
+        row["vs_1_brick_cpu"] = row["detect_cpu_ms"] / base["detect_cpu_ms"]
+        out[f"{nb}_bricks"] = row
+    return out
+
+
+def _rss_kb() -> int:
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") // 1024
+
+
+def part_memory(src, det, args, nframes) -> dict:
+    from drovisio.detect.dots import DotsState, detect_dots
+
+    frames = (_timing_frames(src, args, 1, 2) + _timing_frames(src, args, 5, 2)
+              + _timing_frames(src, args, 20, 2))
+    state = DotsState()
+    warm = min(1000, nframes // 10)
+    samples = []
+    t0 = time.time()
+    rss_warm = None
+    for k in range(nframes):
+        fr = frames[k % len(frames)]
+        detect_dots(fr.image, src.camera, [src.layout], gravity=fr.gravity, state=state)
+        if k == warm:
+            gc.collect()
+            rss_warm = _rss_kb()
+        if k > warm and k % 500 == 0:
+            samples.append(_rss_kb())
+    gc.collect()
+    rss_end = _rss_kb()
+    return {"frames": nframes, "warmup_frames": warm, "rss_after_warmup_kb": rss_warm,
+            "rss_end_kb": rss_end, "rss_max_after_warmup_kb": max(samples + [rss_end]),
+            "growth_kb": rss_end - rss_warm,
+            "max_growth_kb": max(samples + [rss_end]) - rss_warm,
+            "seconds": time.time() - t0}
+
+
+# ================================================================================= report
+def _fmt(v, nd=2):
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.{nd}f}"
+    return str(v)
+
+
+def _print_report(rep: dict) -> None:
+    w = print
+    w("\ndrovisio bench dots — colour-dot bricks (issue #4)")
+    w("=" * 78)
+    acc = rep.get("accuracy")
+    if acc:
+        w("\nAccuracy (random scenes 0.4–2 m, tilt ≤ 40°; errors at ≤ 2 m, p95)")
+        w(f"{'':24}{'recall':>8}{'rec.6dots':>10}{'lat cm':>8}{'depth %':>8}{'yaw °':>7}"
+          f"{'flips':>6}{'unflag':>7}{'ambig':>7}{'false':>6}")
+        for k in ("gravity", "no_gravity"):
+            r = acc[k]
+            w(f"{k + ' (' + str(r['eligible']) + ' bricks)':24}{_fmt(100 * r['recall'], 1):>8}"
+              f"{_fmt(100 * r['recall_all_dots'], 1):>10}{_fmt(r['lateral_p95_cm']):>8}"
+              f"{_fmt(r['depth_p95_pct']):>8}{_fmt(r['yaw_p95_deg']):>7}{r['flips']:>6}"
+              f"{r['unflagged_flips']:>7}{_fmt(100 * r['ambiguous_share'], 0) + '%':>7}"
+              f"{r['false_bricks']:>6}")
+        r = acc["gravity"]
+        w(f"dot centres vs BrickTruth.dot_centers_px: bias ({r['center_bias_px'][0]:+.3f}, "
+          f"{r['center_bias_px'][1]:+.3f}) px, rms {r['center_rms_px']:.3f} px over "
+          f"{r['centers']} dots")
+    hid = rep.get("hidden")
+    if hid:
+        w("\nHidden dots (with gravity)")
+        for k, v in hid.items():
+            r = v["gravity"]
+            w(f"  {k:16} recall {_fmt(100 * r['recall'], 1)}% of {r['eligible']} eligible, "
+              f"lat {_fmt(r['lateral_p95_cm'])} cm, depth {_fmt(r['depth_p95_pct'])} %, yaw "
+              f"{_fmt(r['yaw_p95_deg'])}°, unflagged flips {r['unflagged_flips']}, false "
+              f"{r['false_bricks']}")
+    clu = rep.get("clutter")
+    if clu:
+        w("\nClutter without bricks (red cups, blue tarpaulins, photo clutter)")
+        for k, v in clu.items():
+            w(f"  {k:16} {v['false_bricks']} false bricks in {v['frames']} frames")
+    lit = rep.get("lighting")
+    if lit:
+        w("\nLighting (default palette, with gravity)")
+        for k, r in lit.items():
+            w(f"  {k:22} recall {_fmt(100 * r['recall'], 1):>5}% of {r['eligible']:>3}, lat "
+              f"{_fmt(r['lateral_p95_cm'])} cm, depth {_fmt(r['depth_p95_pct'])} %, yaw "
+              f"{_fmt(r['yaw_p95_deg'])}°, false {r['false_bricks']}")
+    tim = rep.get("timing")
+    if tim:
+        w(f"\nTiming (medians; minimal pass = cvtColor to HSV + one cv2.inRange per colour; "
+          f"OpenCV threads {tim['threads']}; wall clock, then process CPU time)")
+        w(f"{'':12}{'in view':>8}{'found':>7}{'minimal ms':>12}{'detect ms':>11}{'ratio':>7}"
+          f"{'vs 1 brick':>11}{'cpu ratio':>10}{'cpu vs 1':>9}{'load':>6}")
+        for k in ("1_bricks", "5_bricks", "20_bricks"):
+            r = tim.get(k)
+            if r:
+                w(f"{k:12}{_fmt(r['bricks_in_view_median'], 0):>8}"
+                  f"{_fmt(r['bricks_found_median'], 0):>7}{_fmt(r['minimal_ms'], 3):>12}"
+                  f"{_fmt(r['detect_ms'], 3):>11}{_fmt(r['ratio']):>7}"
+                  f"{_fmt(r['vs_1_brick']):>11}{_fmt(r['ratio_cpu']):>10}"
+                  f"{_fmt(r['vs_1_brick_cpu']):>9}{_fmt(r['loadavg'], 1):>6}")
+    mem = rep.get("memory")
+    if mem:
+        w(f"\nMemory: {mem['frames']} frames ({mem['seconds']:.0f} s), RSS after "
+          f"{mem['warmup_frames']} warm-up frames {mem['rss_after_warmup_kb']} kB, at the end "
+          f"{mem['rss_end_kb']} kB: growth {mem['growth_kb']} kB (max "
+          f"{mem['max_growth_kb']} kB)")
+    w("\nDefinitions: eligible = ≥ 4 fully visible dots of median size ≥ 6 px (equivalent "
+      "diameter); lateral = |(Δx, Δy)| of tvec in the camera frame; depth = |Δz|/z; yaw = "
+      "rotation about the brick z of R_trueᵀR_est (mod 180° for rot180_z); flip = > 20° off "
+      "(mod symmetry), unflagged = not marked ambiguous; false = no true brick within 8 cm.")
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+    bad = [p for p in parts if p not in PARTS]
+    if bad:
+        print(f"drovisio bench dots: unknown part(s) {', '.join(bad)}; choose from "
+              f"{', '.join(PARTS)}", file=sys.stderr)
+        return 2
+    q = args.quick
+    n_acc = args.frames or (40 if q else 300)
+    n_hid = args.hidden_frames or (30 if q else 200)
+    n_clu = args.clutter_frames or (30 if q else 220)
+    n_lit = args.lighting_frames or (2 if q else 12)
+    n_tim = args.timing_frames or (3 if q else 6)
+    reps = args.timing_repeats or (10 if q else 40)
+    n_mem = args.memory_frames or (2000 if q else 20000)
+    from drovisio.detect.dots import DotDetector
+
+    layout = _layout(args.layout)
+    cache = None if args.no_cache else Path(args.cache or Path.home() / ".cache" / "drovisio"
+                                            / "bench-dots")
+    src = FrameSource(layout, cache)
+    det = DotDetector(src.camera, [layout])
+    rep: dict = {"layout": layout.name, "camera": src.camera.name}
+    t0 = time.time()
+    if "accuracy" in parts:
+        rep["accuracy"] = part_accuracy(src, det, args, n_acc)
+    if "hidden" in parts:
+        rep["hidden"] = part_hidden(src, det, args, n_hid)
+    if "clutter" in parts:
+        rep["clutter"] = part_clutter(src, det, args, n_clu)
+    if "lighting" in parts:
+        rep["lighting"] = part_lighting(src, det, args, n_lit)
+    if "timing" in parts:
+        rep["timing"] = part_timing(src, det, args, n_tim, reps)
+    if "memory" in parts:
+        rep["memory"] = part_memory(src, det, args, n_mem)
+    rep["seconds"] = time.time() - t0
+    _print_report(rep)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rep, indent=2, default=float))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,250 @@
+"""``drovisio bench pipeline``: latency capture → sent, and resident memory over a long run.
+
+Both use the real pipeline of ``drovisio run`` (ArUco + dot detectors, the three drick layouts,
+the sample camera and mount, tracking, fusion) on the sample approach video, looped.
+
+``latency`` — the video is played *as a 30 fps camera* (``--fps``; the frames of the 15 fps
+file are handed over every 1/30 s, newest-frame policy), for ``--seconds``, with sinks
+JSON Lines (to a file), UDP and MAVLink ``udpout`` to a pymavlink listener on loopback.
+Reports, per processed frame, the latency from capture (the moment the frame was handed
+over) to the moment every sink had sent its message, and, on the listener's side, capture →
+``LANDING_TARGET`` received (its ``time_usec`` is the capture time). Pass: median ≤ one frame
+interval (33.3 ms at 30 fps).
+
+``memory`` — ``--minutes`` of 30 fps stream time (36 000 frames for 20 minutes), **run
+accelerated**: frames are processed back to back without waiting for the camera clock
+(``pace="max"``), but time-stamped on the stream's own 30 fps clock, so that tracking, ages and
+dropping behave as in real time. All four sink kinds are open (JSON Lines to /dev/null, UDP to a
+port nobody listens on, MAVLink ``udpout`` with nobody answering, a WebSocket feed). Resident
+memory (VmRSS) is sampled every second of stream time; growth = median RSS of the last
+minute − median RSS of the minute after the warm-up (``--warmup-minutes``, default 2), and the
+least-squares slope after warm-up. Pass: growth ≤ 1 MB.
+
+Examples::
+
+    drovisio bench pipeline latency --seconds 20
+    drovisio bench pipeline memory --minutes 20
+    drovisio bench pipeline memory --minutes 2 --warmup-minutes 0.5   # quick look
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "rss_mb"]
+
+REPO = Path(__file__).resolve().parents[2]
+SAMPLE = REPO / "sample_sessions"
+APPROACH = SAMPLE / "approach"
+LAYOUTS = [REPO / "marker_layouts" / f"{n}.json"
+           for n in ("drick-aruco-pyramids", "drick-aruco-centre", "drick-dots-2x3")]
+
+
+def rss_mb() -> float:
+    """Resident set size of this process, MB (from /proc; 0 where unavailable)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class _AtFps:
+    """Wraps a reader so that its frames are timed at ``fps`` (a 15 fps file as a 30 fps
+    camera)."""
+
+    def __init__(self, reader, fps: float):
+        self.r = reader
+        self.fps = fps
+        self.label = f"{reader.label} @ {fps:g} fps"
+        self.finite = reader.finite
+        self.k = 0
+
+    def open(self) -> None:
+        self.r.open()
+
+    def read(self):
+        f = self.r.read()
+        if f is not None:
+            f.media_time = self.k / self.fps
+            self.k += 1
+        return f
+
+    def close(self) -> None:
+        self.r.close()
+
+
+def _args(sinks: list[str]) -> argparse.Namespace:
+    return argparse.Namespace(source=str(APPROACH / "approach.mp4"),
+                              camera=str(SAMPLE / "camera.yaml"),
+                              layout=[str(x) for x in LAYOUTS], mount=str(APPROACH / "mount.json"),
+                              sink=sinks, record=None, target="nearest",
+                              autopilot="ardupilot", max_age=0.5, pace="realtime")
+
+
+def _pipeline(sinks: list[str], fps: float, pace: str):
+    from drovisio.commands.run import build_pipeline
+    from drovisio.sources import FrameSource, VideoFileReader
+
+    p = build_pipeline(_args(sinks))
+    p.source = FrameSource(_AtFps(VideoFileReader(APPROACH / "approach.mp4", loop=True), fps),
+                           pace=pace)
+    return p
+
+
+def _pct(a, q: float) -> float:
+    return float(np.percentile(a, q)) if len(a) else float("nan")
+
+
+def bench_latency(fps: float, seconds: float) -> dict:
+    from drovisio.sinks.mavlink import mavutil2
+
+    mavutil = mavutil2()
+    rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
+    port = rx.port.getsockname()[1]
+    got: list[float] = []
+    stop = threading.Event()
+
+    def listen() -> None:
+        while not stop.is_set():
+            m = rx.recv_match(type="LANDING_TARGET", blocking=True, timeout=0.1)
+            if m is not None:
+                got.append(time.time() - m.time_usec / 1e6)
+
+    th = threading.Thread(target=listen, daemon=True)
+    th.start()
+    lat: list[float] = []
+    det: list[float] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        p = _pipeline([f"jsonl:{Path(tmp) / 'out.jsonl'}", f"udp://127.0.0.1:{port + 1}",
+                       f"mavlink:udpout:127.0.0.1:{port}"], fps, "realtime")
+
+        def on_frame(frame, out) -> None:
+            if frame is not None:
+                lat.append((time.monotonic() - frame.t_read) * 1e3)
+                det.append(out.detect_ms)
+
+        p.add_listener(on_frame)
+        th_run = threading.Thread(target=p.run, daemon=True)
+        th_run.start()
+        time.sleep(seconds)
+        p.stop()
+        th_run.join(5)
+        st = p.status()
+        p.close()
+    stop.set()
+    th.join(1)
+    rx.close()
+    lat_a = np.array(lat[int(fps):])  # first second: warm-up
+    rx_a = np.array(got[int(fps):]) * 1e3
+    frames_offered = st["source"]["frames"]
+    return {
+        "fps_camera": fps, "seconds": seconds, "frames_offered": frames_offered,
+        "frames_processed": st["frames"], "frames_dropped": st["source"]["dropped"],
+        "processed_fps": round(st["frames"] / seconds, 2),
+        "latency_ms": {"median": round(_pct(lat_a, 50), 2), "p90": round(_pct(lat_a, 90), 2),
+                       "max": round(float(lat_a.max()) if len(lat_a) else float("nan"), 2)},
+        "capture_to_received_ms": {"median": round(_pct(rx_a, 50), 2),
+                                   "p90": round(_pct(rx_a, 90), 2), "n": len(rx_a)},
+        "detect_ms_median": round(_pct(det, 50), 2),
+        "budget_ms": round(1000 / fps, 2),
+        "pass": bool(len(lat_a) and _pct(lat_a, 50) <= 1000 / fps),
+    }
+
+
+def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bool) -> dict:
+    frames_total = int(round(minutes * 60 * fps))
+    samples: list[tuple[float, float]] = []  # (stream minutes, RSS MB)
+    every = int(round(fps))  # one sample per stream second
+    p = _pipeline(["jsonl:/dev/null", "udp://127.0.0.1:9",
+                   "mavlink:udpout:127.0.0.1:9", "ws://127.0.0.1:0"], fps, "max")
+    t0 = time.monotonic()
+    count = [0]
+
+    def on_frame(frame, out) -> None:
+        if frame is None:
+            return
+        count[0] += 1
+        if count[0] % every == 0:
+            samples.append((count[0] / fps / 60, rss_mb()))
+            if progress and count[0] % (every * 60) == 0:
+                print(f"  {count[0] / fps / 60:5.1f} stream min, {samples[-1][1]:.2f} MB, "
+                      f"{time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
+
+    p.add_listener(on_frame)
+    gc.collect()
+    n = p.run(max_frames=frames_total)
+    wall = time.monotonic() - t0
+    st = p.status()
+    p.close()
+    a = np.array(samples)
+    post = a[a[:, 0] >= warmup_minutes]
+    first = post[post[:, 0] < warmup_minutes + 1.0][:, 1]
+    last = post[post[:, 0] >= post[-1, 0] - 1.0][:, 1]
+    growth = float(np.median(last) - np.median(first))
+    slope = float(np.polyfit(post[:, 0], post[:, 1], 1)[0]) if len(post) > 2 else float("nan")
+    return {
+        "stream_minutes": minutes, "fps": fps, "frames": n, "wall_seconds": round(wall, 1),
+        "acceleration": round(minutes * 60 / wall, 2),
+        "warmup_minutes": warmup_minutes,
+        "rss_mb": {"start": round(float(a[0, 1]), 2),
+                   "after_warmup_median": round(float(np.median(first)), 2),
+                   "end_median": round(float(np.median(last)), 2),
+                   "max": round(float(a[:, 1].max()), 2)},
+        "growth_mb": round(growth, 3), "slope_mb_per_hour": round(slope * 60, 3),
+        "detector_errors": st["detector_errors"], "pass": bool(growth <= 1.0),
+    }
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(
+        prog="drovisio bench pipeline",
+        description="Latency capture → sent at 30 fps, and resident memory over a long run, "
+                    "of the drovisio run pipeline on the sample approach video.",
+        epilog="Example:\n  drovisio bench pipeline latency --seconds 20\n"
+               "  drovisio bench pipeline memory --minutes 20",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("what", nargs="?", choices=("latency", "memory", "all"), default="all")
+    ap.add_argument("--fps", type=float, default=30.0, help="camera frame rate (default 30)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="latency run length (s)")
+    ap.add_argument("--minutes", type=float, default=20.0,
+                    help="memory run length in stream minutes (default 20)")
+    ap.add_argument("--warmup-minutes", type=float, default=2.0)
+    ap.add_argument("--json", metavar="FILE", help="also write the results here")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    res: dict = {"machine": {"cpus": os.cpu_count(),
+                             "load_1min": round(os.getloadavg()[0], 2)}}
+    ok = True
+    if a.what in ("latency", "all"):
+        r = bench_latency(a.fps, a.seconds)
+        res["latency"] = r
+        ok &= r["pass"]
+        print(f"latency at {a.fps:g} fps: capture → sent median {r['latency_ms']['median']} ms "
+              f"(p90 {r['latency_ms']['p90']}, max {r['latency_ms']['max']}; budget "
+              f"{r['budget_ms']} ms) — {'PASS' if r['pass'] else 'FAIL'}; capture → received "
+              f"by the MAVLink listener median {r['capture_to_received_ms']['median']} ms; "
+              f"detect median {r['detect_ms_median']} ms; processed {r['processed_fps']} fps, "
+              f"{r['frames_dropped']} of {r['frames_offered']} frames skipped")
+    if a.what in ("memory", "all"):
+        r = bench_memory(a.fps, a.minutes, a.warmup_minutes, progress=not a.quiet)
+        res["memory"] = r
+        ok &= r["pass"]
+        print(f"memory over {a.minutes:g} stream minutes ({r['frames']} frames at {a.fps:g} fps, "
+              f"run accelerated ×{r['acceleration']} in {r['wall_seconds']} s): RSS "
+              f"{r['rss_mb']['after_warmup_median']} MB after warm-up → "
+              f"{r['rss_mb']['end_median']} MB at the end, growth {r['growth_mb']} MB "
+              f"(slope {r['slope_mb_per_hour']} MB/h) — {'PASS' if r['pass'] else 'FAIL'}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=1))
+    return 0 if ok else 1

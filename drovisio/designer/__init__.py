@@ -1,0 +1,16 @@
+"""Marker designer core: place ArUco codes and colour dots on a brick's mesh, check the
+design, export the layout file, a GLB and true-scale print sheets.
+
+No web imports here: the web tool (``webtool/designer_scene.py``, ``webtool/routes/designer.py``)
+drives :class:`drovisio.designer.model.DesignDocument`.
+
+Modules:
+    * :mod:`.raycast` - viewer click ray -> point/face on the mesh (trimesh + rtree).
+    * :mod:`.model` - the editable document (mesh, units, brick frame, markers, undo).
+    * :mod:`.checks` - live warnings (overhang, overlap, coplanarity, symmetry, ids, range).
+    * :mod:`.export` - layout JSON, GLB, print sheet PDF/SVG, saving into a layouts folder.
+"""
+
+from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
+
+__all__ = ["DesignDocument", "DesignError", "DesignMarker"]

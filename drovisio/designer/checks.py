@@ -1,0 +1,554 @@
+"""Live checks of a marker design: what an engineer must fix or know before printing.
+
+:func:`check_design` returns :class:`Finding` objects, each with a severity:
+
+* ``error``: the layout cannot be saved as it is (the layout model would refuse it, or ids
+  clash with another layout): export is blocked until it is fixed;
+* ``warning``: it can be saved but will work badly (a marker overhangs its face, markers
+  overlap, the dot pattern is symmetric so the yaw is ambiguous by 180 deg, markers too small
+  to be seen from the working height, suspicious units);
+* ``info``: facts (estimated detection distance per marker size, guessed units).
+
+Each finding may offer :class:`Fix` actions (``{"op": ...}`` dicts) that
+:func:`apply_fix` performs on the document: set the symmetry, change a dot's colour to break
+the symmetry, move a marker to its face centre, shrink it to fit, use a free first id, set the
+units.
+
+Detection distance: a code must span at least :data:`MIN_CODE_PX` pixels and a dot
+:data:`MIN_DOT_PX` pixels, so seen head-on at distance ``d`` with focal length ``fx`` (px):
+``d_max = fx * size / min_px`` (less when seen at an angle).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drovisio.camera import Camera
+from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
+from drovisio.layout import (
+    DOT_COPLANAR_TOL_M,
+    SYMMETRY_TOL_M,
+    LayoutError,
+    parse_layout,
+)
+
+__all__ = ["MIN_CODE_PX", "MIN_DOT_PX", "WORKING_DISTANCE_M", "Fix", "Finding",
+           "check_design", "apply_fix", "max_detection_distance", "dot_symmetries",
+           "symmetry_breaking_colour", "markers_overlap", "fit_size", "blocking"]
+
+#: A code must span at least this many pixels to be read (the aruco detector's target).
+MIN_CODE_PX = 15.0
+#: A dot must span at least this many pixels to be found.
+MIN_DOT_PX = 6.0
+#: Markers should be seen from at least this far (the drone climbs above 1 m and aligns from
+#: about 1.5 m); smaller ones get a warning.
+WORKING_DISTANCE_M = 1.5
+#: Edge tolerance of the overhang test (printing and cutting are not more precise).
+OVERHANG_TOL_M = 0.0002
+
+
+@dataclass
+class Fix:
+    """One click that fixes a finding: ``label`` for the button, ``action`` for
+    :func:`apply_fix`."""
+
+    label: str
+    action: dict[str, Any]
+
+
+@dataclass
+class Finding:
+    """A live check result. ``key`` is stable (for tests and the page), ``markers`` are the
+    indices concerned."""
+
+    key: str
+    severity: str  # "error" | "warning" | "info"
+    message: str
+    markers: list[int] = field(default_factory=list)
+    fixes: list[Fix] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"key": self.key, "severity": self.severity, "message": self.message,
+                "markers": list(self.markers),
+                "fixes": [{"label": f.label, "action": f.action} for f in self.fixes]}
+
+
+def blocking(findings: list[Finding]) -> list[Finding]:
+    """The findings that prevent saving (severity ``error``)."""
+    return [f for f in findings if f.severity == "error"]
+
+
+def _mm(x: float) -> str:
+    v = x * 1000
+    return f"{v:.0f} mm" if abs(v - round(v)) < 0.05 else f"{v:.1f} mm"
+
+
+def _m(x: float) -> str:
+    return f"{x:.1f} m" if x < 10 else f"{x:.0f} m"
+
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def max_detection_distance(size_m: float, camera: Camera, kind: str) -> float:
+    """How far (m) a marker of ``size_m`` can be detected head-on: it must span
+    :data:`MIN_CODE_PX` (codes) / :data:`MIN_DOT_PX` (dots) pixels."""
+    f = min(camera.fx, camera.fy)
+    return f * size_m / (MIN_CODE_PX if kind == "aruco" else MIN_DOT_PX)
+
+
+def _plane_coords(m: DesignMarker, origin: np.ndarray, r: np.ndarray, u: np.ndarray):
+    d = m.c - origin
+    return np.array([d @ r, d @ u])
+
+
+def _square2d(m: DesignMarker, origin, r, u) -> np.ndarray:
+    return np.array([[p @ r, p @ u] for p in (m.corners() - origin)])
+
+
+def _sat(a: np.ndarray, b: np.ndarray, gap: float = 0.0) -> bool:
+    """Do two convex 2D polygons overlap (by more than -gap)?"""
+    for poly in (a, b):
+        for i in range(len(poly)):
+            e = poly[(i + 1) % len(poly)] - poly[i]
+            axis = np.array([-e[1], e[0]])
+            n = np.linalg.norm(axis)
+            if n == 0:
+                continue
+            axis /= n
+            pa, pb = a @ axis, b @ axis
+            if pa.max() <= pb.min() + gap or pb.max() <= pa.min() + gap:
+                return False
+    return True
+
+
+def _circle_polygon(center: np.ndarray, radius: float, poly: np.ndarray) -> bool:
+    # inside?
+    inside = True
+    sign = None
+    for i in range(len(poly)):
+        a, b = poly[i], poly[(i + 1) % len(poly)]
+        cr = (b[0] - a[0]) * (center[1] - a[1]) - (b[1] - a[1]) * (center[0] - a[0])
+        s = cr >= 0
+        if sign is None:
+            sign = s
+        elif s != sign:
+            inside = False
+    if inside:
+        return True
+    for i in range(len(poly)):
+        a, b = poly[i], poly[(i + 1) % len(poly)]
+        ab = b - a
+        t = np.clip((center - a) @ ab / max(ab @ ab, 1e-30), 0, 1)
+        if np.linalg.norm(center - (a + t * ab)) < radius:
+            return True
+    return False
+
+
+def markers_overlap(a: DesignMarker, b: DesignMarker) -> bool:
+    """Do two markers on (nearly) the same plane overlap? Markers on different planes
+    never count (they sit on different faces)."""
+    if a.n @ b.n < math.cos(math.radians(5)):
+        return False
+    if abs((b.c - a.c) @ a.n) > 0.002:
+        return False
+    origin, r, u = a.c, a.r, a.u
+    if a.kind == "dot" and b.kind == "dot":
+        return float(np.linalg.norm(_plane_coords(b, origin, r, u))) < (a.size + b.size) / 2
+    if a.kind == "aruco" and b.kind == "aruco":
+        return _sat(_square2d(a, origin, r, u), _square2d(b, origin, r, u))
+    code, dot = (a, b) if a.kind == "aruco" else (b, a)
+    return _circle_polygon(_plane_coords(dot, origin, r, u), dot.size / 2,
+                           _square2d(code, origin, r, u))
+
+
+def _fits(doc: DesignDocument, m: DesignMarker) -> bool:
+    if m.face is None:
+        return False
+    face = doc.faces.faces[m.face]
+    return bool(np.all(doc.faces.contains(face, m.outline(), tol=OVERHANG_TOL_M,
+                                          plane_tol=0.001)))
+
+
+def fit_size(doc: DesignDocument, m: DesignMarker, min_size: float = 0.005) -> float | None:
+    """The largest size (whole millimetres, at most the current size) at which the marker
+    fits its face where it is, or None if not even ``min_size`` fits."""
+    from dataclasses import replace
+
+    if m.face is None:
+        return None
+    lo, hi = min_size, m.size
+    if not _fits(doc, replace(m, size=lo)):
+        return None
+    for _ in range(30):
+        mid = (lo + hi) / 2
+        if _fits(doc, replace(m, size=mid)):
+            lo = mid
+        else:
+            hi = mid
+    return math.floor(lo * 1000 + 1e-9) / 1000
+
+
+# ------------------------------------------------------------------------------ symmetry
+
+
+def _dot_plane(markers: list[DesignMarker]):
+    pts = np.array([m.center for m in markers], np.float64)
+    n = np.mean([m.n for m in markers], axis=0)
+    n = n / np.linalg.norm(n) if np.linalg.norm(n) > 0 else np.array([0, 0, 1.0])
+    c = pts.mean(axis=0)
+    u = np.cross(n, [1.0, 0, 0])
+    if np.linalg.norm(u) < 0.3:
+        u = np.cross(n, [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    xy = np.stack([(pts - c) @ u, (pts - c) @ v], axis=1)
+    return xy
+
+
+def dot_symmetries(markers: list[DesignMarker], tol: float = SYMMETRY_TOL_M) -> list[float]:
+    """Angles (deg, in (0, 360)) of the rotations about the dot pattern's own centre and
+    normal that map every dot onto a dot of the same colour and diameter.
+
+    An empty list means the dots alone fix the brick's yaw; ``[180.0]`` is the thesis's
+    red-blue-red pattern (yaw ambiguous by 180 deg).
+    """
+    if len(markers) < 2:
+        return []
+    xy = _dot_plane(markers)
+    rho = np.linalg.norm(xy, axis=1)
+    keys = [(m.color, round(m.size / tol)) for m in markers]
+    ref = int(np.argmax(rho))
+    if rho[ref] <= tol:
+        return []
+    base = math.atan2(xy[ref, 1], xy[ref, 0])
+    out: list[float] = []
+    for j in range(len(markers)):
+        if j == ref or keys[j] != keys[ref] or abs(rho[j] - rho[ref]) > 2 * tol:
+            continue
+        th = math.atan2(xy[j, 1], xy[j, 0]) - base
+        c, s = math.cos(th), math.sin(th)
+        rot = xy @ np.array([[c, s], [-s, c]])
+        ok = True
+        for k in range(len(markers)):
+            d = np.linalg.norm(xy - rot[k], axis=1)
+            if not any(d[q] <= 2 * tol and keys[q] == keys[k] for q in range(len(markers))):
+                ok = False
+                break
+        if ok:
+            deg = math.degrees(th) % 360.0
+            if 0.5 < deg < 359.5:
+                out.append(round(deg, 1))
+    return sorted(set(out))
+
+
+def _rot180_z_symmetric(markers: list[DesignMarker], tol: float = SYMMETRY_TOL_M) -> bool:
+    """The layout file's ``rot180_z``: a half-turn about the brick's z axis (through the
+    origin) maps the dots onto dots of the same colour and diameter (brick frame)."""
+    if not markers:
+        return False
+    pts = np.array([m.center for m in markers], np.float64)
+    rot = pts * np.array([-1.0, -1.0, 1.0])
+    for j, d in enumerate(markers):
+        dist = np.linalg.norm(pts - rot[j], axis=1)
+        if not any(dist[k] <= tol and markers[k].color == d.color
+                   and abs(markers[k].size - d.size) <= tol for k in range(len(markers))):
+            return False
+    return True
+
+
+def symmetry_breaking_colour(markers: list[DesignMarker], palette: list[str]
+                             ) -> tuple[int, str] | None:
+    """A single dot colour change that leaves the pattern with no symmetry:
+    ``(index into markers, new colour)``, preferring colours already used, or None."""
+    from dataclasses import replace
+
+    used = list(dict.fromkeys(m.color for m in markers))
+    order = used + [c for c in palette if c not in used]
+    for i, m in enumerate(markers):
+        for c in order:
+            if c == m.color:
+                continue
+            trial = list(markers)
+            trial[i] = replace(m, color=c)
+            if not dot_symmetries(trial):
+                return i, c
+    return None
+
+
+# ------------------------------------------------------------------------------ checks
+
+
+def check_design(doc: DesignDocument, camera: Camera | None = None) -> list[Finding]:
+    """All live checks of a design (see the module docstring).
+
+    Args:
+        doc: the design (its ``others`` are the layouts whose ids must not be reused).
+        camera: the drone's camera for the distance estimate (default: the thesis's 60 deg
+            640x480 webcam).
+
+    Returns:
+        Findings, errors first, then warnings, then infos.
+    """
+    out: list[Finding] = []
+    if not doc.has_mesh:
+        return [Finding("no-mesh", "info", "Start by uploading the brick's 3D model (STL, OBJ, "
+                        "PLY, GLB or OFF) or by opening an example.")]
+    camera = camera or Camera.drone_webcam()
+    out += _check_units(doc)
+    if not doc.markers:
+        out.append(Finding("no-markers", "error", "No markers yet: choose 'Add codes' or "
+                           "'Add dots', then click on the model where each one goes."))
+    out += _check_faces(doc)
+    out += _check_overlaps(doc)
+    out += _check_dots(doc)
+    out += _check_ids(doc)
+    out += _check_range(doc, camera)
+    if not any(f.severity == "error" for f in out) and doc.markers:
+        try:
+            parse_layout(doc.layout_data(None), f"layout {doc.name!r}")
+        except LayoutError as e:
+            for line in e.issues:
+                out.append(Finding("layout-invalid", "error", line.split(": ", 1)[-1]))
+    rank = {"error": 0, "warning": 1, "info": 2}
+    return sorted(out, key=lambda f: rank[f.severity])
+
+
+def _check_units(doc: DesignDocument) -> list[Finding]:
+    out = []
+    w = doc.units_warning()
+    dims = doc.dimensions()
+    size = " x ".join(f"{d * 1000:.0f}" for d in dims) + " mm"
+    if w is not None:
+        msg, guess = w
+        out.append(Finding("units-suspect", "warning", msg,
+                           fixes=[Fix(f"The numbers are {guess}", {"op": "set_units",
+                                                                   "units": guess})]))
+    elif doc.units_guessed:
+        names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
+        out.append(Finding("units-guessed", "info", f"Units guessed from the size: "
+                           f"{names[doc.units]}, so the brick is {size}. If that is wrong, "
+                           "choose the right unit under '1. Brick model'."))
+    return out
+
+
+def _check_faces(doc: DesignDocument) -> list[Finding]:
+    out = []
+    for i, m in enumerate(doc.markers):
+        label = doc.marker_label(i)
+        if m.face is None:
+            out.append(Finding("off-surface", "warning", f"{label.capitalize()} is not on the "
+                               "model's surface: drag it onto the model or delete it.", [i]))
+            continue
+        if _fits(doc, m):
+            continue
+        fixes = []
+        face = doc.faces.faces[m.face]
+        from dataclasses import replace
+
+        centred = replace(m, center=tuple(doc.faces.centre(face)))
+        if _fits(doc, centred) and np.linalg.norm(centred.c - m.c) > 1e-6:
+            fixes.append(Fix(f"Move {label} to the centre of its face",
+                             {"op": "centre_marker", "marker": i}))
+        s = fit_size(doc, m)
+        if s is not None and s < m.size:
+            fixes.append(Fix(f"Make {label} {_mm(s)} (fits here)",
+                             {"op": "set_size", "marker": i, "size": s}))
+        what = "code" if m.kind == "aruco" else "dot"
+        across = "wide" if m.kind == "aruco" else "across"
+        out.append(Finding("overhang", "warning", f"{label.capitalize()} is {_mm(m.size)} "
+                           f"{across} and hangs over the edge of its face: a {what} folded over "
+                           "an edge is not flat and will be misread. Move it, or make it "
+                           "smaller.", [i], fixes))
+    return out
+
+
+def _check_overlaps(doc: DesignDocument) -> list[Finding]:
+    out = []
+    ms = doc.markers
+    for i in range(len(ms)):
+        for j in range(i + 1, len(ms)):
+            if markers_overlap(ms[i], ms[j]):
+                out.append(Finding("overlap", "warning", f"{doc.marker_label(i).capitalize()} "
+                                   f"and {doc.marker_label(j)} overlap: move one of them apart "
+                                   "(or make them smaller).", [i, j]))
+    return out
+
+
+def _check_dots(doc: DesignDocument) -> list[Finding]:
+    out: list[Finding] = []
+    dots = doc.dots()
+    if not dots:
+        if doc.symmetry == "rot180_z":
+            out.append(Finding("symmetry-wrong", "error", "The layout is marked symmetric "
+                               "(half-turn) but has no dots: mark it not symmetric.",
+                               fixes=[Fix("Mark as not symmetric",
+                                          {"op": "set_symmetry", "value": "none"})]))
+        return out
+    bricks = doc.brick_markers()
+    idx = [i for i, _ in dots]
+    bdots = [bricks[i] for i in idx]
+    # coplanar
+    if len(bdots) >= 4:
+        pts = np.array([m.center for m in bdots])
+        centred = pts - pts.mean(axis=0)
+        normal = np.linalg.svd(centred)[2][2]
+        dist = np.abs(centred @ normal)
+        k = int(np.argmax(dist))
+        if dist[k] > DOT_COPLANAR_TOL_M:
+            i = idx[k]
+            out.append(Finding("dots-not-coplanar", "error", f"{doc.marker_label(i).capitalize()}"
+                               f" is {dist[k] * 1000:.0f} mm off the plane of the other dots: "
+                               "the dot detector needs all dots on one flat surface. Move it "
+                               "onto the same face as the others, or delete it.", [i],
+                               [Fix(f"Delete {doc.marker_label(i)}",
+                                    {"op": "delete_marker", "marker": i})]))
+            return out
+    if len(bdots) < 4 and not doc.codes():
+        out.append(Finding("dots-few", "warning", f"Only {len(bdots)} dot(s): the drone needs "
+                           "at least 4 dots on one face to find the brick's position and "
+                           "turn. Add more dots (the thesis used 6: two rows of 3).", idx))
+    # symmetry
+    angles = dot_symmetries(bdots)
+    about_z = _rot180_z_symmetric(bdots)
+    if doc.symmetry == "rot180_z" and not about_z:
+        out.append(Finding("symmetry-wrong", "error", "The layout is marked symmetric "
+                           "(half-turn about the brick's z axis) but the dots do not look the "
+                           "same after that half-turn: mark it not symmetric.", idx,
+                           [Fix("Mark as not symmetric", {"op": "set_symmetry", "value": "none"})]))
+        return out
+    others = [a for a in angles if not (doc.symmetry == "rot180_z" and abs(a - 180) < 1)]
+    if not angles:
+        return out
+    if not others:
+        out.append(Finding("symmetric-declared", "info", "The dot pattern is symmetric and the "
+                           "layout says so: from the dots alone the yaw is known only up to a "
+                           "half-turn (180 deg)." + (" The codes tell the two ends apart."
+                                                     if doc.codes() else "")))
+        return out
+    turns = ", ".join(f"{a:g} deg" for a in others)
+    fixes = []
+    swap = symmetry_breaking_colour(bdots, list(doc.palette()))
+    if swap is not None:
+        k, colour = swap
+        i = idx[k]
+        fixes.append(Fix(f"Make {doc.marker_label(i)} {colour} (breaks the symmetry)",
+                         {"op": "set_color", "marker": i, "color": colour}))
+    if about_z and others == [180.0] and doc.symmetry != "rot180_z":
+        fixes.append(Fix("Keep the pattern and mark the layout as symmetric",
+                         {"op": "set_symmetry", "value": "rot180_z"}))
+    refuses = about_z and doc.symmetry == "none" and not doc.codes()
+    if 180.0 in others:
+        what = ("so from the dots the drone cannot tell the brick's two ends apart: its turn "
+                "(yaw) is ambiguous by 180 deg")
+    else:
+        what = f"so its turn (yaw) is ambiguous by {turns}"
+    out.append(Finding("symmetric-dots", "error" if refuses else "warning",
+                       f"The dot pattern looks the same after a turn of {turns}, {what}. "
+                       "Change one dot's colour to break the symmetry"
+                       + (", or mark the layout as symmetric." if about_z else
+                          " (the layout file can only declare a half-turn about the brick's "
+                          "z axis through its origin).")
+                       + (" The codes still give the full turn when they are seen."
+                          if doc.codes() else ""), idx, fixes))
+    return out
+
+
+def _check_ids(doc: DesignDocument) -> list[Finding]:
+    out: list[Finding] = []
+    codes = doc.codes()
+    if not codes:
+        return out
+    block = doc.id_block()
+    idx = [i for i, _ in codes]
+    slots = sorted(m.slot for _, m in codes)
+    ipi = doc.effective_ids_per_instance()
+    if slots[-1] >= ipi:
+        out.append(Finding("ids-slots", "error", f"Code slots go up to {slots[-1]} but each "
+                           f"brick has only {ipi} id(s): raise 'ids per brick' to "
+                           f"{slots[-1] + 1} or use automatic.", idx,
+                           [Fix("Use automatic ids per brick",
+                                {"op": "set_ids_per_instance", "value": None})]))
+    if doc.dictionary() is None:
+        out.append(Finding("ids-too-many", "error", f"The codes need ids {block.start} to "
+                           f"{block.stop - 1}, more than this code family has. Make fewer "
+                           "bricks, use a lower first id, or choose a family with more codes "
+                           "(5x5, 6x6, 7x7).", idx))
+    for block_o, name in doc._taken_blocks():
+        lo, hi = max(block.start, block_o.start), min(block.stop, block_o.stop)
+        if lo < hi:
+            free = doc.free_first_id()
+            out.append(Finding("ids-clash", "error", f"Ids {lo}..{hi - 1} are already used by "
+                               f"the layout '{name}' ({block_o.start}..{block_o.stop - 1}): the "
+                               "drone could not tell those bricks apart. Use another first id.",
+                               idx, [Fix(f"Use first id {free} (free)",
+                                         {"op": "set_first_id", "value": free})]))
+    return out
+
+
+def _check_range(doc: DesignDocument, camera: Camera) -> list[Finding]:
+    out = []
+    f = min(camera.fx, camera.fy)
+    groups: dict[tuple[str, float], list[int]] = {}
+    for i, m in enumerate(doc.markers):
+        groups.setdefault((m.kind, round(m.size, 4)), []).append(i)
+    for (kind, size), idx in sorted(groups.items()):
+        d = max_detection_distance(size, camera, kind)
+        name = "Codes" if kind == "aruco" else "Dots"
+        px = MIN_CODE_PX if kind == "aruco" else MIN_DOT_PX
+        base = (f"{name} of {_mm(size)}: seen up to about {_m(d)} away with this camera "
+                f"({camera.name}, {camera.width}x{camera.height}, fx = {f:.0f} px; a "
+                f"{'code' if kind == 'aruco' else 'dot'} must span at least {px:g} pixels; "
+                "less when seen at an angle).")
+        if d < WORKING_DISTANCE_M:
+            need = WORKING_DISTANCE_M * px / f
+            out.append(Finding("range-short", "warning", base + f" That is closer than the "
+                               f"{WORKING_DISTANCE_M:g} m the drone works from: make them at "
+                               f"least {_mm(math.ceil(need * 1000) / 1000)}.", idx))
+        else:
+            out.append(Finding("range", "info", base, idx))
+    return out
+
+
+# ------------------------------------------------------------------------------ fixes
+
+
+def apply_fix(doc: DesignDocument, action: dict[str, Any]) -> None:
+    """Perform a :class:`Fix` action on the document (undoable like any edit).
+
+    Raises:
+        DesignError: unknown or malformed action.
+    """
+    if not isinstance(action, dict) or not isinstance(action.get("op"), str):
+        raise DesignError("this fix is not valid any more: reload the page")
+    op = action["op"]
+    try:
+        if op == "set_symmetry":
+            doc.set_layout_fields(symmetry=action["value"])
+        elif op == "set_color":
+            doc.set_marker(int(action["marker"]), color=str(action["color"]))
+        elif op == "centre_marker":
+            doc.centre_marker(int(action["marker"]))
+        elif op == "set_size":
+            doc.set_marker(int(action["marker"]), size=float(action["size"]))
+        elif op == "delete_marker":
+            doc.delete_marker(int(action["marker"]))
+        elif op == "set_first_id":
+            v = action["value"]
+            doc.set_layout_fields(first_id=None if v is None else int(v))
+        elif op == "set_ids_per_instance":
+            v = action["value"]
+            doc.set_layout_fields(ids_per_instance=None if v is None else int(v))
+        elif op == "set_units":
+            doc.set_units(str(action["units"]))
+        else:
+            raise DesignError(f"unknown fix {op!r}: reload the page")
+    except (KeyError, TypeError, ValueError) as e:
+        if isinstance(e, DesignError):
+            raise
+        raise DesignError("this fix is not valid any more: reload the page") from None
+

@@ -1,0 +1,646 @@
+"""Export a marker design: the layout JSON, a GLB to look at, true-scale print sheets.
+
+* :func:`build_layout` - the :class:`drovisio.layout.MarkerLayout`, validated by the same
+  model every other tool loads layouts with (metres, brick frame).
+* :func:`save_design` - write ``NAME.json`` and ``meshes/NAME.stl`` (the mesh in the brick
+  frame, metres) into a layouts folder, never overwriting silently.
+* :func:`export_glb` - the mesh with the markers on it (codes with their real pattern, dots
+  in their colour), viewable in any glTF viewer.
+* :func:`print_sheet_pdf` / :func:`print_sheet_svg` - print sheets at **true scale**: every
+  code and dot at its physical size, its id and where it goes, dashed cut lines, and a
+  100 mm scale bar on every page to check the printer (print at 100 %, "Actual size").
+
+The PDF is written directly (a few drawing operators, standard Helvetica, no extra
+dependency). Its user unit is the PDF point (1/72 in) with no scaling, so a code of side
+``s`` metres is a square of ``s * 1000 / 25.4 * 72`` pt.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+
+from drovisio.designer.checks import blocking, check_design, fit_size
+from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
+from drovisio.layout import (
+    LayoutError,
+    MarkerLayout,
+    aruco_dictionary_id,
+    parse_layout,
+    save_layout,
+)
+
+__all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "SavedDesign", "build_layout", "save_design",
+           "export_glb", "code_bits", "SheetItem", "sheet_items", "sheet_pages",
+           "print_sheet_pdf", "print_sheet_svg", "mesh_stl_bytes"]
+
+MM_TO_PT = 72.0 / 25.4
+A4_MM = (210.0, 297.0)
+A3_MM = (297.0, 420.0)
+PAGE_MARGIN_MM = 12.0
+HEADER_MM = 30.0
+GAP_MM = 4.0
+LABEL_MM = 8.0
+
+
+# ------------------------------------------------------------------------------ layout
+
+
+def build_layout(doc: DesignDocument, mesh_ref: str | None = None) -> MarkerLayout:
+    """The design as a validated layout (brick frame, metres).
+
+    Args:
+        doc: the design.
+        mesh_ref: the layout's ``mesh`` field (relative to where the JSON will be saved);
+            default ``meshes/NAME.stl``.
+
+    Raises:
+        DesignError: the layout model refuses it (the message lists every problem).
+    """
+    ref = mesh_ref if mesh_ref is not None else f"meshes/{doc.name}.stl"
+    try:
+        return parse_layout(doc.layout_data(ref), f"layout {doc.name!r}")
+    except LayoutError as e:
+        raise DesignError("The layout is not valid yet:\n" + "\n".join(e.issues)) from None
+
+
+def mesh_stl_bytes(doc: DesignDocument) -> bytes:
+    """The mesh in the brick frame, metres, as binary STL."""
+    return doc.brick_mesh().export(file_type="stl")
+
+
+@dataclass
+class SavedDesign:
+    layout_path: Path
+    mesh_path: Path
+    layout: MarkerLayout
+
+
+def _write_new(path: Path, data: bytes, overwrite: bool) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise DesignError(f"{path} already exists: choose another name, or tick "
+                                  "'Replace existing files'.") from None
+            except OSError:
+                if path.exists():
+                    raise DesignError(f"{path} already exists: choose another name, or tick "
+                                      "'Replace existing files'.") from None
+                os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def save_design(doc: DesignDocument, folder: str | os.PathLike[str], overwrite: bool = False,
+                ) -> SavedDesign:
+    """Save ``NAME.json`` and ``meshes/NAME.stl`` into a layouts folder.
+
+    Nothing is written when the design has errors (see :func:`drovisio.designer.checks
+    .check_design`) or when a file exists and ``overwrite`` is False (a mesh file with the
+    very same content is reused).
+
+    Raises:
+        DesignError: errors in the design, an existing file, or a folder that cannot be
+            written; the message says what to do.
+    """
+    errors = blocking(check_design(doc))
+    if errors:
+        raise DesignError("Fix these problems first:\n" + "\n".join(f.message for f in errors))
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", doc.name):
+        raise DesignError(f"the name {doc.name!r} cannot be a file name: use letters, digits, "
+                          "'-', '_' and '.' only")
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DesignError(f"the layouts folder {folder} does not exist")
+    layout_path = folder / f"{doc.name}.json"
+    mesh_rel = f"meshes/{doc.name}.stl"
+    mesh_path = folder / mesh_rel
+    layout = build_layout(doc, mesh_rel)
+    stl = mesh_stl_bytes(doc)
+    if not overwrite:
+        if layout_path.exists():
+            raise DesignError(f"A layout named '{doc.name}' already exists ({layout_path}): "
+                              "choose another name, or tick 'Replace existing files'.")
+        if mesh_path.exists() and mesh_path.read_bytes() != stl:
+            raise DesignError(f"A different mesh file {mesh_path} already exists: choose "
+                              "another name, or tick 'Replace existing files'.")
+    try:
+        mesh_path.parent.mkdir(exist_ok=True)
+        if overwrite or not mesh_path.exists():
+            _write_new(mesh_path, stl, overwrite)
+        save_layout(layout, layout_path, overwrite=overwrite)
+    except LayoutError as e:
+        raise DesignError(str(e)) from None
+    except PermissionError as e:
+        raise DesignError(f"cannot write into {folder}: {e.strerror}") from None
+    return SavedDesign(layout_path, mesh_path, layout)
+
+
+# ------------------------------------------------------------------------------ codes
+
+
+def code_bits(dictionary: str, marker_id: int) -> np.ndarray:
+    """The code's cells including its black border: (n, n) array, 1 = white, 0 = black;
+    row 0 is the printed image's top edge, column 0 its left edge."""
+    d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
+    n = d.markerSize + 2
+    img = cv2.aruco.generateImageMarker(d, int(marker_id), n, borderBits=1)
+    return (img > 127).astype(np.uint8)
+
+
+def code_image_rgb(dictionary: str, marker_id: int, px_per_cell: int = 16,
+                   margin_cells: float = 0.0) -> np.ndarray:
+    """The code as an RGB uint8 image (for textures), optionally with a white margin."""
+    bits = code_bits(dictionary, marker_id)
+    img = np.kron(bits, np.ones((px_per_cell, px_per_cell), np.uint8)) * 255
+    m = int(round(margin_cells * px_per_cell))
+    if m:
+        img = np.pad(img, m, constant_values=255)
+    return np.repeat(img[:, :, None], 3, axis=2)
+
+
+def _rgb(doc_palette, color: str) -> tuple[int, int, int]:
+    b, g, r = doc_palette[color].display_bgr()
+    return int(r), int(g), int(b)
+
+
+# ------------------------------------------------------------------------------ GLB
+
+
+def _quad(c, r, u, x0, x1, y0, y1):
+    return np.array([c + r * x0 + u * y0, c + r * x1 + u * y0, c + r * x1 + u * y1,
+                     c + r * x0 + u * y1])
+
+
+def _quads_mesh(quads: list[np.ndarray], colors: list[tuple[int, int, int]]) -> trimesh.Trimesh:
+    V = np.concatenate(quads) if quads else np.zeros((0, 3))
+    F = []
+    C = []
+    for k, col in enumerate(colors):
+        b = 4 * k
+        F += [[b, b + 1, b + 2], [b, b + 2, b + 3]]
+        C += [list(col) + [255]] * 4
+    return trimesh.Trimesh(V, np.array(F, np.int64).reshape(-1, 3),
+                           vertex_colors=np.array(C, np.uint8).reshape(-1, 4), process=False)
+
+
+def marker_geometry(m: DesignMarker, dictionary: str | None, marker_id: int | None,
+                    rgb: tuple[int, int, int] | None, lift: float = 0.0004,
+                    segments: int = 48) -> trimesh.Trimesh:
+    """A marker as a coloured surface mesh, lifted ``lift`` off its face along the normal:
+    a code's white paper margin and its black/white cells, or a dot's disc."""
+    c, r, u, n = m.c + m.n * lift, m.r, m.u, m.n
+    h = m.size / 2
+    if m.kind == "aruco":
+        assert dictionary is not None and marker_id is not None
+        bits = code_bits(dictionary, marker_id)
+        k = bits.shape[0]
+        cs = m.size / k
+        quads = [_quad(c - n * lift * 0.25, r, u, -h - cs * 0.4, h + cs * 0.4, -h - cs * 0.4,
+                       h + cs * 0.4)]
+        cols = [(245, 245, 245)]
+        for i in range(k):
+            for j in range(k):
+                if bits[i, j]:
+                    continue
+                x0 = -h + j * cs
+                y1 = h - i * cs
+                quads.append(_quad(c, r, u, x0, x0 + cs, y1 - cs, y1))
+                cols.append((15, 15, 15))
+        return _quads_mesh(quads, cols)
+    ang = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ring = c + np.outer(np.cos(ang), r) * h + np.outer(np.sin(ang), u) * h
+    V = np.vstack([c, ring])
+    F = [[0, 1 + i, 1 + (i + 1) % segments] for i in range(segments)]
+    col = list(rgb or (200, 40, 40)) + [255]
+    return trimesh.Trimesh(V, np.array(F), vertex_colors=np.array([col] * len(V), np.uint8),
+                           process=False)
+
+
+def export_glb(doc: DesignDocument, instance: int = 0) -> bytes:
+    """The mesh (brick frame, metres) with the markers on it, as GLB bytes. Codes carry the
+    ids of brick ``instance``."""
+    scene = trimesh.Scene()
+    body = doc.brick_mesh()
+    body.visual = trimesh.visual.ColorVisuals(body, vertex_colors=np.tile(
+        np.array([170, 172, 176, 255], np.uint8), (len(body.vertices), 1)))
+    scene.add_geometry(body, geom_name="brick")
+    dictionary = doc.dictionary()
+    first = doc.effective_first_id() if doc.codes() else 0
+    ipi = doc.effective_ids_per_instance()
+    pal = doc.palette()
+    for i, m in enumerate(doc.brick_markers()):
+        if m.kind == "aruco":
+            if dictionary is None:
+                continue
+            g = marker_geometry(m, dictionary, first + instance * ipi + m.slot, None)
+        else:
+            g = marker_geometry(m, None, None, _rgb(pal, m.color))
+        scene.add_geometry(g, geom_name=f"marker-{i}-{doc.marker_label(i).replace(' ', '-')}")
+    return scene.export(file_type="glb")
+
+
+# ------------------------------------------------------------------------------ sheets
+
+
+@dataclass
+class SheetItem:
+    """One marker to print: ``kind`` aruco/dot, ``size`` metres, ``margin`` metres of white
+    paper kept around a code inside its cut line, a label and, for codes, the id."""
+
+    kind: str
+    size: float
+    label: str
+    detail: str
+    marker_id: int | None = None
+    dictionary: str | None = None
+    rgb: tuple[int, int, int] | None = None
+    margin: float = 0.0
+
+
+def _axis_name(v: np.ndarray) -> str:
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) > 0.97:
+        return ("+" if v[k] > 0 else "-") + "xyz"[k]
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
+
+
+def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
+                dot_sets: int = 1) -> list[SheetItem]:
+    """What a print sheet holds: every code of the chosen brick instances (default all) and
+    ``dot_sets`` sets of dots."""
+    items: list[SheetItem] = []
+    bm = doc.brick_markers()
+    dictionary = doc.dictionary()
+    codes = sorted(((i, m) for i, m in enumerate(bm) if m.kind == "aruco"),
+                   key=lambda t: t[1].slot)
+    if codes:
+        if dictionary is None:
+            raise DesignError("the codes need more ids than their family has: fix the ids "
+                              "first (see the checks)")
+        first, ipi = doc.effective_first_id(), doc.effective_ids_per_instance()
+        ks = list(range(doc.instances)) if instances is None else list(instances)
+        for k in ks:
+            if not 0 <= k < doc.instances:
+                raise DesignError(f"brick number {k} is outside 0..{doc.instances - 1}")
+        cells = code_bits(dictionary, 0).shape[0]
+        margins = {}
+        for i, m in codes:  # white paper around a code: one cell (at most 10 mm), less if
+            cell = min(m.size / cells, 0.01)  # the face is smaller
+            margin = cell
+            fm = doc.markers[i]
+            if fm.face is not None:
+                s = fit_size(doc, replace(fm, size=m.size + 2 * cell), min_size=m.size)
+                margin = max((s - m.size) / 2, 0.001) if s is not None else 0.001
+                margin = min(margin, cell)
+            margins[i] = margin
+        for k in ks:
+            for i, m in codes:
+                mid = first + k * ipi + m.slot
+                margin = margins[i]
+                pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
+                items.append(SheetItem(
+                    "aruco", m.size, f"id {mid}",
+                    f"brick {k} slot {m.slot} · {m.size * 1000:g} mm · at ({pos}) mm · "
+                    f"top edge toward {_axis_name(m.u)}",
+                    marker_id=mid, dictionary=dictionary, margin=margin))
+    pal = doc.palette()
+    dots = [(i, m) for i, m in enumerate(bm) if m.kind == "dot"]
+    for _ in range(max(0, dot_sets)):
+        for k, (_, m) in enumerate(dots, start=1):
+            pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
+            items.append(SheetItem("dot", m.size, f"dot {k} {m.color}",
+                                   f"Ø {m.size * 1000:g} mm · at ({pos}) mm",
+                                   rgb=_rgb(pal, m.color)))
+    return items
+
+
+@dataclass
+class _Page:
+    width: float  # mm
+    height: float
+    ops: list[tuple] = field(default_factory=list)
+
+
+def _header(page: _Page, title: str, note: str, number: int, total_hint: str) -> float:
+    x0 = PAGE_MARGIN_MM
+    y = PAGE_MARGIN_MM + 5
+    page.ops.append(("text", x0, y, 13, title, True))
+    page.ops.append(("text", page.width - PAGE_MARGIN_MM, y, 9, f"page {number}{total_hint}",
+                     False, "end"))
+    y += 5
+    page.ops.append(("text", x0, y, 8.5, "Print at 100 % ('Actual size' - not 'Fit to page'). "
+                     "Check with a ruler: the black bar must be exactly 100 mm long.", False))
+    y += 4
+    page.ops.append(("text", x0, y, 8.5, note, False))
+    y += 3
+    # 100 mm scale bar: a filled black bar with 10 mm ticks under it.
+    page.ops.append(("rect", x0, y, 100.0, 2.5, (0, 0, 0), None, None, 0))
+    for k in range(11):
+        tick = 3.0 if k % 5 == 0 else 1.8
+        page.ops.append(("line", x0 + 10 * k, y + 2.5, x0 + 10 * k, y + 2.5 + tick, (0, 0, 0),
+                         0.25, None))
+    page.ops.append(("text", x0, y + 9, 7.5, "0", False))
+    page.ops.append(("text", x0 + 100, y + 9, 7.5, "100 mm", False, "middle"))
+    page.ops.append(("text", x0 + 106, y + 2.6, 8, "<- 100 mm scale bar", False))
+    return y + 13
+
+
+def _draw_item(page: _Page, it: SheetItem, x: float, y: float) -> None:
+    """Draw an item whose cut box's top-left corner is at (x, y) mm."""
+    s = it.size * 1000
+    mg = it.margin * 1000
+    box = s + 2 * mg
+    grey = (0.45, 0.45, 0.45)
+    if it.kind == "aruco":
+        page.ops.append(("rect", x, y, box, box, None, grey, (2.0, 1.5), 0.2))  # cut line
+        bx, by = x + mg, y + mg
+        page.ops.append(("rect", bx, by, s, s, (0, 0, 0), None, None, 0))  # the code square
+        bits = code_bits(it.dictionary, it.marker_id)
+        k = bits.shape[0]
+        cs = s / k
+        for i in range(k):
+            j = 0
+            while j < k:
+                if bits[i, j]:
+                    j0 = j
+                    while j < k and bits[i, j]:
+                        j += 1
+                    page.ops.append(("rect", bx + j0 * cs, by + i * cs, (j - j0) * cs, cs,
+                                     (1, 1, 1), None, None, 0))
+                else:
+                    j += 1
+    else:
+        r = s / 2
+        cx, cy = x + r, y + r
+        col = tuple(c / 255 for c in it.rgb or (200, 40, 40))
+        page.ops.append(("circle", cx, cy, r, col, None, None, 0))
+        page.ops.append(("circle", cx, cy, r, None, grey, (2.0, 1.5), 0.2))  # cut line
+        box = s
+    page.ops.append(("text", x, y + box + 3.6, 8.5, it.label, True))
+    page.ops.append(("text", x, y + box + 7.0, 6.5, it.detail, False))
+
+
+def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
+                dot_sets: int = 1) -> list[_Page]:
+    """Lay the items out on pages (A4 portrait; an item too big for A4 gets an A3 page, or a
+    page of its own size)."""
+    items = sheet_items(doc, instances, dot_sets)
+    if not items:
+        raise DesignError("nothing to print: add codes or dots first")
+    dictionary = doc.dictionary() if doc.codes() else None
+    title = f"Drovisio markers - {doc.name}"
+    note = (f"Cut along the dashed lines. Codes: {dictionary}, glue each one flat with its "
+            "top edge as written under it." if dictionary else
+            "Cut along the dashed lines (or use the discs as painting templates).")
+    pages: list[_Page] = []
+
+    def new_page(w: float, h: float) -> tuple[_Page, float]:
+        p = _Page(w, h)
+        y = _header(p, title, note, len(pages) + 1, "")
+        pages.append(p)
+        return p, y
+
+    page: _Page | None = None
+    x = y = row_h = 0.0
+    for it in items:
+        box = it.size * 1000 + 2 * it.margin * 1000
+        need_w, need_h = box, box + LABEL_MM
+        aw = A4_MM[0] - 2 * PAGE_MARGIN_MM
+        ah = A4_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM
+        if need_w > aw or need_h > ah:  # a big item: its own page
+            if need_w <= A3_MM[0] - 2 * PAGE_MARGIN_MM and \
+                    need_h <= A3_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM:
+                w, h = A3_MM
+            else:
+                w = max(need_w + 2 * PAGE_MARGIN_MM, 130.0)
+                h = need_h + 2 * PAGE_MARGIN_MM + HEADER_MM
+            big, by = new_page(w, h)
+            _draw_item(big, it, PAGE_MARGIN_MM, by)
+            size_name = "A3" if (w, h) == A3_MM else f"{w:.0f} x {h:.0f} mm (bigger than A3)"
+            big.ops.append(("text", PAGE_MARGIN_MM, h - 4, 8, f"This page is {size_name}: print "
+                            "it at 100 % on paper that large (a print shop), or as poster "
+                            "tiles at 100 % taped together.", True))
+            page = None
+            continue
+        if page is None or page.width != A4_MM[0]:
+            page, y = new_page(*A4_MM)
+            x, row_h = PAGE_MARGIN_MM, 0.0
+        if x + need_w > A4_MM[0] - PAGE_MARGIN_MM + 1e-9:
+            x = PAGE_MARGIN_MM
+            y += row_h + GAP_MM
+            row_h = 0.0
+        if y + need_h > A4_MM[1] - PAGE_MARGIN_MM + 1e-9:
+            page, y = new_page(*A4_MM)
+            x, row_h = PAGE_MARGIN_MM, 0.0
+        _draw_item(page, it, x, y)
+        label_w = max(len(it.detail) * 6.5 * 0.5 * 25.4 / 72, len(it.label) * 8.5 * 0.55
+                      * 25.4 / 72)
+        x += max(need_w, min(label_w, A4_MM[0] - 2 * PAGE_MARGIN_MM)) + GAP_MM
+        row_h = max(row_h, need_h)
+    total = len(pages)
+    for p in pages:  # "page n of N"
+        for k, op in enumerate(p.ops):
+            if op[0] == "text" and op[4].startswith("page ") and len(op) > 6:
+                p.ops[k] = op[:4] + (f"{op[4]} of {total}",) + op[5:]
+    return pages
+
+
+# ---- PDF
+
+
+def _pdf_str(text: str) -> bytes:
+    raw = text.encode("cp1252", errors="replace")
+    return b"(" + raw.replace(b"\\", b"\\\\").replace(b"(", b"\\(").replace(b")", b"\\)") + b")"
+
+
+def _f(v: float) -> str:
+    s = f"{v:.4f}".rstrip("0").rstrip(".")
+    return s if s not in ("-0", "") else "0"
+
+
+def _text_width_pt(text: str, size: float, bold: bool) -> float:
+    # Helvetica's average advance is about 0.5 em (0.55 bold); good enough to centre labels.
+    return len(text) * size * (0.55 if bold else 0.5)
+
+
+def _pdf_page_content(p: _Page) -> bytes:
+    H = p.height * MM_TO_PT
+    out: list[str] = []
+
+    def X(x):
+        return _f(x * MM_TO_PT)
+
+    def Y(y):
+        return _f(H - y * MM_TO_PT)
+
+    def style(fill, stroke, dash, lw):
+        s = []
+        if fill is not None:
+            s.append(f"{_f(fill[0])} {_f(fill[1])} {_f(fill[2])} rg")
+        if stroke is not None:
+            s.append(f"{_f(stroke[0])} {_f(stroke[1])} {_f(stroke[2])} RG")
+            s.append(f"{_f(lw * MM_TO_PT)} w")
+            s.append(f"[{' '.join(_f(d * MM_TO_PT) for d in dash)}] 0 d" if dash else "[] 0 d")
+        return s
+
+    def paint(fill, stroke):
+        return "B" if fill is not None and stroke is not None else ("f" if fill is not None
+                                                                   else "S")
+
+    for op in p.ops:
+        kind = op[0]
+        if kind == "rect":
+            _, x, y, w, h, fill, stroke, dash, lw = op
+            out += style(fill, stroke, dash, lw)
+            out.append(f"{X(x)} {_f(H - (y + h) * MM_TO_PT)} {_f(w * MM_TO_PT)} "
+                       f"{_f(h * MM_TO_PT)} re {paint(fill, stroke)}")
+        elif kind == "circle":
+            _, cx, cy, r, fill, stroke, dash, lw = op
+            out += style(fill, stroke, dash, lw)
+            k = 0.5522847498 * r
+            pts = [(cx + r, cy), (cx + r, cy + k, cx + k, cy + r, cx, cy + r),
+                   (cx - k, cy + r, cx - r, cy + k, cx - r, cy),
+                   (cx - r, cy - k, cx - k, cy - r, cx, cy - r),
+                   (cx + k, cy - r, cx + r, cy - k, cx + r, cy)]
+            out.append(f"{X(pts[0][0])} {Y(pts[0][1])} m")
+            for c in pts[1:]:
+                out.append(f"{X(c[0])} {Y(c[1])} {X(c[2])} {Y(c[3])} {X(c[4])} {Y(c[5])} c")
+            out.append("h " + paint(fill, stroke))
+        elif kind == "line":
+            _, x1, y1, x2, y2, stroke, lw, dash = op
+            out += style(None, stroke, dash, lw)
+            out.append(f"{X(x1)} {Y(y1)} m {X(x2)} {Y(y2)} l S")
+        elif kind == "text":
+            x, y, size, text, bold = op[1:6]
+            anchor = op[6] if len(op) > 6 else "start"
+            w = _text_width_pt(text, size, bold)
+            xp = x * MM_TO_PT - (w if anchor == "end" else w / 2 if anchor == "middle" else 0)
+            out.append("0 0 0 rg")
+            out.append(f"BT /{'F2' if bold else 'F1'} {_f(size)} Tf {_f(xp)} {Y(y)} Td "
+                       + _pdf_str(text).decode("latin-1") + " Tj ET")
+    return ("\n".join(out) + "\n").encode("latin-1")
+
+
+def print_sheet_pdf(doc: DesignDocument, instances: list[int] | None = None,
+                    dot_sets: int = 1) -> bytes:
+    """The print sheet as PDF bytes (true scale; see the module docstring)."""
+    pages = sheet_pages(doc, instances, dot_sets)
+    objs: list[bytes] = []
+
+    def add(body: bytes) -> int:
+        objs.append(body)
+        return len(objs)
+
+    catalog = add(b"")  # placeholder, filled below
+    pages_id = add(b"")
+    f1 = add(b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica "
+             b"/Encoding /WinAnsiEncoding >>")
+    f2 = add(b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica-Bold "
+             b"/Encoding /WinAnsiEncoding >>")
+    kids = []
+    for p in pages:
+        content = _pdf_page_content(p)
+        cid = add(f"<< /Length {len(content)} >>\nstream\n".encode() + content + b"endstream")
+        pid = add((f"<< /Type /Page /Parent {pages_id} 0 R /MediaBox [0 0 "
+                   f"{_f(p.width * MM_TO_PT)} {_f(p.height * MM_TO_PT)}] /Resources << /Font "
+                   f"<< /F1 {f1} 0 R /F2 {f2} 0 R >> >> /Contents {cid} 0 R >>").encode())
+        kids.append(pid)
+    objs[catalog - 1] = f"<< /Type /Catalog /Pages {pages_id} 0 R >>".encode()
+    objs[pages_id - 1] = (f"<< /Type /Pages /Kids [{' '.join(f'{k} 0 R' for k in kids)}] "
+                          f"/Count {len(kids)} >>").encode()
+    buf = io.BytesIO()
+    buf.write(b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n")
+    offsets = []
+    for i, body in enumerate(objs, start=1):
+        offsets.append(buf.tell())
+        buf.write(f"{i} 0 obj\n".encode() + body + b"\nendobj\n")
+    xref = buf.tell()
+    buf.write(f"xref\n0 {len(objs) + 1}\n0000000000 65535 f \n".encode())
+    for off in offsets:
+        buf.write(f"{off:010d} 00000 n \n".encode())
+    buf.write((f"trailer\n<< /Size {len(objs) + 1} /Root {catalog} 0 R /Info << /Title "
+               f"{_pdf_str('Drovisio markers - ' + doc.name).decode('latin-1')} /Producer "
+               f"(Drovisio marker designer) >> >>\nstartxref\n{xref}\n%%EOF\n").encode("latin-1"))
+    return buf.getvalue()
+
+
+# ---- SVG
+
+
+def _xml(text: str) -> str:
+    return (text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+            .replace('"', "&quot;"))
+
+
+def print_sheet_svg(doc: DesignDocument, page: int = 1, instances: list[int] | None = None,
+                    dot_sets: int = 1) -> str:
+    """One page (1-based) of the print sheet as SVG text, in millimetres (true scale:
+    ``width="210mm"`` with a viewBox in mm)."""
+    pages = sheet_pages(doc, instances, dot_sets)
+    if not 1 <= page <= len(pages):
+        raise DesignError(f"the print sheet has {len(pages)} page(s); page {page} does not "
+                          "exist")
+    p = pages[page - 1]
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{_f(p.width)}mm" '
+           f'height="{_f(p.height)}mm" viewBox="0 0 {_f(p.width)} {_f(p.height)}" '
+           f'data-pages="{len(pages)}">',
+           f'<title>{_xml("Drovisio markers - " + doc.name)} (page {page} of '
+           f'{len(pages)})</title>',
+           f'<rect x="0" y="0" width="{_f(p.width)}" height="{_f(p.height)}" fill="#fff"/>']
+
+    def col(c):
+        return "none" if c is None else "#" + "".join(f"{int(round(v * 255)):02x}" for v in c)
+
+    def stroke_attrs(stroke, dash, lw):
+        if stroke is None:
+            return ""
+        s = f' stroke="{col(stroke)}" stroke-width="{_f(lw)}"'
+        if dash:
+            s += f' stroke-dasharray="{" ".join(_f(d) for d in dash)}"'
+        return s
+
+    for op in p.ops:
+        kind = op[0]
+        if kind == "rect":
+            _, x, y, w, h, fill, stroke, dash, lw = op
+            cls = ' class="code"' if fill == (0, 0, 0) and abs(w - h) < 1e-9 else ""
+            out.append(f'<rect{cls} x="{_f(x)}" y="{_f(y)}" width="{_f(w)}" height="{_f(h)}" '
+                       f'fill="{col(fill)}"{stroke_attrs(stroke, dash, lw)}'
+                       + (' shape-rendering="crispEdges"' if fill is not None else "") + "/>")
+        elif kind == "circle":
+            _, cx, cy, r, fill, stroke, dash, lw = op
+            out.append(f'<circle cx="{_f(cx)}" cy="{_f(cy)}" r="{_f(r)}" fill="{col(fill)}"'
+                       f'{stroke_attrs(stroke, dash, lw)}/>')
+        elif kind == "line":
+            _, x1, y1, x2, y2, stroke, lw, dash = op
+            out.append(f'<line x1="{_f(x1)}" y1="{_f(y1)}" x2="{_f(x2)}" y2="{_f(y2)}"'
+                       f'{stroke_attrs(stroke, dash, lw)}/>')
+        elif kind == "text":
+            x, y, size, text, bold = op[1:6]
+            anchor = op[6] if len(op) > 6 else "start"
+            out.append(f'<text x="{_f(x)}" y="{_f(y)}" font-family="Helvetica, Arial, '
+                       f'sans-serif" font-size="{_f(size * 25.4 / 72)}"'
+                       + (' font-weight="bold"' if bold else "")
+                       + (f' text-anchor="{anchor}"' if anchor != "start" else "")
+                       + f">{_xml(text)}</text>")
+    out.append("</svg>")
+    return "\n".join(out) + "\n"

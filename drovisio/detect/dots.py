@@ -1,0 +1,946 @@
+"""Colour-dot bricks: find bricks by the coloured dots painted on them, and their 6-DoF poses.
+
+The thesis's pipeline, stage by stage (each a small function of its own module):
+
+1. BGR → HSV, CLAHE on V (:mod:`.dots_color`);
+2. per-colour thresholds from the layout's palette, red's hue wrap included
+   (:class:`~.dots_color.ColorClassifier`, equal to ``cv2.inRange`` per range);
+3. morphological opening then closing (:func:`~.dots_color.clean_mask`);
+4. blobs with size, aspect, circularity, fill and convexity filters (:mod:`.dots_blobs`);
+   the palette's V range is judged on the CLAHE-equalised V of each blob;
+5. sub-pixel dot centres from the colour coverage (:func:`~.dots_blobs.refine_centers`);
+6. matching blobs to the layout's dots with pair-seeded, scored hypotheses — linear in the
+   number of blobs, any planar layout of ≥ 4 dots, partial matches (:mod:`.dots_match`);
+7. planar PnP for all bricks at once, both solutions of the planar ambiguity, the perspective
+   shift of ellipse centres corrected (unbiased), outlier dots dropped, missing dots looked
+   for where the pose puts them (:mod:`.dots_pose`);
+8. the planar ambiguity flagged (or resolved with gravity), a symmetric layout's yaw put in
+   one canonical half-turn (and kept there over a stream with :class:`DotsState`).
+
+Entry point: :func:`detect_dots` (what ``drovisio detect --method dots`` calls), or a
+:class:`DotDetector` kept across frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from drovisio.camera import Camera
+from drovisio.detect.dots_blobs import (
+    BlobFilter,
+    Blobs,
+    find_blobs_multi,
+    refine_centers,
+)
+from drovisio.detect.dots_color import (
+    ClaheMap,
+    ColorClassifier,
+    DotsInputError,
+    check_image,
+    clean_mask,
+)
+from drovisio.detect.dots_match import (
+    BlobGeometry,
+    Candidate,
+    DotModel,
+    LayoutNotSupported,
+    assign_greedy,
+    generate_hypotheses,
+    occluded_dots,
+)
+from drovisio.detect.dots_pose import (
+    conic_center_offsets,
+    gn_step,
+    mirror_pose,
+    pose_covariance_from_normal,
+    project_normalized,
+    refine_poses,
+    so3_exp,
+    so3_log,
+)
+from drovisio.detect.result import BrickPose
+from drovisio.layout import MarkerLayout
+
+__all__ = [
+    "DotDetector",
+    "DotsConfig",
+    "DotsInputError",
+    "DotsState",
+    "LayoutNotSupported",
+    "detect_dots",
+]
+
+log = logging.getLogger("drovisio.detect.dots")
+
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-12)
+
+
+@dataclass(frozen=True)
+class DotsConfig:
+    """Settings of the dot detector (defaults are what the benchmark measured)."""
+
+    clahe: bool = True
+    """Judge the palette's V range on CLAHE-equalised V (per blob); False: on raw V, per
+    pixel, exactly as ``cv2.inRange`` with the palette ranges."""
+    clahe_clip: float = 2.0
+    clahe_tiles: tuple[int, int] = (8, 8)
+    clahe_stride: int = 4
+    """Histogram subsampling of the CLAHE tables (1 = exactly OpenCV's)."""
+    v_floor: int = 25
+    """With ``clahe``: pixels darker than this (raw V) are never dots."""
+    morph_kernel_px: int = 3
+    """Opening/closing element diameter."""
+    min_dot_px: float = 3.5
+    """Smallest dot diameter looked for, pixels."""
+    min_distance_m: float = 0.12
+    """Nearest a dot may be to the camera (bounds the largest blob)."""
+    min_aspect: float = 0.25
+    min_circularity: float = 0.55
+    min_fill: float = 0.88
+    min_convexity: float = 0.85
+    max_ellipse_err: float = 0.05
+    """Outline deviation from the blob's moment ellipse (plus 0.35 px / minor semi-axis)."""
+    max_holes: float = 0.15
+    seeds_per_blob: int = 2
+    """Nearest neighbours of each blob tried as its pair (hypothesis seeds)."""
+    ratio_tol: float = 1.5
+    match_tol: float = 0.3
+    min_dots: int = 4
+    """Fewest dots of a brick (partial matches use any 4 or more)."""
+    max_dot_residual_px: float = 0.9
+    """A dot farther than this from where the pose puts it is dropped (or the brick is)."""
+    max_rmse_px: float = 0.6
+    """Largest RMS reprojection error of an accepted brick."""
+    size_ratio: tuple[float, float] = (0.5, 1.7)
+    """Accepted measured / predicted dot size."""
+    max_view_angle_deg: float = 82.0
+    """Dots seen more obliquely than this (from their normal) are not trusted."""
+    ambiguity_ratio: float = 3.0
+    """The other planar solution is plausible (→ ``ambiguous``) when its RMS error is below
+    ``ambiguity_ratio · max(rms, ambiguity_sigma_px)``."""
+    ambiguity_sigma_px: float = 0.12
+    gravity_max_tilt_deg: float = 15.0
+    """With gravity, bricks tilted less than this from level are 'lying flat' (the planar
+    ambiguity is resolved for them; a pose tilted more is flagged ``ambiguous``)."""
+    centroid_sigma_px: float = 0.15
+    """Prior standard deviation of a dot centre (for the covariance)."""
+    covariance: bool = True
+
+
+@dataclass
+class DotsState:
+    """Memory of the previous frame, for a stream (pass the same object every frame).
+
+    It keeps a symmetric brick's yaw in the same half-turn from frame to frame (instead of
+    letting the canonical rule flip it where the rule's boundary is) and holds the detector
+    built for the camera and layouts. Its size does not grow with the number of frames.
+    """
+
+    previous: list[tuple[str, np.ndarray, np.ndarray]] = field(default_factory=list)
+    """(layout name, tvec, rotation matrix) of the bricks of the previous frame."""
+    note: str | None = None
+    """Why the last frame gave nothing, when it was not a usable colour image."""
+    detector: DotDetector | None = None
+    frames: int = 0
+
+
+@dataclass
+class _Batch:
+    """Working arrays of the bricks of one frame (B bricks, up to N dots each)."""
+
+    models: list[DotModel]
+    blob: np.ndarray        # (B, N) blob index per dot, -1 absent
+    X: np.ndarray           # (B, N, 3) dot centres, brick frame
+    U: np.ndarray           # (B, N, 3) in-plane axes of each dot
+    V: np.ndarray
+    normals: np.ndarray     # (B, N, 3)
+    radii: np.ndarray       # (B, N)
+    px: np.ndarray = None   # (B, N, 2) measured (ellipse) centres, pixels
+    q: np.ndarray = None    # (B, N, 2) the same, normalised
+    R: np.ndarray = None    # (B, 2, 3, 3) the two planar solutions, best first
+    t: np.ndarray = None    # (B, 2, 3)
+    cost: np.ndarray = None  # (B, 2) sums of squared residuals (normalised units²)
+    offset: np.ndarray = None  # (B, 2, N, 2) ellipse-centre offsets (normalised)
+    hidden: np.ndarray = None  # (B, N) dots hidden by the brick's own relief
+    gravity: np.ndarray = None  # (3,) gravity in the camera frame, if known
+    normal_eq: np.ndarray = None  # (B, 6, 6) JᵀJ of the chosen solution (covariance)
+
+    @property
+    def used(self) -> np.ndarray:
+        return self.blob >= 0
+
+    @property
+    def w(self) -> np.ndarray:
+        return (self.blob >= 0).astype(np.float64)
+
+
+class DotDetector:
+    """The dot detector for one camera and a set of layouts (reuse it across frames; it keeps
+    frame buffers, so use one detector per thread).
+
+    Args:
+        camera: The calibrated camera the frames come from.
+        layouts: Layouts to look for; those without dots are ignored.
+        config: Settings.
+
+    Raises:
+        LayoutNotSupported: a layout's dots cannot be used (fewer than 4, not coplanar), or
+            more than 8 distinct colours.
+    """
+
+    def __init__(self, camera: Camera, layouts: Sequence[MarkerLayout],
+                 config: DotsConfig | None = None):
+        self.camera = camera
+        self.config = cfg = config or DotsConfig()
+        self.layouts = [lay for lay in layouts if getattr(lay, "has_dots", False)]
+        specs, index = [], {}
+        mappings: list[dict[str, int]] = []
+        for lay in self.layouts:
+            pal = lay.palette()
+            mapping = {}
+            for name in dict.fromkeys(lay.dot_colors()):
+                spec = pal[name]
+                key = (name, spec.hsv)
+                if key not in index:
+                    index[key] = len(specs)
+                    specs.append(spec)
+                mapping[name] = index[key]
+            mappings.append(mapping)
+        if len(specs) > 8:
+            raise LayoutNotSupported(f"the layouts use {len(specs)} distinct dot colours; the "
+                                     "dot detector handles up to 8")
+        self.specs = specs
+        self.models = [DotModel.from_layout(lay, m, n_colors=len(specs))
+                       for lay, m in zip(self.layouts, mappings)]
+        self.classifier = ColorClassifier(specs, v_floor=cfg.v_floor if cfg.clahe else None) \
+            if specs else None
+        self.f = float(math.sqrt(camera.fx * camera.fy))
+        self.blob_filter = BlobFilter()
+        if self.models:
+            d_max = max(float(m.radii.max()) for m in self.models) * 2
+            max_px = self.f * d_max / cfg.min_distance_m
+            self.blob_filter = BlobFilter(
+                min_area=max(5.0, 0.55 * math.pi / 4 * cfg.min_dot_px ** 2),
+                max_area=1.3 * math.pi / 4 * max_px ** 2,
+                min_aspect=cfg.min_aspect, min_circularity=cfg.min_circularity,
+                min_fill=cfg.min_fill, min_convexity=cfg.min_convexity,
+                max_ellipse_err=cfg.max_ellipse_err, max_holes=cfg.max_holes)
+        self._v_ranges = np.array([[s.hsv[0][2], s.hsv[1][2]] for s in specs], float) \
+            if specs else np.zeros((0, 2))
+        self.last_diagnostics: dict = {}
+        self._hsv: np.ndarray | None = None    # frame buffers, reused (no allocation per frame)
+
+    # ------------------------------------------------------------------------------ stages
+    def blobs(self, image_bgr: np.ndarray) -> tuple[Blobs, np.ndarray]:
+        """Stages 1–4: the candidate dot blobs of a frame (and its HSV image, which lives in a
+        buffer of the detector: valid until the next frame)."""
+        H, W = image_bgr.shape[:2]
+        if self._hsv is None or self._hsv.shape[:2] != (H, W):
+            self._hsv = np.empty((H, W, 3), np.uint8)
+        hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV, self._hsv)
+        cfg = self.config
+        masks = []
+        pad = 2 * cfg.morph_kernel_px + 2
+        for m in self.classifier.masks(hsv, reuse=True):
+            if not cv2.countNonZero(m):
+                masks.append(None)
+                continue
+            # only the region with colour pixels (padded: the morphology reaches no further)
+            x, y, w, h = cv2.boundingRect(m)
+            x0, y0 = max(x - pad, 0), max(y - pad, 0)
+            x1, y1 = min(x + w + pad, W), min(y + h + pad, H)
+            if (x1 - x0) * (y1 - y0) < 0.6 * H * W:
+                masks.append((clean_mask(m[y0:y1, x0:x1], cfg.morph_kernel_px), (x0, y0)))
+            else:
+                masks.append(clean_mask(m, cfg.morph_kernel_px))
+        blobs, _ = find_blobs_multi(masks, self.blob_filter,
+                                    extra=(lambda b: self._clahe_ok(b, hsv)) if cfg.clahe
+                                    else None, shape=(H, W))
+        return blobs, hsv
+
+    def _clahe_ok(self, blobs: Blobs, hsv: np.ndarray) -> np.ndarray:
+        """Blobs whose CLAHE-equalised V lies in their colour's V range."""
+        cfg = self.config
+        v = hsv[:, :, 2]
+        H, W = v.shape
+        xi = np.clip(np.rint(blobs.x).astype(np.int64), 1, W - 2)
+        yi = np.clip(np.rint(blobs.y).astype(np.int64), 1, H - 2)
+        raw = (v[yi, xi].astype(np.float64) + v[yi - 1, xi] + v[yi + 1, xi] + v[yi, xi - 1]
+               + v[yi, xi + 1]) / 5.0
+        eq = ClaheMap(v, cfg.clahe_clip, cfg.clahe_tiles, cfg.clahe_stride)(blobs.x, blobs.y,
+                                                                            raw)
+        rng = self._v_ranges[blobs.color]
+        return (eq >= rng[:, 0] - 0.5) & (eq <= rng[:, 1] + 0.5)
+
+    def _normalize(self, px: np.ndarray) -> np.ndarray:
+        px = np.asarray(px, np.float64).reshape(-1, 1, 2)
+        if px.shape[0] == 0:
+            return np.zeros((0, 2))
+        return cv2.undistortPoints(px, self.camera.K, self.camera.dist, None, None, None,
+                                   _UNDISTORT_CRITERIA).reshape(-1, 2)
+
+    def _project(self, Y: np.ndarray) -> np.ndarray:
+        """Camera-frame points (..., 3) → distorted pixels (..., 2)."""
+        shp = Y.shape[:-1]
+        flat = Y.reshape(-1, 3)
+        if flat.shape[0] == 0:
+            return np.zeros(shp + (2,))
+        p, _ = cv2.projectPoints(flat, _ZERO3, _ZERO3, self.camera.K, self.camera.dist)
+        return p.reshape(shp + (2,))
+
+    def _blob_geometry(self, blobs: Blobs) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised centres and second-moment matrices of blobs (local undistortion)."""
+        n = len(blobs)
+        c = np.stack([blobs.x, blobs.y], axis=1)
+        pts = (c[None] + _STENCIL[:, None, :]).reshape(-1, 2)
+        qn = self._normalize(pts).reshape(5, n, 2)
+        J = np.stack([qn[1] - qn[2], qn[3] - qn[4]], axis=2) * 0.5        # (n, 2, 2)
+        return qn[0], J @ blobs.cov @ J.transpose(0, 2, 1)
+
+    # ------------------------------------------------------------------------------ detect
+    def detect(self, image_bgr, gravity: Sequence[float] | None = None,
+               state: DotsState | None = None) -> list[BrickPose]:
+        """Find the bricks in one frame.
+
+        Args:
+            image_bgr: (H, W, 3) uint8 BGR frame of this detector's camera.
+            gravity: Direction of gravity in the camera frame (unit vector, pointing down),
+                if known: resolves the planar ambiguity of bricks lying roughly flat.
+            state: A :class:`DotsState` carried over a stream (optional).
+
+        Returns:
+            One :class:`BrickPose` per brick found (``method="dots"``, ``instance=None``,
+            ``markers`` = indices of the layout's dots used, ``image_points`` = their
+            unbiased centres in pixels, in the order of ``markers``).
+
+        Raises:
+            DotsInputError: not an image (None, wrong dtype or shape).
+        """
+        img, note = check_image(image_bgr)
+        if state is not None:
+            state.note = note
+            state.frames += 1
+        if img is None:
+            log.warning("detect_dots: %s", note)
+            if state is not None:
+                state.previous = []
+            return []
+        poses: list[BrickPose] = []
+        if self.models:
+            # degenerate hypotheses (coincident blobs...) give inf/NaN that the checks reject
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                poses = self._detect(img, gravity, state)
+        if state is not None:
+            state.previous = [(p.layout, np.asarray(p.tvec, float).copy(),
+                               cv2.Rodrigues(np.asarray(p.rvec, float))[0]) for p in poses]
+        return poses
+
+    def _detect(self, img: np.ndarray, gravity, state: DotsState | None) -> list[BrickPose]:
+        cfg = self.config
+        blobs, _ = self.blobs(img)
+        if len(blobs) < cfg.min_dots:
+            return []
+        q, cov = self._blob_geometry(blobs)
+        usable = ~blobs.border
+        geo = BlobGeometry.build(q, cov, blobs.color, usable)
+        taken = ~usable
+        hyps = [generate_hypotheses(m, geo, cfg.seeds_per_blob, cfg.ratio_tol, cfg.match_tol,
+                                    cfg.min_dots) for m in self.models]
+        cands = assign_greedy(hyps, len(blobs), cfg.min_dots, taken)
+        if not cands:
+            return []
+        g = None if gravity is None else np.asarray(gravity, np.float64).ravel()
+        if g is not None:
+            ng = float(np.linalg.norm(g)) if g.size == 3 else 0.0
+            g = g / ng if ng > 0 and np.all(np.isfinite(g)) else None
+        return self._solve(img, blobs, cands, taken, g, state, cov)
+
+    # ------------------------------------------------------------------------------ poses
+    def _make_batch(self, cands: list[Candidate]) -> _Batch:
+        B = len(cands)
+        N = max(c.model.n for c in cands)
+        if all(c.model is cands[0].model for c in cands):
+            m = cands[0].model
+
+            X, U, V, nrm, rad = m.batch_arrays(B)
+            return _Batch(models=[m] * B, blob=np.stack([c.assign for c in cands]),
+                          X=X.copy(), U=U, V=V, normals=nrm, radii=rad)
+        blob = np.full((B, N), -1, np.int64)
+        X = np.zeros((B, N, 3))
+        U = np.tile(np.array([1.0, 0, 0]), (B, N, 1))
+        V = np.tile(np.array([0, 1.0, 0]), (B, N, 1))
+        normals = np.tile(np.array([0, 0, 1.0]), (B, N, 1))
+        radii = np.full((B, N), 0.01)
+        for k, c in enumerate(cands):
+            m = c.model
+            n = m.n
+            blob[k, :n] = c.assign
+            X[k, :n], U[k, :n], V[k, :n] = m.X, m.axes_u, m.axes_v
+            normals[k, :n] = m.normals
+            radii[k, :n] = m.radii
+        return _Batch(models=[c.model for c in cands], blob=blob, X=X, U=U, V=V,
+                      normals=normals, radii=radii)
+
+    def _set_centers(self, bt: _Batch, centers: np.ndarray, rows=None) -> None:
+        m = bt.used
+        if rows is None:
+            bt.px = np.where(m[..., None], centers[np.maximum(bt.blob, 0)], 0.0)
+            bt.q = np.zeros_like(bt.px)
+            bt.q[m] = self._normalize(bt.px[m])
+        else:
+            mr = m[rows]
+            px = np.where(mr[..., None], centers[np.maximum(bt.blob[rows], 0)], 0.0)
+            q = np.zeros_like(px)
+            q[mr] = self._normalize(px[mr])
+            bt.px[rows] = px
+            bt.q[rows] = q
+
+    def _initial_poses(self, bt: _Batch, rows) -> None:
+        """Both planar solutions of the given bricks (OpenCV's IPPE on the normalised
+        points; SQPnP and its mirrored pose, refined, where three of four dots are in a
+        line). Solution 0 reprojects best."""
+        if bt.R is None:
+            Bt = bt.blob.shape[0]
+            bt.R = np.tile(np.eye(3), (Bt, 2, 1, 1))
+            bt.t = np.zeros((Bt, 2, 3))
+            bt.cost = np.full((Bt, 2), np.inf)
+        special, warm, done, rvs_all, tvs_all, errs = [], [], [], [], [], []
+        bits = (bt.used * _BITS[:bt.blob.shape[1]]).sum(axis=1).tolist()
+        for r in rows:
+            m = bt.models[r]
+            if m.degeneracy(bits[r]) <= 0.02:
+                (warm if np.isfinite(bt.cost[r, 0]) else special).append(r)
+                continue
+            sel = bt.blob[r] >= 0
+            try:
+                n, rvs, tvs, err = cv2.solvePnPGeneric(bt.X[r][sel], bt.q[r][sel], _EYE3, None,
+                                                       flags=cv2.SOLVEPNP_IPPE)
+            except cv2.error:
+                n = 0
+            if not n:
+                special.append(r)
+                continue
+            done.append(r)
+            j = 1 if n > 1 else 0
+            rvs_all += [rvs[0], rvs[j]]
+            tvs_all += [tvs[0], tvs[j]]
+            errs.append((float(err[0, 0]), float(err[j, 0]), int(sel.sum())))
+        if done:
+            d = np.array(done)
+            Rk = so3_exp(np.concatenate(rvs_all, axis=1).T).reshape(-1, 2, 3, 3)
+            bt.R[d] = Rk
+            bt.t[d] = np.concatenate(tvs_all, axis=1).T.reshape(-1, 2, 3)
+            e = np.array(errs)
+            bt.cost[d] = e[:, :2] ** 2 * e[:, 2:3]
+        if special:
+            self._special_poses(bt, np.array(special))
+        if warm:
+            self._refine_both(bt, np.array(warm))
+        self._prefer_level(bt, rows, bt.gravity)
+
+    def _resolve(self, bt: _Batch, rows) -> None:
+        """Solve again bricks whose dots changed: both solutions refined from where they are
+        (one batch for all bricks), then the gravity preference."""
+        rows = np.asarray(rows, np.int64)
+        if rows.size:
+            self._refine_both(bt, rows, iterations=3)
+            self._prefer_level(bt, rows, bt.gravity)
+
+    def _refine_both(self, bt: _Batch, rows: np.ndarray, iterations: int = 4) -> None:
+        """Refine both solutions of bricks that already have poses (their dots changed)."""
+        B = rows.size
+        X, w, q = bt.X[rows], bt.w[rows], bt.q[rows]
+        Rr, tr, cost = refine_poses(np.concatenate([X, X]), np.concatenate([q, q]),
+                                    np.concatenate([w, w]),
+                                    np.concatenate([bt.R[rows, 0], bt.R[rows, 1]]),
+                                    np.concatenate([bt.t[rows, 0], bt.t[rows, 1]]),
+                                    iterations=iterations)
+        bt.R[rows, 0], bt.R[rows, 1] = Rr[:B], Rr[B:]
+        bt.t[rows, 0], bt.t[rows, 1] = tr[:B], tr[B:]
+        bt.cost[rows, 0], bt.cost[rows, 1] = cost[:B], cost[B:]
+        swap = rows[bt.cost[rows, 1] < bt.cost[rows, 0]]
+        if swap.size:
+            bt.R[swap] = bt.R[swap][:, ::-1]
+            bt.t[swap] = bt.t[swap][:, ::-1]
+            bt.cost[swap] = bt.cost[swap][:, ::-1]
+
+    def _special_poses(self, bt: _Batch, rows: np.ndarray) -> None:
+        """Poses where no homography can be fitted (three of four dots in a line): SQPnP, the
+        mirrored pose, both refined by Levenberg–Marquardt."""
+        B = rows.size
+        R0 = np.tile(np.eye(3), (B, 1, 1))
+        t0 = np.tile(np.array([0.0, 0.0, 1.0]), (B, 1))
+        Rpb = np.zeros((B, 3, 3))
+        tpb = np.zeros((B, 3))
+        for k, r in enumerate(rows.tolist()):
+            T = bt.models[r].plane_from_brick
+            Rpb[k], tpb[k] = T[:3, :3], T[:3, 3]
+            m = bt.blob[r] >= 0
+            try:
+                ok, rv, tv = cv2.solvePnP(bt.X[r][m].reshape(-1, 1, 3),
+                                          bt.q[r][m].reshape(-1, 1, 2), _EYE3, None,
+                                          flags=cv2.SOLVEPNP_SQPNP)
+            except cv2.error:
+                ok = False
+            if ok:
+                R0[k] = cv2.Rodrigues(rv)[0]
+                t0[k] = tv.ravel()
+        X, w = bt.X[rows], bt.w[rows]
+        Pl = X @ Rpb.transpose(0, 2, 1) + tpb[:, None, :]
+        Rcp = R0 @ Rpb.transpose(0, 2, 1)
+        tcp = t0 - (Rcp @ tpb[:, :, None])[:, :, 0]
+        cen = (Pl * w[..., None]).sum(axis=1) / np.maximum(w.sum(axis=1), 1)[:, None]
+        cen[:, 2] = 0.0
+        Rm, tm = mirror_pose(Rcp, tcp, cen)
+        R1 = Rm @ Rpb
+        t1 = (Rm @ tpb[:, :, None])[:, :, 0] + tm
+        Rr, tr, cost = refine_poses(np.concatenate([X, X]),
+                                    np.concatenate([bt.q[rows], bt.q[rows]]),
+                                    np.concatenate([w, w]), np.concatenate([R0, R1]),
+                                    np.concatenate([t0, t1]), iterations=8)
+        bt.R[rows, 0], bt.R[rows, 1] = Rr[:B], Rr[B:]
+        bt.t[rows, 0], bt.t[rows, 1] = tr[:B], tr[B:]
+        bt.cost[rows, 0], bt.cost[rows, 1] = cost[:B], cost[B:]
+        swap = rows[bt.cost[rows, 1] < bt.cost[rows, 0]]
+        if swap.size:
+            bt.R[swap] = bt.R[swap][:, ::-1]
+            bt.t[swap] = bt.t[swap][:, ::-1]
+            bt.cost[swap] = bt.cost[swap][:, ::-1]
+
+    def _residuals_px(self, bt: _Batch, q: np.ndarray | None = None) -> np.ndarray:
+        """(B, N) distance of each dot from where the best solution puts it (≈ pixels)."""
+        _, proj = project_normalized(bt.X, bt.R[:, 0], bt.t[:, 0])
+        d = (q if q is not None else bt.q) - proj
+        return np.where(bt.used, np.sqrt((d * d).sum(axis=2)) * self.f, 0.0)
+
+    def _geometry(self, bt: _Batch) -> dict:
+        """The dots under the best solution: camera-frame centres, view cosines, and the
+        second-moment matrices of their ellipses (normalised), (r²/4)·A·Aᵀ with A the local
+        projection of the dot's plane."""
+        R, t = bt.R[:, 0], bt.t[:, 0]
+        Rt = R.transpose(0, 2, 1)
+        Y = bt.X @ Rt + t[:, None, :]
+        uc, vc, nc = bt.U @ Rt, bt.V @ Rt, bt.normals @ Rt
+        z = np.maximum(Y[..., 2], 1e-9)
+        iz = 1.0 / z
+        x, y = Y[..., 0] * iz, Y[..., 1] * iz
+        a00 = (uc[..., 0] - x * uc[..., 2]) * iz
+        a10 = (uc[..., 1] - y * uc[..., 2]) * iz
+        a01 = (vc[..., 0] - x * vc[..., 2]) * iz
+        a11 = (vc[..., 1] - y * vc[..., 2]) * iz
+        k = bt.radii * bt.radii / 4
+        c00 = k * (a00 * a00 + a01 * a01)
+        c01 = k * (a00 * a10 + a01 * a11)
+        c11 = k * (a10 * a10 + a11 * a11)
+        dist = np.sqrt((Y * Y).sum(axis=2))
+        return {"Y": Y, "cos_view": -(nc * Y).sum(axis=2) / np.maximum(dist, 1e-12),
+                "c00": c00, "c01": c01, "c11": c11}
+
+    def _solve(self, img: np.ndarray, blobs: Blobs, cands: list[Candidate],
+               taken: np.ndarray, gravity: np.ndarray | None,
+               state: DotsState | None, cov_n: np.ndarray) -> list[BrickPose]:
+        cfg = self.config
+        bt = self._make_batch(cands)
+        B = len(cands)
+        allrows = list(range(B))
+        used = np.unique(bt.blob[bt.used])
+        centers = np.stack([blobs.x, blobs.y], axis=1)
+        refined = np.zeros(len(blobs), bool)
+        centers[used] = refine_centers(img, blobs, used)[0]
+        refined[used] = True
+        self._set_centers(bt, centers)
+        alive = np.ones(B, bool)
+        bt.gravity = gravity
+        self._initial_poses(bt, allrows)
+        # ---- dots hidden in part (by the brick's own relief, or by something in front: a
+        # blob smaller than the pose predicts): their centres are off
+        geo = self._geometry(bt)
+        clear = self._self_occluded(bt)
+        bt.hidden = clear < 1.0
+        short = self._shape_outliers(bt, cov_n, geo)
+        u = bt.used
+        bad = (bt.hidden | short) & u
+        if bad.any():
+            keep_ok = (u.sum(axis=1) - bad.sum(axis=1)) >= cfg.min_dots
+            cut = ((bt.hidden & u & (clear < 0.95)) | (short & u)).any(axis=1) & ~keep_ok
+            if cut.any():
+                # too few dots to drop the cut one: its pose would be off; unless the other
+                # planar solution is plausible and sees no dot cut (the cut came from a
+                # mirrored pose)
+                rows = np.flatnonzero(cut)
+                alt = self._self_occluded(bt, sol=1, rows=rows)
+                plaus = self._alt_plausible(bt, rows)
+                cut[rows] &= ~(plaus & ~(u[rows] & (alt < 0.95)).any(axis=1))
+            alive &= ~cut
+            drop = bad & keep_ok[:, None]
+            if drop.any():
+                taken[bt.blob[drop]] = False
+                bt.blob[drop] = -1
+                rows = np.flatnonzero(drop.any(axis=1)).tolist()
+                self._resolve(bt, rows)
+        # ---- a dot far from where the pose puts it (a wrong blob): drop the worst
+        for _ in range(2):
+            res = self._residuals_px(bt)
+            worst = res.argmax(axis=1)
+            wv = res[np.arange(B), worst]
+            drop = alive & (wv > cfg.max_dot_residual_px) & (bt.used.sum(axis=1) > cfg.min_dots)
+            if not drop.any():
+                break
+            rows = np.flatnonzero(drop)
+            taken[bt.blob[rows, worst[rows]]] = False
+            bt.blob[rows, worst[rows]] = -1
+            self._resolve(bt, rows.tolist())
+        # ---- look for missing dots where the pose puts them
+        self._complete(bt, blobs, centers, refined, taken, img)
+        # ---- perspective: the measured centres are ellipse centres, not circle centres
+        # both solutions of all bricks as one batch of 2B problems: [sol 0 | sol 1]
+        X2 = np.concatenate([bt.X, bt.X])
+        R2 = bt.R.transpose(1, 0, 2, 3).reshape(2 * B, 3, 3)
+        t2 = bt.t.transpose(1, 0, 2).reshape(2 * B, 3)
+        nrm2 = np.concatenate([bt.normals, bt.normals])
+        off = conic_center_offsets(X2, nrm2, np.concatenate([bt.radii, bt.radii]), R2, t2)
+        w = bt.w
+        q2 = np.concatenate([bt.q, bt.q]) - off
+        Rr, tr, cost, A, resid = gn_step(X2, q2, np.concatenate([w, w]), R2, t2,
+                                         return_normal=True)
+        bt.R = Rr.reshape(2, B, 3, 3).transpose(1, 0, 2, 3).copy()
+        bt.t = tr.reshape(2, B, 3).transpose(1, 0, 2).copy()
+        bt.cost = cost.reshape(2, B).T.copy()
+        bt.offset = off.reshape((2, B) + off.shape[1:]).transpose(1, 0, 2, 3).copy()
+        bt.normal_eq = A.reshape(2, B, 6, 6).transpose(1, 0, 2, 3).copy()
+        resid = resid.reshape((2, B) + resid.shape[1:]).transpose(1, 0, 2).copy()
+        swap = bt.cost[:, 1] < bt.cost[:, 0]
+        if swap.any():
+            for name in ("R", "t", "cost", "offset", "normal_eq"):
+                arr = getattr(bt, name)
+                arr[swap] = arr[swap][:, ::-1]
+            resid[swap] = resid[swap][:, ::-1]
+        # ---- checks
+        count = bt.used.sum(axis=1)
+        rmse = np.sqrt(bt.cost / np.maximum(count, 1)[:, None] / 2) * self.f  # (B, 2)
+        res = resid[:, 0] * self.f
+        alive &= (count >= cfg.min_dots) & (rmse[:, 0] <= cfg.max_rmse_px)
+        alive &= res.max(axis=1) <= cfg.max_dot_residual_px
+        alive &= self._plausible(bt, blobs, geo)
+        rows = np.flatnonzero(alive)
+        if rows.size == 0:
+            return []
+        return self._finish(bt, rows, rmse, gravity, state)
+
+    def _complete(self, bt: _Batch, blobs: Blobs, centers: np.ndarray, refined: np.ndarray,
+                  taken: np.ndarray, img: np.ndarray) -> None:
+        """Add dots a partial match missed: a free blob of the right colour where the pose
+        puts a missing dot."""
+        cfg = self.config
+        missing = ~bt.used & ~bt.hidden & (bt.radii > 0)
+        for k, m in enumerate(bt.models):
+            if m.n < missing.shape[1]:
+                missing[k, m.n:] = False
+        if not missing.any():
+            return
+        free = np.flatnonzero(~taken)
+        if free.size == 0:
+            return
+        bi, di = np.nonzero(missing)
+        Y = (bt.R[bi, 0] @ bt.X[bi, di][:, :, None])[:, :, 0] + bt.t[bi, 0]
+        front = Y[:, 2] > 1e-6
+        bi, di, Y = bi[front], di[front], Y[front]
+        if bi.size == 0:
+            return
+        pred = self._project(Y)
+        size_px = self.f * bt.radii[bi, di] * 2 / Y[:, 2]
+        tol2 = np.maximum(1.5, 0.25 * size_px) ** 2
+        dd = pred[:, None, :] - centers[free][None, :, :]
+        d2 = (dd * dd).sum(axis=2)
+        want = np.array([bt.models[b].colors[k] for b, k in zip(bi.tolist(), di.tolist())])
+        d2[blobs.color[free][None, :] != want[:, None]] = np.inf
+        best = d2.argmin(axis=1)
+        ok = d2[np.arange(bi.size), best] <= tol2
+        if not ok.any():
+            return
+        changed, new = set(), []
+        for k in np.flatnonzero(ok).tolist():
+            blob = int(free[best[k]])
+            if taken[blob]:
+                continue
+            taken[blob] = True
+            bt.blob[bi[k], di[k]] = blob
+            changed.add(int(bi[k]))
+            new.append(blob)
+        if not changed:
+            return
+        new_a = np.array(new)
+        need = new_a[~refined[new_a]]
+        if need.size:
+            centers[need] = refine_centers(img, blobs, need)[0]
+            refined[need] = True
+        rows = np.array(sorted(changed))
+        self._set_centers(bt, centers, rows)
+        self._resolve(bt, rows.tolist())
+        # a completed dot that does not fit is removed again
+        res = self._residuals_px(bt)
+        bad = (res > cfg.max_dot_residual_px) & np.isin(bt.blob, new_a)
+        if bad.any():
+            taken[bt.blob[bad]] = False
+            bt.blob[bad] = -1
+            self._resolve(bt, np.flatnonzero(bad.any(axis=1)))
+
+    def _shape_outliers(self, bt: _Batch, cov_n: np.ndarray, geo: dict) -> np.ndarray:
+        """(B, N) dots whose blob is clearly smaller (or larger) than the brick's other dots,
+        relative to the size the pose predicts (a dot cut by an edge in front of it)."""
+        u = bt.used
+        Cm = cov_n[np.maximum(bt.blob, 0)]
+        c00, c01, c11 = geo["c00"], geo["c01"], geo["c11"]
+        det_p = np.maximum(c00 * c11 - c01 * c01, 1e-30)
+        det_m = np.maximum(Cm[..., 0, 0] * Cm[..., 1, 1] - Cm[..., 0, 1] ** 2, 0)
+        rho = np.sqrt(np.sqrt(det_m / det_p))                 # linear size ratio
+        srt = np.sort(np.where(u, rho, np.inf), axis=1)
+        n = u.sum(axis=1)
+        med = srt[np.arange(rho.shape[0]), np.maximum(n - 1, 0) // 2]
+        # predicted minor semi-axis in pixels: small dots are measured ±1 px
+        tr = c00 + c11
+        lmin = tr / 2 - np.sqrt(np.maximum(tr * tr / 4 - det_p, 0))
+        b_px = 2 * np.sqrt(np.maximum(lmin, 0)) * self.f
+        tol = np.maximum(0.2, 1.2 / np.maximum(b_px, 0.5))
+        rel = rho / med[:, None]
+        return u & ((rel < 1 - tol) | (rel > 1 / (1 - tol)))
+
+    def _self_occluded(self, bt: _Batch, sol: int = 0, rows=None) -> np.ndarray:
+        """(B, N) (or (len(rows), N)) clearance of the dots from the shadows of the brick's
+        own mesh under solution ``sol``, in dot radii (< 1: partly hidden)."""
+        rows = list(range(bt.blob.shape[0])) if rows is None else list(rows)
+        out = np.full((len(rows), bt.blob.shape[1]), np.inf)
+        groups: dict[int, list[int]] = {}
+        for k, r in enumerate(rows):
+            m = bt.models[r]
+            if m.occluders.shape[0]:
+                groups.setdefault(id(m), []).append(k)
+        for ks in groups.values():
+            m = bt.models[rows[ks[0]]]
+            kk = np.array(ks)
+            rr = np.array(rows)[kk]
+            out[kk, :m.n] = occluded_dots(m, bt.R[rr, sol], bt.t[rr, sol], clearance=True)
+        return out
+
+    def _alt_plausible(self, bt: _Batch, rows) -> np.ndarray:
+        """Whether the second planar solution of the given bricks is plausible (the same test
+        as the final ``ambiguous`` flag, on the current costs)."""
+        cfg = self.config
+        rows = np.asarray(rows)
+        n = np.maximum(bt.used[rows].sum(axis=1), 1)
+        rm = np.sqrt(bt.cost[rows] / n[:, None] / 2) * self.f
+        return np.isfinite(rm[:, 1]) & (rm[:, 1] <= cfg.ambiguity_ratio * np.maximum(
+            rm[:, 0], cfg.ambiguity_sigma_px))
+
+    def _prefer_level(self, bt: _Batch, rows, gravity: np.ndarray | None) -> None:
+        """With gravity: where the second solution is plausible and lies flatter (bricks lie
+        roughly flat), make it the working solution."""
+        if gravity is None or not len(rows):
+            return
+        rows = np.asarray(rows)
+        cz = bt.R[rows][:, :, :, 2] @ -gravity                  # (n, 2) cos of the tilts
+        level = cz[:, 1] >= math.cos(math.radians(self.config.gravity_max_tilt_deg))
+        swap = rows[(cz[:, 1] > cz[:, 0]) & level & self._alt_plausible(bt, rows)]
+        if swap.size:
+            bt.R[swap] = bt.R[swap][:, ::-1]
+            bt.t[swap] = bt.t[swap][:, ::-1]
+            bt.cost[swap] = bt.cost[swap][:, ::-1]
+
+    def _plausible(self, bt: _Batch, blobs: Blobs, geo: dict) -> np.ndarray:
+        """Dots in front, facing the camera, of the size the pose predicts."""
+        cfg = self.config
+        u = bt.used
+        Y = geo["Y"]
+        ok_front = np.all(~u | ((Y[..., 2] > 0.02) & (geo["cos_view"] >= _COS_MAX_VIEW[
+            cfg.max_view_angle_deg])), axis=1)
+        a_pred = self.f * bt.radii / np.maximum(Y[..., 2], 1e-6)   # major semi-axis, approx.
+        ratio = np.where(u, blobs.a[np.maximum(bt.blob, 0)] / np.maximum(a_pred, 1e-9), 1.0)
+        lo, hi = cfg.size_ratio
+        slack = 1.0 / np.maximum(a_pred, 0.5)                   # small blobs: ±1 px
+        return ok_front & np.all((ratio >= lo - slack) & (ratio <= hi + slack), axis=1)
+
+    def _finish(self, bt: _Batch, rows: np.ndarray, rmse: np.ndarray,
+                gravity: np.ndarray | None, state: DotsState | None) -> list[BrickPose]:
+        cfg = self.config
+        B = rows.size
+        ar = np.arange(B)
+        R2, t2 = bt.R[rows], bt.t[rows]
+        # ---- the planar ambiguity: is the other solution plausible?
+        cos_ang = np.clip(((R2[:, 0] * R2[:, 1]).sum(axis=(1, 2)) - 1) / 2, -1, 1)
+        dt = t2[:, 0] - t2[:, 1]
+        same = (cos_ang > _COS_HALF_DEG) & ((dt * dt).sum(axis=1) < 1e-6)
+        r0, r1 = rmse[rows, 0], rmse[rows, 1]
+        ambiguous = ~same & np.isfinite(r1) & (r1 <= cfg.ambiguity_ratio * np.maximum(
+            r0, cfg.ambiguity_sigma_px))
+        self.last_diagnostics = {"rmse": r0, "rmse_other": r1,
+                                 "other_angle_deg": np.degrees(np.arccos(cos_ang))}
+        choose = np.zeros(B, np.int64)
+        if gravity is not None:
+            # bricks lie roughly flat: of two plausible solutions, the one whose z is closer to
+            # up; a pose that gravity does not confirm (tilted beyond the limit) stays
+            # flagged, with the other solution as the alternative
+            cz = R2[:, :, :, 2] @ -gravity                       # (B, 2) cos of the tilts
+            cos_max = math.cos(math.radians(cfg.gravity_max_tilt_deg))
+            pick = np.where(ambiguous & (cz[:, 1] > cz[:, 0]), 1, 0)
+            level = cz[ar, pick] >= cos_max
+            choose = np.where(ambiguous & level, pick, 0)
+            ambiguous = (ambiguous & ~level) | (~same & (cz[ar, choose] < cos_max))
+        Rc, tc = R2[ar, choose], t2[ar, choose]
+        rm = rmse[rows][ar, choose]
+        qsel = bt.q[rows] - bt.offset[rows][ar, choose]
+        # ---- symmetric layouts: one canonical half-turn (the previous frame's, in a stream)
+        sym = np.array([bt.models[r].sym_perm is not None for r in rows.tolist()])
+        flip = np.zeros(B, bool)
+        if sym.any():
+            x = Rc[:, :, 0]
+            flip = sym & np.where(np.abs(x[:, 0]) > 1e-9, x[:, 0] < 0, x[:, 1] < 0)
+            prev = state.previous if state is not None else []
+            if prev:
+                for k in np.flatnonzero(sym).tolist():
+                    f = self._previous_flip(bt.models[rows[k]], Rc[k], tc[k], prev)
+                    if f is not None:
+                        flip[k] = f
+            Rc = np.where(flip[:, None, None], Rc * _HALF, Rc)
+        # ---- unbiased centres in pixels, covariance
+        img_pts = self._project(np.concatenate([qsel, np.ones(qsel.shape[:2] + (1,))], axis=2))
+        cov = None
+        if cfg.covariance:
+            n = bt.used[rows].sum(axis=1)
+            sig = np.maximum(cfg.centroid_sigma_px, rm * np.sqrt(2 * n / np.maximum(
+                2 * n - 6, 1))) / self.f
+            A = bt.normal_eq[rows][ar, choose]
+            rvecs = so3_log(Rc)
+            cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
+        else:
+            rvecs = so3_log(Rc)
+        # dot labels in the reported (possibly half-turned) frame, sorted
+        N = bt.blob.shape[1]
+        used = bt.used[rows]
+        lab = np.broadcast_to(np.arange(N), (B, N))
+        if flip.any():
+            perm = np.stack([bt.models[r].sym_perm if bt.models[r].sym_perm is not None
+                             else np.arange(bt.models[r].n) for r in rows.tolist()]) \
+                if N == max(bt.models[r].n for r in rows.tolist()) else None
+            if perm is not None:
+                lab = np.where(flip[:, None], perm, lab)
+        key = np.where(used, lab, N + 1)
+        order = np.argsort(key, axis=1)                          # (B, N) dots by label
+        counts = used.sum(axis=1).tolist()
+        lab_sorted = np.take_along_axis(key, order, axis=1).tolist()
+        pts_sorted = img_pts[ar[:, None], order]
+        names = [bt.models[r].name for r in rows.tolist()]
+        out = []
+        for k in range(B):
+            nk = counts[k]
+            alt = []
+            if ambiguous[k]:
+                Ra = R2[k, 1 - choose[k]]
+                if sym[k] and self._canonical_flip(Ra):
+                    Ra = Ra * _HALF
+                alt = [(cv2.Rodrigues(Ra)[0].ravel(), t2[k, 1 - choose[k]].copy())]
+            out.append(BrickPose(
+                layout=names[k], instance=None, method="dots", rvec=rvecs[k], tvec=tc[k],
+                reprojection_rmse_px=float(rm[k]), markers=lab_sorted[k][:nk],
+                ambiguous=bool(ambiguous[k]), alternatives=alt, symmetric=bool(sym[k]),
+                covariance=None if cov is None else cov[k], image_points=pts_sorted[k, :nk]))
+        return out
+
+    @staticmethod
+    def _canonical_flip(R: np.ndarray) -> bool:
+        """The canonical half-turn: the brick's x axis toward the camera's +x (image right);
+        if perpendicular, toward +y."""
+        x = R[:, 0]
+        return bool(x[0] < 0) if abs(x[0]) > 1e-9 else bool(x[1] < 0)
+
+    @staticmethod
+    def _previous_flip(model: DotModel, R: np.ndarray, t: np.ndarray,
+                       previous: list[tuple[str, np.ndarray, np.ndarray]]) -> bool | None:
+        """With a brick of the same layout in the previous frame (within half the layout's
+        extent): whether to half-turn the pose to stay in that brick's half-turn."""
+        best, bd = None, 0.5 * model.max_extent
+        for name, tp, Rp in previous:
+            if name == model.name:
+                d = float(np.linalg.norm(tp - t))
+                if d < bd:
+                    best, bd = Rp, d
+        if best is None:
+            return None
+        return float(R[:, 0] @ best[:, 0]) < 0
+
+
+_ZERO3 = np.zeros(3)
+_BITS = 1 << np.arange(16)
+_EYE3 = np.eye(3)
+_HALF = np.array([-1.0, -1.0, 1.0])
+_STENCIL = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+_COS_HALF_DEG = math.cos(math.radians(0.5))
+
+
+class _CosTable(dict):
+    def __missing__(self, deg: float) -> float:
+        val = self[deg] = math.cos(math.radians(deg))
+        return val
+
+
+_COS_MAX_VIEW = _CosTable()
+
+
+_LOCAL = threading.local()
+
+
+def _detector_for(camera: Camera, layouts: Sequence[MarkerLayout], config: DotsConfig | None
+                  ) -> DotDetector:
+    """A cached detector per thread (a detector reuses frame buffers: one thread each)."""
+    key = (camera.K.tobytes(), camera.dist.tobytes(), camera.width, camera.height,
+           tuple(id(x) for x in layouts), config)
+    cache = getattr(_LOCAL, "cache", None)
+    if cache is None:
+        cache = _LOCAL.cache = []
+    for k, _refs, det in cache:
+        if k == key:
+            return det
+    det = DotDetector(camera, layouts, config)
+    cache.insert(0, (key, list(layouts), det))   # holds the layouts: their ids stay valid
+    del cache[4:]
+    return det
+
+
+def detect_dots(image_bgr, camera: Camera, layouts: Sequence[MarkerLayout],
+                gravity: Sequence[float] | None = None, state: DotsState | None = None, *,
+                config: DotsConfig | None = None) -> list[BrickPose]:
+    """Find colour-dot bricks in one frame and estimate their poses.
+
+    Args:
+        image_bgr: (H, W, 3) uint8 BGR frame (BGRA, greyscale and uint16 are accepted; a
+            greyscale frame gives no bricks and a warning).
+        camera: The calibrated camera of the frame.
+        layouts: Layouts to look for (those without dots are ignored).
+        gravity: Unit vector of gravity in the camera frame (pointing down), if known.
+        state: A :class:`DotsState` passed with every frame of a stream (keeps symmetric
+            yaws from flipping between frames; also caches the detector).
+        config: Detector settings (defaults if None).
+
+    Returns:
+        A :class:`~drovisio.detect.result.BrickPose` per brick found.
+
+    Raises:
+        DotsInputError: the image is not an image (None, float or other dtype, bad shape).
+        LayoutNotSupported: a layout's dots cannot be used.
+    """
+    if state is not None:
+        det = state.detector
+        if (det is None or det.camera is not camera and not det.camera.almost_equal(camera)
+                or [x.name for x in det.layouts] != [x.name for x in layouts
+                                                      if getattr(x, "has_dots", False)]
+                or (config is not None and det.config != config)):
+            det = state.detector = DotDetector(camera, layouts, config)
+    else:
+        det = _detector_for(camera, layouts, config)
+    return det.detect(image_bgr, gravity=gravity, state=state)

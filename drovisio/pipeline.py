@@ -1,0 +1,380 @@
+"""The positioning pipeline: Source → Detector(s) → Fusion → Tracker → Sink(s).
+
+:class:`Pipeline` takes the newest frame of a :class:`~drovisio.sources.FrameSource`, runs the
+detectors the loaded layouts need (codes → ArUco, dots → colour dots; in parallel threads when
+there are two: OpenCV releases the GIL), fuses a brick's code and dot poses
+(:mod:`drovisio.fusion`), tracks every brick (:mod:`drovisio.tracking`), chooses the target
+(:mod:`drovisio.sinks.target`), and hands one :class:`FrameOutput` per frame to every sink,
+to the recorder and to listeners (the live page). It never raises for a frame: a detector
+error is counted and reported (the frame gives no bricks); a lost source gives no frames, the
+tracks age out within ``max_age`` and the loop keeps waiting for the source to come back.
+
+Detectors follow a small protocol, :class:`Detector`: ``detect(image, timestamp,
+gravity=None) -> list[BrickPose]``. :class:`ArucoDetectorAdapter` and
+:class:`DotsDetectorAdapter` import the detectors lazily; :func:`detectors_for` picks them.
+
+Gravity (the detectors' evidence for the flip ambiguity): a callable ``t_mono -> unit vector
+in the camera frame | None``; ``drovisio run`` gives the autopilot's attitude (from the MAVLink
+link) through the mount, or the mount's level "down" when there is no attitude.
+
+Timing: each output records the capture time (``t`` UNIX s, ``t_mono``), the detection time
+and, once the sinks returned, the latency capture → sent (:attr:`Pipeline.stats`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from drovisio.detect.result import BrickPose
+from drovisio.fusion import fuse_frame
+from drovisio.sinks.target import TargetSelector
+from drovisio.sources import Frame, FrameSource, SourceState
+from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
+
+__all__ = [
+    "ArucoDetectorAdapter",
+    "Detector",
+    "DotsDetectorAdapter",
+    "FrameOutput",
+    "Pipeline",
+    "PipelineStats",
+    "detectors_for",
+]
+
+log = logging.getLogger("drovisio.pipeline")
+
+
+class Detector(Protocol):
+    name: str
+
+    def detect(self, image: np.ndarray, timestamp: float,
+               gravity: np.ndarray | None = None) -> list[BrickPose]: ...
+
+
+class ArucoDetectorAdapter:
+    """Bricks by their codes (:mod:`drovisio.detect.aruco`), with a pose history per stream."""
+
+    name = "aruco"
+
+    def __init__(self, camera, layouts):
+        from drovisio.detect.aruco import ArucoBrickDetector
+        from drovisio.pose import PoseHistory
+
+        self.impl = ArucoBrickDetector(camera, layouts, history=PoseHistory())
+
+    def detect(self, image, timestamp, gravity=None):
+        return self.impl.detect(image, gravity=gravity)
+
+
+class DotsDetectorAdapter:
+    """Bricks by their colour dots (:mod:`drovisio.detect.dots`), with a per-stream state."""
+
+    name = "dots"
+
+    def __init__(self, camera, layouts):
+        from drovisio.detect.dots import DotsState, detect_dots
+
+        self._detect = detect_dots
+        self.camera = camera
+        self.layouts = list(layouts)
+        self.state = DotsState()
+
+    def detect(self, image, timestamp, gravity=None):
+        return self._detect(image, self.camera, self.layouts, gravity=gravity, state=self.state)
+
+
+def detectors_for(camera, layouts) -> list[Detector]:
+    """The detectors the layouts need: ArUco if any has codes, dots if any has dots."""
+    out: list[Detector] = []
+    if any(getattr(lay, "has_codes", False) for lay in layouts):
+        out.append(ArucoDetectorAdapter(camera, layouts))
+    if any(getattr(lay, "has_dots", False) for lay in layouts):
+        out.append(DotsDetectorAdapter(camera, layouts))
+    return out
+
+
+@dataclass
+class FrameOutput:
+    """Everything the pipeline knows about one processed frame."""
+
+    source: str
+    frame: int
+    seq: int
+    t: float
+    """Capture time, UNIX seconds."""
+    t_mono: float
+    bricks: list[TrackedBrick]
+    target: TrackedBrick | None = None
+    detections: list[BrickPose] = field(default_factory=list)
+    """This frame's raw detections (before fusion and tracking)."""
+    detect_ms: float = 0.0
+    source_state: str = "live"
+    gravity: np.ndarray | None = None
+    errors: list[str] = field(default_factory=list)
+
+    def to_json(self, with_covariance: bool = False) -> dict:
+        out: dict = {"file": self.source, "frame": self.frame, "t": round(self.t, 6),
+                     "bricks": [b.to_json(with_covariance) for b in self.bricks],
+                     "target": None if self.target is None else
+                     {"layout": self.target.layout, "instance": self.target.instance,
+                      "track": self.target.track},
+                     "detect_ms": round(self.detect_ms, 2)}
+        if self.errors:
+            out["error"] = "; ".join(self.errors)
+        return out
+
+
+class PipelineStats:
+    """Rolling figures (bounded memory: fixed-size windows)."""
+
+    def __init__(self, window: int = 90):
+        self.detect_ms: deque[float] = deque(maxlen=window)
+        self.latency_ms: deque[float] = deque(maxlen=window)
+        self.frame_times: deque[float] = deque(maxlen=window)
+        self.frames = 0
+        self.detector_errors = 0
+        self.sink_errors = 0
+        self.bricks = 0
+        self.last_error: str | None = None
+
+    def fps(self, now: float | None = None) -> float:
+        ft = list(self.frame_times)
+        if len(ft) < 2:
+            return 0.0
+        now = time.monotonic() if now is None else now
+        recent = [t for t in ft if now - t <= 2.0]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
+
+    @staticmethod
+    def _median(d: deque) -> float:
+        return float(np.median(list(d))) if d else 0.0
+
+    def snapshot(self) -> dict:
+        return {"frames": self.frames, "fps": round(self.fps(), 2),
+                "detect_ms": round(self._median(self.detect_ms), 2),
+                "latency_ms": round(self._median(self.latency_ms), 2),
+                "bricks": self.bricks, "detector_errors": self.detector_errors,
+                "sink_errors": self.sink_errors, "last_error": self.last_error}
+
+
+class Pipeline:
+    """Runs the stages on a source until it ends or :meth:`stop` is called.
+
+    Args:
+        source: A started (or startable) :class:`FrameSource`.
+        detectors: Detectors (see :func:`detectors_for`).
+        sinks: Where each :class:`FrameOutput` goes.
+        tracker: The brick tracker (default: one with ``max_age``).
+        mount: Camera mount (for body-frame poses).
+        target: Target selector shared with the sinks and the UI.
+        gravity: ``t_mono -> gravity in the camera frame | None``.
+        recorder: A :class:`drovisio.recording.Recorder` (frames + outputs), or None.
+        max_age: Drop time of unseen bricks (s), when no tracker is given.
+        parallel: Run several detectors in parallel threads.
+        fuse: Fuse code and dot poses of the same brick.
+        layouts: The loaded layouts (tells which bricks' dots alone are half-turn symmetric).
+    """
+
+    def __init__(self, source: FrameSource, detectors: Sequence[Detector],
+                 sinks: Sequence = (), tracker: BrickTracker | None = None, mount=None,
+                 target: TargetSelector | None = None,
+                 gravity: Callable[[float], np.ndarray | None] | None = None,
+                 recorder=None, max_age: float = 0.5, parallel: bool = True,
+                 fuse: bool = True, layouts: Sequence = ()):
+        self.source = source
+        self.detectors = list(detectors)
+        self.sinks = list(sinks)
+        self.mount = mount
+        self.tracker = tracker or BrickTracker(TrackerConfig(max_age=max_age), mount=mount)
+        if self.tracker.mount is None:
+            self.tracker.mount = mount
+        self.target = target or TargetSelector()
+        self.gravity = gravity
+        self.recorder = recorder
+        self.fuse = fuse
+        self.layouts = list(layouts)
+        from drovisio.fusion import dots_half_turn_symmetric
+
+        self._symmetric_dots = {lay.name for lay in self.layouts
+                                if getattr(lay, "has_codes", False)
+                                and dots_half_turn_symmetric(lay)}
+        self.stats = PipelineStats()
+        self._listeners: list[Callable[[Frame | None, FrameOutput | None], None]] = []
+        self._stop = threading.Event()
+        self._pool = (ThreadPoolExecutor(max_workers=len(self.detectors),
+                                         thread_name_prefix="detect")
+                      if parallel and len(self.detectors) > 1 else None)
+        self.last_output: FrameOutput | None = None
+
+    # ------------------------------------------------------------------ listeners
+    def add_listener(self, fn: Callable[[Frame | None, FrameOutput | None], None]) -> None:
+        """``fn(frame, output)`` after each frame (``(None, None)`` on idle ticks); keep it
+        fast: it runs in the pipeline thread."""
+        self._listeners.append(fn)
+
+    def remove_listener(self, fn) -> None:
+        if fn in self._listeners:
+            self._listeners.remove(fn)
+
+    def _notify(self, frame: Frame | None, out: FrameOutput | None) -> None:
+        for fn in list(self._listeners):
+            try:
+                fn(frame, out)
+            except Exception as e:  # noqa: BLE001 - a listener never stops the pipeline
+                log.warning("listener failed: %s", e)
+
+    # ------------------------------------------------------------------ stages
+    def _detect(self, frame: Frame, g: np.ndarray | None) -> tuple[list[BrickPose], list[str]]:
+        errors: list[str] = []
+
+        def one(d: Detector) -> list[BrickPose]:
+            try:
+                return list(d.detect(frame.image, frame.t_wall, gravity=g))
+            except Exception as e:  # noqa: BLE001
+                self.stats.detector_errors += 1
+                msg = f"{getattr(d, 'name', type(d).__name__)}: {type(e).__name__}: {e}"
+                self.stats.last_error = msg
+                errors.append(msg)
+                return []
+
+        if self._pool is not None:
+            results = list(self._pool.map(one, self.detectors))
+        else:
+            results = [one(d) for d in self.detectors]
+        return [p for r in results for p in r], errors
+
+    def process(self, frame: Frame) -> FrameOutput:
+        """All stages for one frame; sends the output to the sinks and returns it."""
+        g = None
+        if self.gravity is not None:
+            try:
+                g = self.gravity(frame.t_mono)
+            except Exception:  # noqa: BLE001
+                g = None
+        t0 = time.perf_counter()
+        poses, errors = self._detect(frame, g)
+        detect_ms = (time.perf_counter() - t0) * 1e3
+        if self.fuse:
+            poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
+        bricks = self.tracker.update(poses, frame.t_mono, frame.t_wall)
+        target = self.target.choose(bricks)
+        out = FrameOutput(source=self.source.label, frame=frame.index, seq=frame.seq,
+                          t=frame.t_wall, t_mono=frame.t_mono, bricks=bricks, target=target,
+                          detections=poses, detect_ms=detect_ms,
+                          source_state=self.source.state.value, gravity=g, errors=errors)
+        for s in self.sinks:
+            try:
+                s.send(out)
+            except Exception as e:  # noqa: BLE001
+                self.stats.sink_errors += 1
+                self.stats.last_error = f"{getattr(s, 'name', s)}: {e}"
+        now = time.monotonic()
+        st = self.stats
+        st.latency_ms.append((now - (frame.t_read or frame.t_mono)) * 1e3)
+        st.detect_ms.append(detect_ms)
+        st.frame_times.append(now)
+        st.frames += 1
+        st.bricks = len(bricks)
+        if self.recorder is not None:
+            self.recorder.add(frame, out)
+        self.last_output = out
+        self._notify(frame, out)
+        return out
+
+    def step(self, timeout: float = 0.1) -> FrameOutput | None:
+        """Process the newest frame if one arrives within ``timeout``; else age the tracks."""
+        frame = self.source.get(timeout)
+        if frame is None:
+            self.tracker.prune(self.source.now() if hasattr(self.source, "now")
+                               else time.monotonic())
+            self.stats.bricks = len(self.tracker.tracks)
+            self._notify(None, None)
+            return None
+        return self.process(frame)
+
+    def warm_up(self, width: int, height: int) -> None:
+        """Run each detector once on a blank frame (first calls build tables and caches;
+        without this the first real frame is several times slower)."""
+        blank = np.full((height, width, 3), 127, np.uint8)
+        for d in self.detectors:
+            try:
+                d.detect(blank, time.time(), gravity=None)
+            except Exception:  # noqa: BLE001 - a real frame will report it
+                pass
+
+    # ------------------------------------------------------------------ loop
+    def run(self, max_frames: int | None = None,
+            on_status: Callable[[dict], None] | None = None, status_period: float = 1.0
+            ) -> int:
+        """Loop until the source ends, :meth:`stop` is called or ``max_frames`` were done.
+
+        ``on_status(status_dict)`` is called every ``status_period`` seconds.
+        Returns the number of frames processed.
+        """
+        self.source.start()
+        n = 0
+        next_status = time.monotonic() + status_period
+        while not self._stop.is_set():
+            out = self.step(0.1)
+            if out is not None:
+                n += 1
+                if max_frames is not None and n >= max_frames:
+                    break
+            elif self.source.ended:
+                break
+            if on_status is not None and time.monotonic() >= next_status:
+                next_status += status_period
+                if time.monotonic() > next_status:
+                    next_status = time.monotonic() + status_period
+                on_status(self.status())
+        return n
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def status(self) -> dict:
+        """Figures for status lines and the live page."""
+        s = self.stats.snapshot()
+        src = self.source.status()
+        s["source"] = src.to_json()
+        s["target"] = self.target.spec.to_json()
+        t = self.last_output.target if self.last_output is not None else None
+        s["target_brick"] = None if t is None or self.last_output is None or \
+            self.source.now() - self.last_output.t_mono > self.tracker.config.max_age else \
+            {"layout": t.layout, "instance": t.instance, "track": t.track,
+             "distance": round(t.distance, 3)}
+        s["sinks"] = [x.status() for x in self.sinks if hasattr(x, "status")]
+        if self.recorder is not None:
+            s["recording"] = self.recorder.status()
+        return s
+
+    def close(self) -> None:
+        """Stop the source, close the sinks and the recorder."""
+        self._stop.set()
+        try:
+            self.source.stop()
+        finally:
+            for s in self.sinks:
+                try:
+                    s.close()
+                except Exception:  # noqa: BLE001
+                    pass
+            if self.recorder is not None:
+                self.recorder.close()
+            if self._pool is not None:
+                self._pool.shutdown(wait=False)
+
+    @property
+    def source_state(self) -> SourceState:
+        return self.source.state

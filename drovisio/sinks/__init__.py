@@ -1,0 +1,47 @@
+"""Where the poses go: JSON Lines, UDP datagrams, MAVLink LANDING_TARGET, a WebSocket feed.
+
+Every sink has ``send(output)`` (called by the pipeline once per processed frame, with a
+:class:`drovisio.pipeline.FrameOutput`; it must return quickly and never raise for a network
+or disk problem — it counts and reports it instead), ``close()`` and ``status() -> dict``.
+
+SINK strings (``--sink`` of ``drovisio run``, :func:`open_sink`):
+
+* ``jsonl:-`` (stdout), ``jsonl:PATH`` — one JSON object per frame;
+* ``udp://HOST:PORT`` — the same object as one UDP datagram per frame;
+* ``mavlink:CONNECTION`` — ``LANDING_TARGET`` to a flight controller through pymavlink
+  (``mavlink:udpout:127.0.0.1:14550``, ``mavlink:/dev/ttyAMA0,921600``);
+* ``ws://HOST:PORT`` — a WebSocket server that pushes the objects to every connected client
+  (and takes ``{"set_target": "..."}`` messages).
+"""
+
+from __future__ import annotations
+
+from drovisio.sinks.base import Sink, SinkError
+from drovisio.sinks.target import TargetSelector, TargetSpec, parse_target
+
+__all__ = ["Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink", "parse_target"]
+
+
+def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str = "ardupilot",
+              mount=None, layouts=None) -> Sink:
+    """Open the sink of a SINK string (see the module doc)."""
+    s = spec.strip()
+    if s.startswith("jsonl:"):
+        from drovisio.sinks.jsonl import JsonlSink
+
+        return JsonlSink(s[len("jsonl:"):])
+    if s.startswith("udp://"):
+        from drovisio.sinks.udp import UdpSink
+
+        return UdpSink.from_url(s)
+    if s.startswith("mavlink:"):
+        from drovisio.sinks.mavlink import MavlinkSink
+
+        return MavlinkSink(s[len("mavlink:"):], autopilot=autopilot, target=target,
+                           mount=mount, layouts=layouts)
+    if s.startswith("ws://"):
+        from drovisio.sinks.websocket import WebSocketSink
+
+        return WebSocketSink.from_url(s, target=target)
+    raise SinkError(f"unknown sink {spec!r}: use jsonl:-, jsonl:PATH, udp://HOST:PORT, "
+                    "mavlink:CONNECTION or ws://HOST:PORT")

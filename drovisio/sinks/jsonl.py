@@ -1,0 +1,53 @@
+"""``jsonl:-`` / ``jsonl:PATH``: one JSON object per processed frame (JSON Lines)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from drovisio.sinks.base import SinkError
+
+__all__ = ["JsonlSink"]
+
+
+class JsonlSink:
+    def __init__(self, path: str = "-", with_covariance: bool = False):
+        self.name = f"jsonl:{path}"
+        self.with_covariance = with_covariance
+        self.lines = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        if path in ("-", ""):
+            self._f = sys.stdout
+            self._own = False
+        else:
+            p = Path(path)
+            try:
+                p.parent.mkdir(parents=True, exist_ok=True)
+                self._f = open(p, "a", encoding="utf-8", buffering=1)
+            except OSError as e:
+                raise SinkError(f"jsonl:{path}: cannot open for writing ({e.strerror or e})") \
+                    from e
+            self._own = True
+
+    def send(self, output) -> None:
+        try:
+            self._f.write(json.dumps(output.to_json(self.with_covariance),
+                                     separators=(",", ":")) + "\n")
+            self._f.flush()
+            self.lines += 1
+        except (OSError, ValueError) as e:  # disk full, closed stdout: count, go on
+            self.errors += 1
+            self.last_error = str(e)
+
+    def close(self) -> None:
+        if self._own:
+            try:
+                self._f.close()
+            except OSError:
+                pass
+
+    def status(self) -> dict:
+        return {"sink": self.name, "sent": self.lines, "errors": self.errors,
+                "last_error": self.last_error}

@@ -1,0 +1,328 @@
+"""``mavlink:CONNECTION``: the target brick as MAVLink ``LANDING_TARGET``, for ArduPilot or PX4.
+
+One message per processed frame in which a target is chosen (see
+:mod:`drovisio.sinks.target`); nothing when there is none (the autopilots then time the
+target out: ArduPilot after 1 s). MAVLink 2 (the position fields are extensions).
+
+ArduPilot (``autopilot="ardupilot"``, default; ``PLND_TYPE=1`` companion computer,
+``PLND_ORIENT`` down, ``PLND_CAM_POS_*`` = 0 because the mount offset is applied here):
+``position_valid=1``, ``frame=MAV_FRAME_BODY_FRD``, ``x, y, z`` = the brick origin in the drone
+body frame (camera mount applied, tilt included), ``distance = |(x, y, z)|`` (> 0; ArduPilot
+divides by it to get the line of sight), ``q`` = ``body_from_brick`` rotation (ArduPilot
+ignores it).
+
+PX4 (``autopilot="px4"``): PX4 takes ``position_valid=1`` only in ``MAV_FRAME_LOCAL_NED``, as
+the target's *absolute* local position (``landing_target_pose.x_abs``). That needs the
+vehicle's attitude and local position at the capture time: both are read from the same link
+(``ATTITUDE``, ``LOCAL_POSITION_NED``; interpolated at the frame's capture time, refused
+when older than ``max_state_age``). ``x, y, z = p_vehicle + R_ned_from_body · p_body``,
+``q = R_ned_from_body · R_body_from_brick``. Until both are known the message is sent with
+``position_valid=0`` and the angles only (PX4's IR-lock path).
+
+Both modes fill the image fields as the MAVLink spec defines them: ``angle_x = atan2(x_c,
+z_c)``, ``angle_y = atan2(y_c, z_c)`` (offsets of the target from the image centre, camera
+frame), ``size_x``/``size_y`` = the angles the brick's length and width subtend,
+``time_usec`` = the frame's capture time (UNIX µs), ``target_num`` = the brick's instance
+(its track number for bricks without id), ``type = LANDING_TARGET_TYPE_VISION_FIDUCIAL``.
+
+The sink also sends a ``HEARTBEAT`` (``MAV_TYPE_ONBOARD_CONTROLLER``) every second, so that
+routers and the autopilot know the component and stream its data back.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from drovisio.mount import Mount, down_camera_mount, ned_from_body
+from drovisio.sinks.base import SinkError
+from drovisio.sinks.target import TargetSelector
+
+__all__ = [
+    "MAV_FRAME_BODY_FRD",
+    "MAV_FRAME_LOCAL_NED",
+    "MavlinkSink",
+    "VehicleState",
+    "landing_target_fields",
+    "mavutil2",
+    "quat_wxyz",
+]
+
+MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+
+
+def mavutil2():
+    """pymavlink's ``mavutil`` switched to MAVLink 2 (LANDING_TARGET's position fields are
+    MAVLink 2 extensions). pymavlink keeps this choice process-wide."""
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil
+
+    if str(mavutil.mavlink.WIRE_PROTOCOL_VERSION) != "2.0":
+        mavutil.set_dialect(mavutil.current_dialect or "common")
+    return mavutil
+
+
+def quat_wxyz(R: np.ndarray) -> list[float]:
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix."""
+    R = np.asarray(R, np.float64)
+    t = np.trace(R)
+    if t > 0:
+        s = math.sqrt(t + 1.0) * 2
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
+        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
+        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+    else:
+        s = math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
+        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q)
+    q /= np.linalg.norm(q)
+    if q[0] < 0:
+        q = -q
+    return [float(x) for x in q]
+
+
+@dataclass
+class _Sample:
+    t: float
+    values: tuple[float, ...]
+
+
+class VehicleState:
+    """The vehicle's attitude and local position as the link reports them (thread-safe)."""
+
+    def __init__(self, keep_s: float = 2.0):
+        self._lock = threading.Lock()
+        self.attitude: deque[_Sample] = deque(maxlen=400)
+        self.position: deque[_Sample] = deque(maxlen=400)
+        self.keep_s = keep_s
+        self.autopilot_sysid: int | None = None
+
+    def add_attitude(self, t_mono: float, roll: float, pitch: float, yaw: float) -> None:
+        with self._lock:
+            self.attitude.append(_Sample(t_mono, (roll, pitch, yaw)))
+
+    def add_position(self, t_mono: float, x: float, y: float, z: float) -> None:
+        with self._lock:
+            self.position.append(_Sample(t_mono, (x, y, z)))
+
+    @staticmethod
+    def _at(samples: deque, t: float, max_age: float, angles: bool) -> tuple | None:
+        if not samples:
+            return None
+        s = list(samples)
+        if t <= s[0].t:
+            return s[0].values if s[0].t - t <= max_age else None
+        if t >= s[-1].t:
+            return s[-1].values if t - s[-1].t <= max_age else None
+        for a, b in zip(s, s[1:]):
+            if a.t <= t <= b.t:
+                if b.t - a.t > 2 * max_age:
+                    return None
+                f = (t - a.t) / (b.t - a.t) if b.t > a.t else 0.0
+                out = []
+                for va, vb in zip(a.values, b.values):
+                    d = vb - va
+                    if angles:
+                        d = (d + math.pi) % (2 * math.pi) - math.pi
+                    out.append(va + f * d)
+                return tuple(out)
+        return None
+
+    def attitude_at(self, t_mono: float, max_age: float = 0.3) -> tuple | None:
+        """(roll, pitch, yaw) rad at ``t_mono`` (interpolated), or None if not known then."""
+        with self._lock:
+            return self._at(self.attitude, t_mono, max_age, True)
+
+    def position_at(self, t_mono: float, max_age: float = 0.3) -> tuple | None:
+        """Local NED position (m) at ``t_mono``, or None."""
+        with self._lock:
+            return self._at(self.position, t_mono, max_age, False)
+
+
+def landing_target_fields(brick, t_wall: float, mount: Mount | None, autopilot: str = "ardupilot",
+                          attitude: tuple | None = None, position: tuple | None = None,
+                          size_m: tuple[float, float] | None = None) -> dict:
+    """The ``LANDING_TARGET`` fields (pymavlink ``landing_target_send`` keywords) for a tracked
+    brick (a :class:`drovisio.tracking.TrackedBrick`). See the module doc for the conventions.
+    """
+    mount = mount if mount is not None else down_camera_mount()
+    T_cb = brick.camera_from_brick()
+    p_cam = T_cb[:3, 3]
+    T_bb = mount.body_from(T_cb)
+    p_body = T_bb[:3, 3]
+    dist = float(np.linalg.norm(p_body))
+    angle_x = math.atan2(p_cam[0], p_cam[2])
+    angle_y = math.atan2(p_cam[1], p_cam[2])
+    d_cam = float(np.linalg.norm(p_cam))
+    if size_m and d_cam > 0:
+        size_x = 2 * math.atan2(0.5 * size_m[0], d_cam)
+        size_y = 2 * math.atan2(0.5 * size_m[1], d_cam)
+    else:
+        size_x = size_y = 0.0
+    num = brick.instance if brick.instance is not None else brick.track
+    fields = dict(time_usec=int(round(t_wall * 1e6)), target_num=int(num) % 256,
+                  angle_x=angle_x, angle_y=angle_y, distance=dist, size_x=size_x,
+                  size_y=size_y, type=LANDING_TARGET_TYPE_VISION_FIDUCIAL)
+    if autopilot == "ardupilot":
+        fields.update(frame=MAV_FRAME_BODY_FRD, x=float(p_body[0]), y=float(p_body[1]),
+                      z=float(p_body[2]), q=quat_wxyz(T_bb[:3, :3]), position_valid=1)
+    elif autopilot == "px4":
+        if attitude is not None and position is not None:
+            R_nb = ned_from_body(*attitude)
+            p_ned = np.asarray(position, np.float64) + R_nb @ p_body
+            fields.update(frame=MAV_FRAME_LOCAL_NED, x=float(p_ned[0]), y=float(p_ned[1]),
+                          z=float(p_ned[2]), q=quat_wxyz(R_nb @ T_bb[:3, :3]),
+                          position_valid=1)
+        else:
+            fields.update(frame=MAV_FRAME_LOCAL_NED, x=0.0, y=0.0, z=0.0,
+                          q=[1.0, 0.0, 0.0, 0.0], position_valid=0)
+    else:
+        raise ValueError(f"unknown autopilot {autopilot!r}: ardupilot or px4")
+    return fields
+
+
+def _split_connection(conn: str) -> tuple[str, int | None]:
+    """``/dev/ttyAMA0,921600`` → (device, baud)."""
+    dev, sep, baud = conn.rpartition(",")
+    if sep and baud.isdigit() and ":" not in baud:
+        return dev, int(baud)
+    return conn, None
+
+
+class MavlinkSink:
+    """Sends the target brick as ``LANDING_TARGET`` and reads the vehicle state back.
+
+    Args:
+        connection: pymavlink connection string (``udpout:127.0.0.1:14550``,
+            ``tcp:127.0.0.1:5760``, ``/dev/ttyAMA0,921600``).
+        autopilot: ``"ardupilot"`` or ``"px4"``.
+        target: The shared target selector (used when the output carries no target).
+        mount: Camera mount (without one: camera looking straight down, image top forward).
+        layouts: Layouts (their dimensions give ``size_x``/``size_y``).
+        source_system, source_component: Our MAVLink ids.
+        max_state_age: Oldest attitude/position (s) used for a frame (PX4 mode).
+    """
+
+    def __init__(self, connection: str, autopilot: str = "ardupilot",
+                 target: TargetSelector | None = None, mount: Mount | None = None,
+                 layouts=None, source_system: int = 1,
+                 source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
+                 max_state_age: float = 0.3, heartbeat_period: float = 1.0):
+        if autopilot not in ("ardupilot", "px4"):
+            raise SinkError(f"unknown autopilot {autopilot!r}: ardupilot or px4")
+        self.name = f"mavlink:{connection}"
+        self.autopilot = autopilot
+        self.target = target or TargetSelector()
+        self.mount = mount
+        self.sizes = {lay.name: tuple(float(x) for x in lay.dimensions_m[:2])
+                      for lay in (layouts or [])}
+        self.max_state_age = max_state_age
+        self.heartbeat_period = heartbeat_period
+        self.vehicle = VehicleState()
+        self.sent = 0
+        self.sent_position_valid = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        mavutil = mavutil2()
+        self._mavutil = mavutil
+        dev, baud = _split_connection(connection)
+        try:
+            kw = {"baud": baud} if baud else {}
+            self.conn = mavutil.mavlink_connection(dev, source_system=source_system,
+                                                   source_component=source_component,
+                                                   autoreconnect=True, **kw)
+        except Exception as e:
+            raise SinkError(f"{self.name}: cannot open the MAVLink connection ({e})") from e
+        self._send_heartbeat()
+        self._thread = threading.Thread(target=self._reader, daemon=True, name="mavlink-rx")
+        self._thread.start()
+
+    # ------------------------------------------------------------------ link
+    def _send_heartbeat(self) -> None:
+        m = self._mavutil.mavlink
+        try:
+            with self._lock:
+                self.conn.mav.heartbeat_send(m.MAV_TYPE_ONBOARD_CONTROLLER,
+                                             m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE)
+        except Exception as e:  # noqa: BLE001
+            self.errors += 1
+            self.last_error = f"heartbeat: {e}"
+
+    def _reader(self) -> None:
+        next_hb = time.monotonic() + self.heartbeat_period
+        while not self._stop.is_set():
+            try:
+                msg = self.conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "HEARTBEAT"],
+                                           blocking=True, timeout=0.2)
+            except Exception as e:  # noqa: BLE001 - link hiccup: note it, keep reading
+                self.last_error = f"receive: {e}"
+                self._stop.wait(0.2)
+                msg = None
+            now = time.monotonic()
+            if msg is not None:
+                t = msg.get_type()
+                if t == "ATTITUDE":
+                    self.vehicle.add_attitude(now, msg.roll, msg.pitch, msg.yaw)
+                elif t == "LOCAL_POSITION_NED":
+                    self.vehicle.add_position(now, msg.x, msg.y, msg.z)
+                elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                    self.vehicle.autopilot_sysid = msg.get_srcSystem()
+            if now >= next_hb:
+                self._send_heartbeat()
+                next_hb = now + self.heartbeat_period
+
+    def attitude_at(self, t_mono: float) -> tuple | None:
+        return self.vehicle.attitude_at(t_mono, self.max_state_age)
+
+    # ------------------------------------------------------------------ sink API
+    def send(self, output) -> None:
+        brick = output.target if getattr(output, "target", None) is not None \
+            else self.target.choose(output.bricks)
+        if brick is None:
+            return
+        att = pos = None
+        if self.autopilot == "px4":
+            att = self.vehicle.attitude_at(output.t_mono, self.max_state_age)
+            pos = self.vehicle.position_at(output.t_mono, self.max_state_age)
+        try:
+            f = landing_target_fields(brick, output.t, self.mount, self.autopilot, att, pos,
+                                      self.sizes.get(brick.layout))
+            with self._lock:
+                self.conn.mav.landing_target_send(
+                    f["time_usec"], f["target_num"], f["frame"], f["angle_x"], f["angle_y"],
+                    f["distance"], f["size_x"], f["size_y"], f["x"], f["y"], f["z"], f["q"],
+                    f["type"], f["position_valid"])
+            self.sent += 1
+            self.sent_position_valid += int(f["position_valid"])
+        except Exception as e:  # noqa: BLE001 - never let the link stop the pipeline
+            self.errors += 1
+            self.last_error = str(e)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+        try:
+            self.conn.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+    def status(self) -> dict:
+        return {"sink": self.name, "autopilot": self.autopilot, "sent": self.sent,
+                "position_valid": self.sent_position_valid, "errors": self.errors,
+                "last_error": self.last_error,
+                "attitude": self.vehicle.attitude_at(time.monotonic(), 1.0) is not None}

@@ -1,0 +1,114 @@
+"""Which brick is "the target" (the one the flight controller is sent), settable at run time.
+
+Spec strings (``--target`` of ``drovisio run``, the live page, the WebSocket feed):
+
+* ``nearest`` — the brick nearest to the drone (body origin; the camera without a mount);
+* ``LAYOUT`` — the nearest brick of that layout;
+* ``LAYOUT:INSTANCE`` — that brick (e.g. ``drick-aruco-pyramids:1``);
+* ``track:N`` — the brick of track N (bricks without ids, e.g. dots);
+* ``none`` — no target (nothing is sent to the flight controller).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+__all__ = ["TargetSelector", "TargetSpec", "parse_target"]
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    mode: str  # "nearest" | "layout" | "brick" | "track" | "none"
+    layout: str | None = None
+    instance: int | None = None
+    track: int | None = None
+
+    def __str__(self) -> str:
+        if self.mode == "brick":
+            return f"{self.layout}:{self.instance}"
+        if self.mode == "layout":
+            return str(self.layout)
+        if self.mode == "track":
+            return f"track:{self.track}"
+        return self.mode
+
+    def to_json(self) -> dict:
+        return {"mode": self.mode, "layout": self.layout, "instance": self.instance,
+                "track": self.track, "spec": str(self)}
+
+
+def parse_target(spec: str | dict | TargetSpec | None) -> TargetSpec:
+    """A :class:`TargetSpec` from a string (see the module doc) or a dict
+    ``{"mode": ..., "layout": ..., "instance": ..., "track": ...}``."""
+    if spec is None:
+        return TargetSpec("nearest")
+    if isinstance(spec, TargetSpec):
+        return spec
+    if isinstance(spec, dict):
+        if "spec" in spec and isinstance(spec["spec"], str):
+            return parse_target(spec["spec"])
+        mode = spec.get("mode")
+        layout, inst, track = spec.get("layout"), spec.get("instance"), spec.get("track")
+        if mode is None:
+            mode = ("track" if track is not None else "brick" if inst is not None
+                    else "layout" if layout else "nearest")
+        if mode not in ("nearest", "layout", "brick", "track", "none"):
+            raise ValueError(f"unknown target mode {mode!r}")
+        if mode in ("layout", "brick") and not layout:
+            raise ValueError("a target by layout needs 'layout'")
+        if mode == "brick" and inst is None:
+            raise ValueError("a target brick needs 'instance'")
+        if mode == "track" and track is None:
+            raise ValueError("a target track needs 'track'")
+        return TargetSpec(mode, layout, None if inst is None else int(inst),
+                          None if track is None else int(track))
+    s = str(spec).strip()
+    if s in ("", "nearest"):
+        return TargetSpec("nearest")
+    if s in ("none", "off"):
+        return TargetSpec("none")
+    if s.startswith("track:"):
+        return TargetSpec("track", track=int(s[6:]))
+    if ":" in s:
+        layout, _, inst = s.rpartition(":")
+        try:
+            return TargetSpec("brick", layout, int(inst))
+        except ValueError:
+            raise ValueError(f"bad target {s!r}: expected LAYOUT:INSTANCE with a number") \
+                from None
+    return TargetSpec("layout", s)
+
+
+class TargetSelector:
+    """Chooses the target among a frame's tracked bricks; :meth:`set` may be called from any
+    thread while the pipeline runs."""
+
+    def __init__(self, spec: str | dict | TargetSpec | None = "nearest"):
+        self._lock = threading.Lock()
+        self._spec = parse_target(spec)
+
+    @property
+    def spec(self) -> TargetSpec:
+        return self._spec
+
+    def set(self, spec: str | dict | TargetSpec | None) -> TargetSpec:
+        new = parse_target(spec)
+        with self._lock:
+            self._spec = new
+        return new
+
+    def choose(self, bricks: Sequence):
+        s = self._spec
+        if s.mode == "none" or not bricks:
+            return None
+        if s.mode == "brick":
+            c = [b for b in bricks if b.layout == s.layout and b.instance == s.instance]
+        elif s.mode == "layout":
+            c = [b for b in bricks if b.layout == s.layout]
+        elif s.mode == "track":
+            c = [b for b in bricks if b.track == s.track]
+        else:
+            c = list(bricks)
+        return min(c, key=lambda b: b.distance) if c else None

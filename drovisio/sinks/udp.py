@@ -1,0 +1,59 @@
+"""``udp://HOST:PORT``: one JSON datagram per processed frame (fire and forget)."""
+
+from __future__ import annotations
+
+import json
+import socket
+from urllib.parse import urlsplit
+
+from drovisio.sinks.base import SinkError
+
+__all__ = ["MAX_DATAGRAM", "UdpSink"]
+
+MAX_DATAGRAM = 65000
+
+
+class UdpSink:
+    def __init__(self, host: str, port: int, with_covariance: bool = False):
+        self.name = f"udp://{host}:{port}"
+        self.addr = (host, int(port))
+        self.with_covariance = with_covariance
+        try:
+            info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+        except socket.gaierror as e:
+            raise SinkError(f"{self.name}: unknown host ({e})") from e
+        self.sock = socket.socket(info[0], socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+        self.dest = info[4]
+        self.sent = 0
+        self.errors = 0
+        self.last_error: str | None = None
+
+    @classmethod
+    def from_url(cls, url: str) -> UdpSink:
+        u = urlsplit(url)
+        if not u.hostname or not u.port:
+            raise SinkError(f"{url}: expected udp://HOST:PORT")
+        return cls(u.hostname, u.port)
+
+    def send(self, output) -> None:
+        data = json.dumps(output.to_json(self.with_covariance), separators=(",", ":")).encode()
+        if len(data) > MAX_DATAGRAM:  # too many bricks for one datagram: drop the extras
+            js = output.to_json(False)
+            while len(data) > MAX_DATAGRAM and js["bricks"]:
+                js["bricks"].pop()
+                js["truncated"] = True
+                data = json.dumps(js, separators=(",", ":")).encode()
+        try:
+            self.sock.sendto(data, self.dest)
+            self.sent += 1
+        except OSError as e:  # no listener (ICMP refused), network down: count, go on
+            self.errors += 1
+            self.last_error = str(e)
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def status(self) -> dict:
+        return {"sink": self.name, "sent": self.sent, "errors": self.errors,
+                "last_error": self.last_error}

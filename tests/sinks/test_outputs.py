@@ -1,0 +1,99 @@
+"""JSON Lines, UDP and WebSocket sinks, sink strings and target choice."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+
+import numpy as np
+import pytest
+
+from drovisio.pipeline import FrameOutput
+from drovisio.sinks import SinkError, open_sink
+from drovisio.sinks.target import TargetSelector, parse_target
+from drovisio.tracking import TrackedBrick
+
+
+def _brick(layout, instance, track, x, z):
+    return TrackedBrick(layout, instance, track, "aruco", np.array([3.1, 0, 0]),
+                        np.array([x, 0.0, z]), np.eye(6) * 1e-4, 5.0, 5.0, 0.0, True)
+
+
+def _output(bricks=None):
+    bricks = bricks if bricks is not None else [_brick("a", 1, 1, 0.1, 1.0),
+                                                 _brick("b", None, 2, -0.3, 0.8)]
+    return FrameOutput("cam", 3, 3, 5.0, 5.0, bricks, target=bricks[0] if bricks else None)
+
+
+def test_target_selection():
+    bricks = [_brick("a", 1, 1, 0.1, 1.0), _brick("a", 2, 2, 0.0, 2.0),
+              _brick("b", None, 3, 0.3, 0.5)]
+    sel = TargetSelector()
+    assert sel.choose(bricks).track == 3  # nearest
+    assert sel.set("a").mode == "layout" and sel.choose(bricks).track == 1
+    sel.set("a:2")
+    assert sel.choose(bricks).track == 2
+    sel.set({"mode": "track", "track": 3})
+    assert sel.choose(bricks).track == 3
+    sel.set("none")
+    assert sel.choose(bricks) is None
+    sel.set("a:7")
+    assert sel.choose(bricks) is None
+    with pytest.raises(ValueError):
+        parse_target("a:x")
+    assert str(parse_target({"layout": "a", "instance": 2})) == "a:2"
+
+
+def test_jsonl_file_and_bad_specs(tmp_path):
+    s = open_sink(f"jsonl:{tmp_path / 'sub' / 'o.jsonl'}")
+    s.send(_output())
+    s.send(_output([]))
+    s.close()
+    lines = [json.loads(x) for x in (tmp_path / "sub" / "o.jsonl").read_text().splitlines()]
+    assert lines[0]["bricks"][0]["layout"] == "a" and lines[0]["target"]["track"] == 1
+    assert lines[1]["bricks"] == [] and lines[1]["target"] is None
+    for bad in ["tcp://x:1", "udp://nohostport", "jsonl:/proc/forbidden/x.jsonl"]:
+        with pytest.raises(SinkError):
+            open_sink(bad)
+
+
+def test_udp_datagram_and_no_listener():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(2)
+    s = open_sink(f"udp://127.0.0.1:{rx.getsockname()[1]}")
+    s.send(_output())
+    d = json.loads(rx.recv(65536))
+    assert d["frame"] == 3 and len(d["bricks"]) == 2
+    rx.close()
+    for _ in range(3):  # nobody listens any more: counted, never raised
+        s.send(_output())
+    s.close()
+    assert s.status()["sent"] + s.status()["errors"] == 4
+
+
+def test_websocket_feed_and_runtime_target():
+    from websockets.asyncio.client import connect
+
+    sel = TargetSelector()
+    s = open_sink("ws://127.0.0.1:0", target=sel)
+
+    async def client():
+        async with connect(f"ws://127.0.0.1:{s.port}") as ws:
+            for _ in range(50):
+                if s.clients:
+                    break
+                await asyncio.sleep(0.02)
+            s.send(_output())
+            d = json.loads(await asyncio.wait_for(ws.recv(), 3))
+            assert d["frame"] == 3
+            await ws.send(json.dumps({"set_target": "a:2"}))
+            r = json.loads(await asyncio.wait_for(ws.recv(), 3))
+            assert r["target"]["spec"] == "a:2"
+            await ws.send(json.dumps({"set_target": "a:x"}))
+            assert "error" in json.loads(await asyncio.wait_for(ws.recv(), 3))
+
+    asyncio.run(client())
+    s.close()
+    assert str(sel.spec) == "a:2"

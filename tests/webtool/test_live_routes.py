@@ -1,0 +1,237 @@
+"""Live view API: figures, frames, target, adaptive image stream, access, 3D proxy."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from drovisio.detect.result import BrickPose
+from drovisio.pipeline import Pipeline
+from drovisio.sources import FrameSource, RawFrame
+from webtool.access import COOKIE_NAME
+from webtool.app import create_app
+from webtool.live_service import LEVELS, AdaptiveStream, LiveService
+from webtool.settings import Settings
+
+TOKEN, VIEWER = "full-token-123", "viewer-token-456"
+
+
+class NoiseCamera:
+    """640×480 noisy frames at 15 fps (JPEGs of realistic size)."""
+
+    label = "noise camera"
+    finite = False
+
+    def __init__(self):
+        self.rng = np.random.default_rng(0)
+        self.base = self.rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+        self.i = 0
+
+    def open(self):
+        pass
+
+    def read(self):
+        time.sleep(1 / 15)
+        self.i += 1
+        return RawFrame(np.roll(self.base, self.i, axis=1), self.i)
+
+    def close(self):
+        pass
+
+
+class OneBrick:
+    name = "fake"
+
+    def detect(self, image, timestamp, gravity=None):
+        return [BrickPose("drick-aruco-centre", 1, "aruco", np.array([3.1, 0.0, 0.0]),
+                          np.array([0.1, 0.0, 1.5]), 0.2, markers=[1],
+                          covariance=np.eye(6) * 1e-5,
+                          image_points=np.array([[300, 200], [340, 200], [340, 240],
+                                                 [300, 240.0]]))]
+
+
+def _fake_pipeline(svc):
+    from drovisio.camera import Camera
+
+    svc.camera = Camera.from_fov()
+    return Pipeline(FrameSource(NoiseCamera()), [OneBrick()])
+
+
+def _app(settings=None, **kw):
+    settings = settings or Settings()
+    app = create_app(settings)
+    app.state.live = LiveService(settings, pipeline_factory=_fake_pipeline, scene=False, **kw)
+    return app
+
+
+def test_adaptive_stream_keeps_under_the_share():
+    t = [0.0]
+    st = AdaptiveStream(1_000_000, fps=15, clock=lambda: t[0])
+    sent = 0
+    levels = []
+    while t[0] < 20:
+        if st.ready():
+            size = int(90_000 * LEVELS[st.level][0] ** 2 * LEVELS[st.level][1] / 80)
+            st.on_sent(size)
+            sent += size
+            levels.append(st.level)
+            t[0] += 0.005
+            st.on_ack()
+        t[0] += 0.005
+    rate = sent * 8 / 20
+    assert rate <= 1_000_000 * 1.05, rate
+    assert rate >= 0.5 * 1_000_000  # uses its share, not far below
+    assert st.frames >= 15 * 20 * 0.6  # and keeps a useful frame rate
+    assert LEVELS[levels[-1]][0] < 1.0  # shrank the image to fit
+    # a quarter of the share: smaller images still
+    t[0] = 0.0
+    st4 = AdaptiveStream(250_000, fps=15, clock=lambda: t[0])
+    for _ in range(400):
+        if st4.ready():
+            st4.on_sent(int(90_000 * LEVELS[st4.level][0] ** 2 * LEVELS[st4.level][1] / 80))
+            st4.on_ack()
+        t[0] += 0.01
+    assert st4.level > levels[-1]
+    # a slow link (late acknowledgements) steps down too
+    st5 = AdaptiveStream(10_000_000, fps=15, clock=lambda: t[0])
+    lvl = st5.level
+    for _ in range(3):
+        st5.on_sent(1000)
+        t[0] += 1.0
+        st5.on_ack()
+    assert st5.level > lvl
+
+
+def test_status_frame_bricks_and_target():
+    app = _app()
+    with TestClient(app) as c:
+        st = c.get("/api/live/status").json()
+        assert st["running"] and st["access"] == "full" and st["bandwidth_kbps"] == 2000
+        r = c.get("/api/live/frame.jpg?level=3")
+        assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+        small = c.get("/api/live/frame.jpg?level=12").content
+        assert len(small) < len(r.content) / 3
+        assert c.get("/api/live/frame.jpg?level=99").status_code == 422
+        b = c.get("/api/live/bricks").json()["bricks"]
+        assert b[0]["layout"] == "drick-aruco-centre" and b[0]["target"] is True
+        assert "body_from_brick" in b[0] and b[0]["age"] <= 0.5
+        r = c.post("/api/live/target", json={"spec": "drick-aruco-centre:2"})
+        assert r.status_code == 200 and r.json()["target"]["instance"] == 2
+        time.sleep(0.3)
+        assert c.get("/api/live/bricks").json()["bricks"][0]["target"] is False
+        assert c.post("/api/live/target", json={"spec": "a:b"}).status_code == 422
+        st = c.get("/api/live/status").json()
+        for k in ("fps", "detect_ms", "latency_ms", "bricks", "source"):
+            assert k in st
+        assert st["source"]["state"] == "live" and st["fps"] > 5
+
+
+def test_several_viewers_share_the_bandwidth_cap():
+    app = _app(bandwidth_bps=800_000)
+    with TestClient(app) as c:
+        c.get("/api/live/status")
+        with c.websocket_connect("/api/live/ws") as a, c.websocket_connect("/api/live/ws") as b:
+            got = {id(a): [0, 0], id(b): [0, 0]}
+            states = []
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 3.0:
+                for ws in (a, b):
+                    m = ws.receive()
+                    if m.get("bytes"):
+                        got[id(ws)][0] += 1
+                        got[id(ws)][1] += len(m["bytes"])
+                        ws.send_text("ack")
+                    elif m.get("text"):
+                        states.append(json.loads(m["text"]))
+            dt = time.monotonic() - t0
+        total_bps = sum(v[1] for v in got.values()) * 8 / dt
+        assert all(v[0] >= 5 for v in got.values()), got  # both viewers get images
+        # under the cap (+ the token bucket's initial burst of two frames per viewer)
+        fps = app.state.live.max_fps
+        burst = 2 * 2 * 400_000 / 8 / fps * 8 / dt  # bits of two frame budgets per viewer
+        assert total_bps <= 800_000 + burst, total_bps
+        s = [x for x in states if x["status"]["viewers"] == 2][-1]
+        assert s["stream"]["share_kbps"] == 400.0 and s["type"] == "state"
+        assert s["bricks"] and s["status"]["source"]["state"] == "live"
+
+
+def test_token_viewer_token_and_refusals():
+    settings = Settings(host="0.0.0.0", token=TOKEN, viewer_token=VIEWER)
+    app = _app(settings)
+    with TestClient(app) as remote:  # client host "testclient": not loopback
+        assert remote.get("/live", headers={"accept": "text/html"}).status_code == 401
+        assert remote.get("/api/live/status").status_code == 401
+        assert remote.get("/api/live/frame.jpg").status_code == 401
+        assert remote.post("/api/live/target", json={"spec": "nearest"}).status_code == 401
+        assert remote.get("/live/3d/").status_code == 401
+        from starlette.websockets import WebSocketDisconnect
+
+        with pytest.raises(WebSocketDisconnect), remote.websocket_connect("/api/live/ws") as ws:
+            ws.receive()
+        # a viewer link: watches, cannot change
+        r = remote.get(f"/live?token={VIEWER}")
+        assert r.status_code == 200 and VIEWER in r.headers["set-cookie"]
+        st = remote.get("/api/live/status").json()  # the cookie now
+        assert st["access"] == "viewer"
+        r = remote.post("/api/live/target", json={"spec": "none"})
+        assert r.status_code == 403 and r.json()["detail"] == "read-only access"
+        with remote.websocket_connect("/api/live/ws") as ws:
+            m = ws.receive()
+            assert m.get("bytes") or json.loads(m["text"])["access"] == "viewer"
+        # the full token can change
+        remote.cookies.set(COOKIE_NAME, TOKEN)
+        assert remote.post("/api/live/target", json={"spec": "none"}).status_code == 200
+    assert Settings(host="0.0.0.0").viewer_token and Settings().viewer_token is None
+
+
+def test_3d_client_and_socket_through_the_proxy():
+    import viser
+
+    settings = Settings()
+    app = create_app(settings)
+    app.state.live = LiveService(settings, pipeline_factory=_fake_pipeline, scene=True)
+    with TestClient(app) as c:
+        r = c.get("/live/3d/")
+        assert r.status_code == 200 and b"<html" in r.content[:2000].lower()
+        info = c.get("/api/live/scene").json()
+        assert info["url"] == "/live/3d/" and info["port"]
+        with c.websocket_connect("/live/3d", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+            m = ws.receive()
+            assert m.get("bytes")  # viser's first (msgpack) message, relayed
+        for _ in range(50):
+            if c.get("/api/live/status").json().get("scene", {}).get("bricks"):
+                break
+            time.sleep(0.1)
+        assert any("drick-aruco-centre:1" in n
+                   for n in c.get("/api/live/status").json()["scene"]["bricks"])
+
+
+def test_access_lines_with_qr_codes():
+    from webtool.access import access_lines, terminal_qr
+
+    lines = access_lines("http://192.168.1.20:8080/", TOKEN, VIEWER)
+    assert lines[0].endswith(f"http://192.168.1.20:8080/?token={TOKEN}")
+    viewer = [x for x in lines if "view only" in x][0]
+    assert viewer.endswith(f"http://192.168.1.20:8080/live?token={VIEWER}")
+    qr = terminal_qr("http://x/")
+    assert len(qr.splitlines()) > 10 and "█" in qr
+    assert access_lines("http://h/", None, None) == []
+
+
+def test_idle_service_releases_the_source_and_restarts():
+    settings = Settings()
+    svc = LiveService(settings, pipeline_factory=_fake_pipeline, scene=False, idle_timeout=0.3)
+    try:
+        svc.ensure_started()
+        assert svc.status()["running"]
+        time.sleep(1.6)  # nobody watching: stopped (the camera is free for calibration)
+        assert not svc.status()["running"]
+        svc.ensure_started()
+        assert svc.status()["running"]
+    finally:
+        svc.close()
+    assert not svc.status()["running"]

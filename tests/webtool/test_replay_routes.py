@@ -1,0 +1,82 @@
+"""The replay API (/api/replay/...): listing, loading, playing a short simulated recording."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+from fastapi.testclient import TestClient
+
+from drovisio.mission.record import write_recording
+from drovisio.mission.scenario import load_scenario, shipped_scenario
+from drovisio.mission.sim import SimParams, simulate
+from webtool.app import create_app
+from webtool.settings import Settings
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """A folder with one short recording (one brick, detector model) and one broken one."""
+    d = tmp_path_factory.mktemp("replays")
+    scn = load_scenario(shipped_scenario()).subset(["b1"])
+    write_recording(simulate(scn, params=SimParams(seed=2)), d / "one-brick", every=2)
+    (d / "broken").mkdir()
+    (d / "broken" / "manifest.json").write_text('{"schema": "something/else"}')
+    return d
+
+
+@pytest.fixture
+def client(recordings):
+    with TestClient(create_app(Settings(replay_dir=recordings))) as c:
+        yield c
+
+
+def test_lists_and_refuses_bad_input(client, tmp_path):
+    r = client.get("/api/replay/runs")
+    assert r.status_code == 200
+    runs = {x["name"]: x for x in r.json()["runs"]}
+    assert runs["one-brick"]["ok"] and runs["one-brick"]["outcome"] == "DONE"
+    assert runs["broken"]["ok"] is False
+    assert client.get("/api/replay/state").json() == {"loaded": False}
+    assert client.post("/api/replay/play").status_code == 409
+    r = client.post("/api/replay/load", json={"name": "broken"})
+    assert r.status_code == 422 and "schema" in r.json()["detail"]
+    r = client.post("/api/replay/load", json={"name": "nope"})
+    assert r.status_code == 404 and "no recording folder" in r.json()["detail"]
+    r = client.post("/api/replay/load", json={"path": str(tmp_path)})
+    assert r.status_code == 422 and "manifest.json" in r.json()["detail"]
+    assert client.post("/api/replay/load", json={}).status_code == 422
+
+
+def test_no_folder_configured(tmp_path):
+    with TestClient(create_app(Settings())) as c:
+        r = c.get("/api/replay/runs")
+        assert r.status_code == 404 and "replay_dir" in r.json()["detail"]
+    with TestClient(create_app(Settings(replay_dir=tmp_path / "missing"))) as c:
+        r = c.get("/api/replay/runs")
+        assert r.status_code == 404 and "does not exist" in r.json()["detail"]
+
+
+def test_load_play_seek_speed(client):
+    st = client.post("/api/replay/load", json={"name": "one-brick"}).json()
+    assert st["loaded"] and st["t"] == 0.0 and st["state"] == "TAKE_OFF" and not st["playing"]
+    assert st["duration"] > 20
+    st = client.post("/api/replay/seek", json={"t": 30}).json()
+    assert st["t"] == 30 and st["state"] not in ("TAKE_OFF", "IDLE")
+    assert st["events"] > 5 and st["last_events"][-1]["text"]
+    st = client.post("/api/replay/seek", json={"t": 1e9}).json()
+    assert st["t"] == st["duration"] and st["state"] == "DONE" and st["placed"] == ["b1"]
+    assert client.post("/api/replay/speed", json={"x": 0}).status_code == 422
+    assert client.post("/api/replay/seek", json={"t": "x"}).status_code == 422
+    client.post("/api/replay/seek", json={"t": 0})
+    st = client.post("/api/replay/speed", json={"x": 16}).json()
+    assert st["speed"] == 16
+    p0 = st["drone"]["position"]
+    assert client.post("/api/replay/play").json()["playing"]
+    time.sleep(0.6)
+    st = client.get("/api/replay/state").json()
+    assert st["t"] > 3 and st["drone"]["position"] != p0
+    st = client.post("/api/replay/pause").json()
+    t = st["t"]
+    time.sleep(0.3)
+    assert client.get("/api/replay/state").json()["t"] == t

@@ -1,0 +1,524 @@
+"""The live view's server side: the pipeline on the tool's source, the image stream for Wi-Fi,
+the 3D scene.
+
+:class:`LiveService` (one per app, ``app.state.live``, made on first use) runs the same
+:class:`drovisio.pipeline.Pipeline` as ``drovisio run``: on ``--source`` with ``--camera`` and
+every shipped layout, or — with no source — on the sample approach video, looped, with its
+camera, layouts and mount. It starts when a page first asks and stops (releasing the camera
+for the calibration page) after ``idle_timeout`` seconds with no viewer and no request.
+
+Image stream, made for Wi-Fi: each viewer gets the newest annotated frame (codes and dots
+outlined, each brick's axes, name and distance, the target in yellow) as JPEG, through
+:class:`AdaptiveStream`:
+
+* the **bandwidth cap** (default 2 Mbit/s) is shared by all viewers (a phone and a tablet on
+  the drone's access point get 1 Mbit/s each); a token bucket keeps each viewer's average
+  byte rate under its share (bursts of at most two frames);
+* at most ``max_fps`` (default 10) images per second per viewer — the pipeline itself runs at
+  the camera's rate; for looking at a scene, sharper images beat more of them;
+* the **size and JPEG quality adapt**: a ladder of (scale, quality) levels, from full size at
+  quality 80 down to a quarter size at 30; after each frame the level steps down when the
+  frame was larger than the per-frame budget (share ÷ frame rate) and up when several frames
+  fit in half of it;
+* **acknowledged frames**: the page acknowledges each image; at most two are in flight, so a
+  slow link lowers the frame rate instead of queueing stale images, and a slow
+  acknowledgement (moving average > 0.5 s) also steps the level down.
+
+Encoded frames are cached per (frame, level), so viewers at the same level share the work.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["DEFAULT_BANDWIDTH_BPS", "LEVELS", "AdaptiveStream", "LiveService", "annotate"]
+
+DEFAULT_BANDWIDTH_BPS = 2_000_000
+
+#: (scale, JPEG quality), best first.
+LEVELS: list[tuple[float, int]] = [
+    (1.0, 80), (1.0, 70), (1.0, 60), (1.0, 50), (0.75, 60), (0.75, 50), (0.75, 40),
+    (0.5, 55), (0.5, 45), (0.5, 35), (0.375, 40), (0.25, 40), (0.25, 30)]
+
+
+class AdaptiveStream:
+    """When to send the next image to one viewer, and at which level (see the module doc).
+
+    Args:
+        rate_bps: This viewer's share of the bandwidth cap, bits per second.
+        fps: The frame rate aimed at (the source's, at most ``max_fps`` of the service).
+        clock: Monotonic clock (tests).
+    """
+
+    def __init__(self, rate_bps: float, fps: float = 15.0, level: int = 4,
+                 max_inflight: int = 2, clock=time.monotonic):
+        self.clock = clock
+        self.rate_Bps = rate_bps / 8.0
+        self.fps = fps
+        self.level = level
+        self.max_inflight = max_inflight
+        self.inflight: deque[float] = deque()
+        self.tokens = 0.0
+        self.t_last = clock()
+        self.last_send = -1e9
+        self.fits = 0
+        self.ack_delay = 0.0
+        self.sent: deque[tuple[float, int]] = deque(maxlen=64)
+        self.total_bytes = 0
+        self.frames = 0
+
+    def set_rate(self, rate_bps: float) -> None:
+        self.rate_Bps = rate_bps / 8.0
+
+    @property
+    def budget(self) -> float:
+        """Bytes per frame that keep ``fps`` within the share."""
+        return self.rate_Bps / max(self.fps, 0.1)
+
+    def _refill(self, now: float) -> None:
+        self.tokens = min(self.tokens + (now - self.t_last) * self.rate_Bps, 2 * self.budget)
+        self.t_last = now
+
+    def ready(self) -> bool:
+        now = self.clock()
+        self._refill(now)
+        return (len(self.inflight) < self.max_inflight and self.tokens >= 0
+                and now - self.last_send >= 0.9 / max(self.fps, 0.1))
+
+    def on_sent(self, nbytes: int) -> None:
+        now = self.clock()
+        self._refill(now)
+        self.tokens -= nbytes
+        self.last_send = now
+        self.inflight.append(now)
+        self.sent.append((now, nbytes))
+        self.total_bytes += nbytes
+        self.frames += 1
+        if nbytes > 1.05 * self.budget and self.level < len(LEVELS) - 1:
+            # far over budget: several steps at once (each step is ~25-35 % smaller)
+            steps = max(1, int(math.log(nbytes / self.budget) / math.log(1.35)))
+            self.level = min(len(LEVELS) - 1, self.level + steps)
+            self.fits = 0
+        elif nbytes < 0.5 * self.budget:
+            self.fits += 1
+            if self.fits >= 5 and self.level > 0 and self.ack_delay < 0.3:
+                self.level -= 1
+                self.fits = 0
+        else:
+            self.fits = 0
+
+    def on_ack(self) -> None:
+        now = self.clock()
+        if self.inflight:
+            d = now - self.inflight.popleft()
+            self.ack_delay = 0.7 * self.ack_delay + 0.3 * d
+            if self.ack_delay > 0.5 and self.level < len(LEVELS) - 1:
+                self.level += 1  # the link (or the phone) cannot keep up
+                self.ack_delay = 0.3  # give the smaller level time to show its effect
+                self.fits = 0
+
+    def kbps(self) -> float:
+        now = self.clock()
+        recent = [(t, n) for t, n in self.sent if now - t <= 3.0]
+        if not recent:
+            return 0.0
+        span = max(now - recent[0][0], 1.0 / max(self.fps, 0.1))
+        return 8 * sum(n for _, n in recent) / span / 1000
+
+    def info(self) -> dict:
+        scale, q = LEVELS[self.level]
+        return {"level": self.level, "scale": scale, "jpeg_quality": q,
+                "share_kbps": round(self.rate_Bps * 8 / 1000, 1), "kbps": round(self.kbps(), 1),
+                "ack_ms": round(self.ack_delay * 1000, 1)}
+
+
+# ------------------------------------------------------------------------------------------
+# Drawing
+# ------------------------------------------------------------------------------------------
+
+_TARGET = (0, 210, 255)   # BGR yellow
+_CODE = (255, 160, 40)
+_DOT = (60, 60, 255)
+
+
+def _short(layout: str) -> str:
+    return layout.replace("drick-", "")
+
+
+def annotate(image: np.ndarray, output, camera) -> np.ndarray:
+    """The frame with this frame's detections: code outlines, dot circles, each tracked
+    brick's axes (10 cm) with its name and distance; the target in yellow."""
+    img = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    if output is None:
+        return img
+    tkey = None if output.target is None else output.target.track
+    for b in output.bricks:
+        is_t = b.track == tkey
+        m = b.measurement
+        if m is not None and m.image_points is not None:
+            pts = np.asarray(m.image_points, np.float64).reshape(-1, 2)
+            if m.method in ("aruco", "fused") and len(pts) >= 4:
+                n4 = len(pts) // 4 * 4
+                for q in pts[:n4].reshape(-1, 4, 2):
+                    cv2.polylines(img, [np.round(q).astype(np.int32)], True,
+                                  _TARGET if is_t else _CODE, 2, cv2.LINE_AA)
+                rest = pts[n4:]
+            else:
+                rest = pts
+            for p in rest:
+                cv2.circle(img, (int(round(p[0])), int(round(p[1]))), 5,
+                           _TARGET if is_t else _DOT, 2, cv2.LINE_AA)
+        if camera is not None and b.tvec[2] > 0.05:
+            try:
+                axes = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]], np.float64)
+                c, _ = cv2.projectPoints(axes, np.asarray(b.rvec, np.float64),
+                                         np.asarray(b.tvec, np.float64), camera.K, camera.dist)
+                c = c.reshape(-1, 2)
+                if not np.all(np.isfinite(c)) or np.abs(c).max() > 1e5:
+                    continue
+                o = tuple(int(v) for v in np.round(c[0]))
+                for k, col in ((1, (0, 0, 255)), (2, (0, 200, 0)), (3, (255, 0, 0))):
+                    cv2.line(img, o, tuple(int(v) for v in np.round(c[k])), col,
+                             2 if b.measured else 1, cv2.LINE_AA)
+                x, y = o
+                name = _short(b.layout) + (f":{b.instance}" if b.instance is not None
+                                           else f" #{b.track}")
+                text = f"{name} {b.distance:.2f}m" + ("" if b.measured else " (pred)")
+                for col, th in (((0, 0, 0), 4), (_TARGET if is_t else (255, 255, 255), 1)):
+                    cv2.putText(img, text, (x + 8, y - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col,
+                                th, cv2.LINE_AA)
+            except cv2.error:
+                pass
+    return img
+
+
+# ------------------------------------------------------------------------------------------
+# The service
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Config:
+    source: str
+    loop: bool
+    camera_file: Path
+    layout_files: list[Path]
+    mount_file: Path | None
+    sample: bool
+
+
+class LiveService:
+    """See the module doc.
+
+    Args:
+        settings: The web tool's settings (source, camera, sample session).
+        bandwidth_bps: Cap of all image streams together, bits/s.
+        max_fps: Highest image rate per viewer (images/s).
+        idle_timeout: Seconds without viewer or request after which the pipeline stops.
+        scene: Serve the 3D scene (viser).
+        pipeline_factory: ``(service) -> Pipeline`` (tests).
+    """
+
+    def __init__(self, settings, bandwidth_bps: float = DEFAULT_BANDWIDTH_BPS,
+                 max_fps: float = 10.0, idle_timeout: float = 60.0, scene: bool = True,
+                 pipeline_factory=None):
+        self.settings = settings
+        self.bandwidth_bps = float(bandwidth_bps)
+        self.max_fps = max_fps
+        self.idle_timeout = idle_timeout
+        self.want_scene = scene
+        self.pipeline_factory = pipeline_factory
+        self.pipeline = None
+        self.camera = None
+        self.layouts: list = []
+        self.mount = None
+        self.scene = None
+        self.error: str | None = None
+        self._lock = threading.RLock()
+        self._thread: threading.Thread | None = None
+        self._watchdog: threading.Thread | None = None
+        self._closed = threading.Event()
+        self._last_touch = time.monotonic()
+        self._viewers: dict[int, AdaptiveStream] = {}
+        self._next_viewer = 1
+        self._latest: tuple[int, np.ndarray, object] | None = None
+        self._seq = 0
+        self._annotated: tuple[int, np.ndarray] | None = None
+        self._jpegs: dict[tuple[int, int], bytes] = {}
+        self._enc_lock = threading.Lock()
+        self._waiters: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []
+
+    # ------------------------------------------------------------------ configuration
+    def config(self) -> _Config:
+        if getattr(self, "_config", None) is None:
+            self._config = self._make_config()
+        return self._config
+
+    def _make_config(self) -> _Config:
+        s = self.settings
+        from drovisio.layout import list_shipped_layouts
+
+        sample_dir = Path(s.sample_session)
+        approach = sample_dir / "approach"
+        if s.source is None:
+            scene = json.loads((approach / "scene.json").read_text())
+            root = Path(__file__).resolve().parents[1] / "marker_layouts"
+            return _Config(str(approach / "approach.mp4"), True,
+                           Path(s.camera) if s.camera else sample_dir / "camera.yaml",
+                           [root / f"{n}.json" for n in scene["layouts"]],
+                           approach / "mount.json", True)
+        return _Config(s.source, False, Path(s.camera) if s.camera else sample_dir / "camera.yaml",
+                       [p for p in list_shipped_layouts()], None, False)
+
+    def _build(self):
+        if self.pipeline_factory is not None:
+            return self.pipeline_factory(self)
+        from drovisio.camera import load_camera
+        from drovisio.layout import load_layouts
+        from drovisio.mount import load_mount
+        from drovisio.pipeline import Pipeline, detectors_for
+        from drovisio.sources import FrameSource, reader_for
+
+        c = self.config()
+        self.camera = load_camera(c.camera_file)
+        self.layouts = load_layouts(c.layout_files)
+        self.mount = load_mount(c.mount_file) if c.mount_file else None
+        g = self.mount.gravity_in_camera() if self.mount is not None else None
+        gravity = (lambda _t: g) if g is not None else None  # level flight (no autopilot here)
+
+        p = Pipeline(FrameSource(reader_for(c.source, loop=c.loop)),
+                     detectors_for(self.camera, self.layouts), mount=self.mount,
+                     gravity=gravity, layouts=self.layouts)
+        p.warm_up(self.camera.width, self.camera.height)
+        return p
+
+    # ------------------------------------------------------------------ lifecycle
+    def touch(self) -> None:
+        self._last_touch = time.monotonic()
+
+    def ensure_started(self) -> None:
+        """Start the pipeline (and the scene) if they are not running."""
+        self.touch()
+        with self._lock:
+            if self._closed.is_set() or (self._thread is not None and self._thread.is_alive()):
+                return
+            try:
+                self.pipeline = self._build()
+                self.error = None
+            except Exception as e:  # noqa: BLE001 - shown on the page
+                self.error = f"{type(e).__name__}: {e}"
+                self.pipeline = None
+                return
+            self.pipeline.add_listener(self._on_frame)
+            self._thread = threading.Thread(target=self._run, daemon=True, name="live-pipeline")
+            self._thread.start()
+            if self._watchdog is None:
+                self._watchdog = threading.Thread(target=self._watch, daemon=True,
+                                                  name="live-idle")
+                self._watchdog.start()
+
+    def start_scene(self):
+        """The 3D scene, started on first use."""
+        with self._lock:
+            if self.scene is None and self.want_scene and not self._closed.is_set():
+                from webtool.live_scene import LiveScene
+
+                self.scene = LiveScene(self.mount, self.camera, self.layouts).start()
+            return self.scene
+
+    def _run(self) -> None:
+        p = self.pipeline
+        try:
+            p.run()
+        except Exception as e:  # noqa: BLE001
+            self.error = f"{type(e).__name__}: {e}"
+        finally:
+            p.close()
+
+    def _watch(self) -> None:
+        while not self._closed.wait(1.0):
+            idle = time.monotonic() - self._last_touch
+            if not self._viewers and idle > self.idle_timeout and self.pipeline is not None:
+                self.stop_pipeline()
+
+    def stop_pipeline(self) -> None:
+        with self._lock:
+            p, th = self.pipeline, self._thread
+            if p is not None:
+                p.stop()
+            if th is not None:
+                th.join(5)
+            self._thread = None
+
+    def close(self) -> None:
+        self._closed.set()
+        self.stop_pipeline()
+        if self.scene is not None:
+            self.scene.stop()
+            self.scene = None
+        self._wake()
+
+    # ------------------------------------------------------------------ frames
+    def _on_frame(self, frame, out) -> None:
+        if frame is None:
+            self._wake()
+            return
+        self._seq += 1
+        self._latest = (self._seq, frame.image, out)
+        if self.scene is not None:
+            self.scene.update(out)
+        self._wake()
+
+    def _wake(self) -> None:
+        for loop, ev in list(self._waiters):
+            try:
+                loop.call_soon_threadsafe(ev.set)
+            except RuntimeError:  # loop closed
+                pass
+
+    async def wait_frame(self, after_seq: int, timeout: float = 1.0) -> int:
+        """Wait until a frame newer than ``after_seq`` exists (or timeout); its seq."""
+        if self._seq > after_seq:
+            return self._seq
+        ev = asyncio.Event()
+        w = (asyncio.get_running_loop(), ev)
+        self._waiters.append(w)
+        try:
+            deadline = time.monotonic() + timeout
+            while self._seq <= after_seq and time.monotonic() < deadline:
+                ev.clear()
+                try:
+                    await asyncio.wait_for(ev.wait(), max(0.0, deadline - time.monotonic()))
+                except TimeoutError:
+                    break
+        finally:
+            self._waiters.remove(w)
+        return self._seq
+
+    @property
+    def seq(self) -> int:
+        return self._seq
+
+    def latest_output(self):
+        return None if self._latest is None else self._latest[2]
+
+    def jpeg(self, level: int) -> tuple[int, bytes] | None:
+        """(seq, JPEG bytes) of the newest frame, annotated, at a :data:`LEVELS` level."""
+        latest = self._latest
+        if latest is None:
+            return None
+        seq, image, out = latest
+        with self._enc_lock:
+            key = (seq, level)
+            data = self._jpegs.get(key)
+            if data is not None:
+                return seq, data
+            if self._annotated is None or self._annotated[0] != seq:
+                self._annotated = (seq, annotate(image, out, self.camera))
+            img = self._annotated[1]
+            scale, q = LEVELS[level]
+            if scale != 1.0:
+                img = cv2.resize(img, (max(16, int(img.shape[1] * scale)),
+                                       max(16, int(img.shape[0] * scale))),
+                                 interpolation=cv2.INTER_AREA)
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, q])
+            data = buf.tobytes() if ok else b""
+            if len(self._jpegs) > 16 or any(k[0] != seq for k in self._jpegs):
+                self._jpegs = {k: v for k, v in self._jpegs.items() if k[0] == seq}
+            self._jpegs[key] = data
+            return seq, data
+
+    # ------------------------------------------------------------------ viewers
+    def add_viewer(self) -> tuple[int, AdaptiveStream]:
+        with self._lock:
+            vid = self._next_viewer
+            self._next_viewer += 1
+            st = AdaptiveStream(self.bandwidth_bps, fps=self.stream_fps())
+            self._viewers[vid] = st
+            self._reshare()
+            return vid, st
+
+    def remove_viewer(self, vid: int) -> None:
+        with self._lock:
+            self._viewers.pop(vid, None)
+            self._reshare()
+            self.touch()
+
+    def _reshare(self) -> None:
+        n = max(1, len(self._viewers))
+        for st in self._viewers.values():
+            st.set_rate(self.bandwidth_bps / n)
+
+    def stream_fps(self) -> float:
+        fps = 0.0
+        if self.pipeline is not None:
+            fps = self.pipeline.stats.fps()
+        return min(self.max_fps, fps) if fps > 1 else self.max_fps
+
+    @property
+    def viewers(self) -> int:
+        return len(self._viewers)
+
+    # ------------------------------------------------------------------ figures, control
+    def status(self) -> dict:
+        c = None
+        try:
+            c = self.config()
+        except Exception:  # noqa: BLE001
+            pass
+        st: dict = {"running": self._thread is not None and self._thread.is_alive(),
+                    "error": self.error, "viewers": self.viewers,
+                    "bandwidth_kbps": round(self.bandwidth_bps / 1000, 1),
+                    "sample": bool(c.sample) if c else None}
+        if self.pipeline is not None:
+            st.update(self.pipeline.status())
+            st["sinks"] = []
+        else:
+            st.update({"fps": 0.0, "detect_ms": 0.0, "latency_ms": 0.0, "bricks": 0,
+                       "source": {"label": c.source if c else "", "state": "stopped",
+                                  "error": None}})
+        st["stream_kbps"] = round(sum(v.kbps() for v in self._viewers.values()), 1)
+        if self.scene is not None:
+            st["scene"] = {"port": self.scene.port, "bricks": self.scene.brick_names(),
+                           "updates": self.scene.updates, "clients": self.scene.clients()}
+        return st
+
+    def bricks_json(self) -> list[dict]:
+        out = self.latest_output()
+        if out is None or self.pipeline is None:
+            return []
+        if self.pipeline.source.now() - out.t_mono > self.pipeline.tracker.config.max_age:
+            return []  # never a stale pose, on the page either
+        res = []
+        from drovisio.fusion import so3_log
+        from drovisio.mount import down_camera_mount
+
+        for b in out.bricks:
+            d = b.to_json()
+            T = b.body_from_brick
+            if T is None:  # no mount file: show it as if the camera looked straight down
+                T = down_camera_mount().body_from(b.camera_from_brick())
+                d["body_from_brick"] = {"rvec": [round(float(v), 7) for v in so3_log(T[:3, :3])],
+                                        "tvec": [round(float(v), 7) for v in T[:3, 3]]}
+                d["mount_assumed"] = True
+            R = T[:3, :3]
+            d["yaw_deg"] = round(math.degrees(math.atan2(R[1, 0], R[0, 0])), 2)
+            d["target"] = out.target is not None and b.track == out.target.track
+            res.append(d)
+        return res
+
+    def set_target(self, spec) -> dict:
+        self.ensure_started()
+        if self.pipeline is None:
+            raise RuntimeError(self.error or "the live pipeline is not running")
+        return self.pipeline.target.set(spec).to_json()
