@@ -60,8 +60,10 @@ def chromium_path() -> Path:
     return CHROMIUM
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser(chromium_path: Path):
+    # Module scope, not session: Playwright's sync API runs an asyncio loop in the main thread
+    # for as long as it lives, and tests after the browser tests call asyncio.run().
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
