@@ -612,7 +612,7 @@ class MarkerLayout(BaseModel):
             missing = [k for k in ("first_id", "ids_per_instance", "instances")
                        if getattr(self, k) is None]
             for k in missing:
-                issues.append(((k,), f"required when the layout has ArUco codes; give an "
+                issues.append(((k,), "required when the layout has ArUco codes; give an "
                                      "integer (ids = first_id + instance * ids_per_instance "
                                      "+ slot)"))
             seen: dict[int, int] = {}

@@ -169,7 +169,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import cv2
 
     from drovisio.camera import save_camera
     from drovisio.calibration.board import BoardSpecError, parse_board

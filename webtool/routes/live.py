@@ -22,11 +22,9 @@ WebSocket  /live/3d                  …and its WebSocket, proxied to the viser 
 from __future__ import annotations
 
 import asyncio
-import gzip
 import threading
 import time
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from fastapi import (
     APIRouter,
@@ -39,6 +37,7 @@ from fastapi import (
 from fastapi.responses import JSONResponse, Response
 
 from webtool.access import access_level
+from webtool.viser_proxy import client_response, proxy_socket
 from webtool.live_service import LEVELS, LiveService
 
 _create_lock = threading.Lock()
@@ -199,92 +198,15 @@ async def live_ws(ws: WebSocket) -> None:
 # The viser client and its WebSocket, through this app
 # ------------------------------------------------------------------------------------------
 
-_client_cache: dict[str, tuple[bytes, bytes]] = {}
-
-
-def _viser_build() -> Path:
-    import viser
-
-    return Path(viser.__file__).resolve().parent / "client" / "build"
-
-
-def _client_file(path: str) -> tuple[bytes, bytes] | None:
-    """(raw, gzipped) of a file of viser's built client, cached."""
-    if path in _client_cache:
-        return _client_cache[path]
-    root = _viser_build()
-    parts = [p for p in path.split("/") if p and p != "."]
-    if any(p == ".." for p in parts):
-        return None
-    f = root.joinpath(*parts) if parts else root / "index.html"
-    if not f.is_file():
-        return None
-    raw = f.read_bytes()
-    _client_cache[path] = (raw, gzip.compress(raw, 6))
-    return _client_cache[path]
-
-
-_TYPES = {".html": "text/html; charset=utf-8", ".js": "application/javascript",
-          ".css": "text/css", ".png": "image/png", ".jpg": "image/jpeg", ".svg": "image/svg+xml",
-          ".wasm": "application/wasm", ".json": "application/json"}
-
-
 @router.get("/live/3d/{path:path}")
 async def viser_client(request: Request, path: str = "") -> Response:
     svc = await _started(request.app)
     await asyncio.to_thread(svc.start_scene)
-    got = await asyncio.to_thread(_client_file, path)
-    if got is None:
-        raise HTTPException(404, "not found")
-    raw, gz = got
-    ctype = _TYPES.get(Path(path or "index.html").suffix.lower(), "application/octet-stream")
-    if "gzip" in request.headers.get("accept-encoding", ""):
-        return Response(gz, media_type=ctype,
-                        headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
-    return Response(raw, media_type=ctype)
+    return await client_response(request, path)
 
 
 @router.websocket("/live/3d")
 async def viser_socket(ws: WebSocket) -> None:
     svc = await _started(ws.app)
     sc = await asyncio.to_thread(svc.start_scene)
-    if sc is None or sc.port is None:
-        await ws.close(code=1011)
-        return
-    from websockets.asyncio.client import connect
-
-    protos = list(ws.scope.get("subprotocols") or [])
-    try:
-        up = await connect(f"ws://127.0.0.1:{sc.port}", subprotocols=protos or None,
-                           max_size=None, compression=None, open_timeout=10)
-    except Exception:  # noqa: BLE001
-        await ws.close(code=1011)
-        return
-    await ws.accept(subprotocol=up.subprotocol)
-
-    async def downstream() -> None:
-        async for m in up:
-            if isinstance(m, bytes):
-                await ws.send_bytes(m)
-            else:
-                await ws.send_text(m)
-
-    async def upstream() -> None:
-        while True:
-            msg = await ws.receive()
-            if msg["type"] == "websocket.disconnect":
-                return
-            data = msg.get("bytes")
-            await up.send(data if data is not None else msg.get("text") or "")
-
-    tasks = [asyncio.create_task(downstream()), asyncio.create_task(upstream())]
-    try:
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for t in tasks:
-            t.cancel()
-        try:
-            await up.close()
-            await ws.close()
-        except (RuntimeError, WebSocketDisconnect, ConnectionError):
-            pass
+    await proxy_socket(ws, sc.port if sc is not None else None)

@@ -23,7 +23,6 @@ from __future__ import annotations
 import asyncio
 import threading
 from contextlib import asynccontextmanager
-from pathlib import Path
 from typing import Annotated
 
 from fastapi import (
@@ -32,11 +31,11 @@ from fastapi import (
     HTTPException,
     Request,
     WebSocket,
-    WebSocketDisconnect,
 )
 from fastapi.responses import JSONResponse, Response
 
 from webtool.replay import ReplayError, ReplayService
+from webtool.viser_proxy import client_response, proxy_socket
 
 _create_lock = threading.Lock()
 NO_STORE = {"Cache-Control": "no-store"}
@@ -138,60 +137,11 @@ async def scene(request: Request) -> JSONResponse:
 
 @router.get("/replay/3d/{path:path}")
 async def viser_client(request: Request, path: str = "") -> Response:
-    from webtool.routes.live import _TYPES, _client_file
-
     await asyncio.to_thread(get_replay(request.app).start_scene)
-    got = await asyncio.to_thread(_client_file, path)
-    if got is None:
-        raise HTTPException(404, "not found")
-    raw, gz = got
-    ctype = _TYPES.get(Path(path or "index.html").suffix.lower(), "application/octet-stream")
-    if "gzip" in request.headers.get("accept-encoding", ""):
-        return Response(gz, media_type=ctype,
-                        headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
-    return Response(raw, media_type=ctype)
+    return await client_response(request, path)
 
 
 @router.websocket("/replay/3d")
 async def viser_socket(ws: WebSocket) -> None:
     sc = await asyncio.to_thread(get_replay(ws.app).start_scene)
-    if sc is None or sc.port is None:
-        await ws.close(code=1011)
-        return
-    from websockets.asyncio.client import connect
-
-    protos = list(ws.scope.get("subprotocols") or [])
-    try:
-        up = await connect(f"ws://127.0.0.1:{sc.port}", subprotocols=protos or None,
-                           max_size=None, compression=None, open_timeout=10)
-    except Exception:  # noqa: BLE001
-        await ws.close(code=1011)
-        return
-    await ws.accept(subprotocol=up.subprotocol)
-
-    async def downstream() -> None:
-        async for m in up:
-            if isinstance(m, bytes):
-                await ws.send_bytes(m)
-            else:
-                await ws.send_text(m)
-
-    async def upstream() -> None:
-        while True:
-            msg = await ws.receive()
-            if msg["type"] == "websocket.disconnect":
-                return
-            data = msg.get("bytes")
-            await up.send(data if data is not None else msg.get("text") or "")
-
-    tasks = [asyncio.create_task(downstream()), asyncio.create_task(upstream())]
-    try:
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for t in tasks:
-            t.cancel()
-        try:
-            await up.close()
-            await ws.close()
-        except (RuntimeError, WebSocketDisconnect, ConnectionError):
-            pass
+    await proxy_socket(ws, sc.port if sc is not None else None)

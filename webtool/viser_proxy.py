@@ -1,0 +1,104 @@
+"""viser's browser client and its WebSocket, served through the web tool.
+
+viser runs its own server on its own port; the 3D views of the live page and of the mission
+replay are proxied through the FastAPI app instead of linked to that port, so that the app's
+token access covers them and the viser servers can listen on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gzip
+from pathlib import Path
+
+from fastapi import HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import Response
+
+__all__ = ["client_response", "proxy_socket"]
+
+_client_cache: dict[str, tuple[bytes, bytes]] = {}
+
+
+def _viser_build() -> Path:
+    import viser
+
+    return Path(viser.__file__).resolve().parent / "client" / "build"
+
+
+def client_file(path: str) -> tuple[bytes, bytes] | None:
+    """(raw, gzipped) of a file of viser's built client, cached."""
+    if path in _client_cache:
+        return _client_cache[path]
+    root = _viser_build()
+    parts = [p for p in path.split("/") if p and p != "."]
+    if any(p == ".." for p in parts):
+        return None
+    f = root.joinpath(*parts) if parts else root / "index.html"
+    if not f.is_file():
+        return None
+    raw = f.read_bytes()
+    _client_cache[path] = (raw, gzip.compress(raw, 6))
+    return _client_cache[path]
+
+
+TYPES = {".html": "text/html; charset=utf-8", ".js": "application/javascript",
+          ".css": "text/css", ".png": "image/png", ".jpg": "image/jpeg", ".svg": "image/svg+xml",
+          ".wasm": "application/wasm", ".json": "application/json"}
+
+
+
+async def client_response(request: Request, path: str) -> Response:
+    """A file of viser's built client (gzipped when the browser accepts it)."""
+    got = await asyncio.to_thread(client_file, path)
+    if got is None:
+        raise HTTPException(404, "not found")
+    raw, gz = got
+    ctype = TYPES.get(Path(path or "index.html").suffix.lower(), "application/octet-stream")
+    if "gzip" in request.headers.get("accept-encoding", ""):
+        return Response(gz, media_type=ctype,
+                        headers={"Content-Encoding": "gzip", "Vary": "Accept-Encoding"})
+    return Response(raw, media_type=ctype)
+
+
+async def proxy_socket(ws: WebSocket, port: int | None) -> None:
+    """Relay a browser's WebSocket to the viser server on 127.0.0.1:``port``."""
+    if port is None:
+        await ws.close(code=1011)
+        return
+    from websockets.asyncio.client import connect
+
+    protos = list(ws.scope.get("subprotocols") or [])
+    try:
+        up = await connect(f"ws://127.0.0.1:{port}", subprotocols=protos or None,
+                           max_size=None, compression=None, open_timeout=10)
+    except Exception:  # noqa: BLE001
+        await ws.close(code=1011)
+        return
+    await ws.accept(subprotocol=up.subprotocol)
+
+    async def downstream() -> None:
+        async for m in up:
+            if isinstance(m, bytes):
+                await ws.send_bytes(m)
+            else:
+                await ws.send_text(m)
+
+    async def upstream() -> None:
+        while True:
+            msg = await ws.receive()
+            if msg["type"] == "websocket.disconnect":
+                return
+            data = msg.get("bytes")
+            await up.send(data if data is not None else msg.get("text") or "")
+
+    tasks = [asyncio.create_task(downstream()), asyncio.create_task(upstream())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for t in tasks:
+            t.cancel()
+        try:
+            await up.close()
+            await ws.close()
+        except (RuntimeError, WebSocketDisconnect, ConnectionError):
+            pass
