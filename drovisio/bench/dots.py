@@ -76,6 +76,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="timed runs per frame (default 40; quick 10)")
     p.add_argument("--memory-frames", type=int, default=None,
                    help="frames of the memory loop (default 20000; quick 2000)")
+    p.add_argument("--memory-trace", action="store_true",
+                   help="also trace Python's allocations in the memory part (slower)")
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
     p.add_argument("--layout", default=None,
                    help="layout file (default: the shipped drick-dots-2x3.json)")
@@ -566,30 +568,61 @@ def _rss_kb() -> int:
 
 
 def part_memory(src, det, args, nframes) -> dict:
+    """Resident memory over ``nframes`` calls of :func:`detect_dots` (with a stream state) on
+    a loop of cached frames with 1, 5 and 20 bricks.
+
+    RSS is sampled every 250 frames after the warm-up (after ``gc.collect()``). It oscillates
+    by about a megabyte as malloc grows and trims its heap for the frames' temporaries, so
+    besides the raw end − warm-up difference the report gives the growth of the floor (lowest
+    sample of the last quarter − lowest of the first quarter) and the trend (least-squares
+    slope × frames); with ``--memory-trace`` also the growth of Python's own allocations
+    (tracemalloc), which is what a leak would show first.
+    """
+    import tracemalloc
+
     from drovisio.detect.dots import DotsState, detect_dots
 
     frames = (_timing_frames(src, args, 1, 2) + _timing_frames(src, args, 5, 2)
               + _timing_frames(src, args, 20, 2))
     state = DotsState()
-    warm = min(1000, nframes // 10)
-    samples = []
+    nf = len(frames)
+    # warm-up and end both just after the last frame of the loop (the same objects alive)
+    nframes = max(nf * 2, -(-nframes // nf) * nf)
+    warm = max(nf, min(1000, nframes // 10) // nf * nf) - 1
+    xs, samples = [], []
     t0 = time.time()
     rss_warm = None
+    traced0 = None
     for k in range(nframes):
         fr = frames[k % len(frames)]
         detect_dots(fr.image, src.camera, [src.layout], gravity=fr.gravity, state=state)
         if k == warm:
             gc.collect()
             rss_warm = _rss_kb()
-        if k > warm and k % 500 == 0:
+            if args.memory_trace:
+                tracemalloc.start()
+                traced0 = tracemalloc.get_traced_memory()[0]
+        if k >= warm and (k - warm) % 250 == 0:
+            gc.collect()
+            xs.append(k)
             samples.append(_rss_kb())
     gc.collect()
     rss_end = _rss_kb()
+    xs.append(nframes)
+    samples.append(rss_end)
+    traced = None
+    if traced0 is not None:
+        traced = (tracemalloc.get_traced_memory()[0] - traced0) / 1024
+        tracemalloc.stop()
+    q = max(1, len(samples) // 4)
+    slope = float(np.polyfit(np.asarray(xs, float), np.asarray(samples, float), 1)[0]) \
+        if len(samples) > 2 else 0.0
     return {"frames": nframes, "warmup_frames": warm, "rss_after_warmup_kb": rss_warm,
-            "rss_end_kb": rss_end, "rss_max_after_warmup_kb": max(samples + [rss_end]),
-            "growth_kb": rss_end - rss_warm,
-            "max_growth_kb": max(samples + [rss_end]) - rss_warm,
-            "seconds": time.time() - t0}
+            "rss_end_kb": rss_end, "growth_kb": rss_end - rss_warm,
+            "floor_growth_kb": min(samples[-q:]) - min(samples[:q]),
+            "trend_kb": slope * (nframes - warm),
+            "band_kb": max(samples) - min(samples),
+            "python_heap_growth_kb": traced, "seconds": time.time() - t0}
 
 
 # ================================================================================= report
@@ -658,8 +691,11 @@ def _print_report(rep: dict) -> None:
     if mem:
         w(f"\nMemory: {mem['frames']} frames ({mem['seconds']:.0f} s), RSS after "
           f"{mem['warmup_frames']} warm-up frames {mem['rss_after_warmup_kb']} kB, at the end "
-          f"{mem['rss_end_kb']} kB: growth {mem['growth_kb']} kB (max "
-          f"{mem['max_growth_kb']} kB)")
+          f"{mem['rss_end_kb']} kB: growth {mem['growth_kb']:+} kB; floor growth "
+          f"{mem['floor_growth_kb']:+} kB, trend {mem['trend_kb']:+.0f} kB, samples within a "
+          f"{mem['band_kb']} kB band" + (
+              f"; Python heap growth {mem['python_heap_growth_kb']:+.1f} kB"
+              if mem["python_heap_growth_kb"] is not None else ""))
     w("\nDefinitions: eligible = ≥ 4 fully visible dots of median size ≥ 6 px (equivalent "
       "diameter); lateral = |(Δx, Δy)| of tvec in the camera frame; depth = |Δz|/z; yaw = "
       "rotation about the brick z of R_trueᵀR_est (mod 180° for rot180_z); flip = > 20° off "

@@ -11,9 +11,11 @@ The thesis's pipeline, stage by stage (each a small function of its own module):
 5. sub-pixel dot centres from the colour coverage (:func:`~.dots_blobs.refine_centers`);
 6. matching blobs to the layout's dots with pair-seeded, scored hypotheses — linear in the
    number of blobs, any planar layout of ≥ 4 dots, partial matches (:mod:`.dots_match`);
-7. planar PnP for all bricks at once, both solutions of the planar ambiguity, the perspective
-   shift of ellipse centres corrected (unbiased), outlier dots dropped, missing dots looked
-   for where the pose puts them (:mod:`.dots_pose`);
+7. planar PnP: both solutions of the planar ambiguity (IPPE), dots that the brick's own
+   relief (a drick's pyramids) or something in front cuts are dropped, then wrong blobs,
+   missing dots are looked for where the pose puts them, and the perspective shift of
+   ellipse centres is corrected in one Gauss–Newton step for all bricks (unbiased centres
+   and poses; :mod:`.dots_pose`);
 8. the planar ambiguity flagged (or resolved with gravity), a symmetric layout's yaw put in
    one canonical half-turn (and kept there over a stream with :class:`DotsState`).
 
@@ -816,10 +818,10 @@ class DotDetector:
             sig = np.maximum(cfg.centroid_sigma_px, rm * np.sqrt(2 * n / np.maximum(
                 2 * n - 6, 1))) / self.f
             A = bt.normal_eq[rows][ar, choose]
-            rvecs = so3_log(Rc)
+            rvecs = self._rvecs(Rc)
             cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
         else:
-            rvecs = so3_log(Rc)
+            rvecs = self._rvecs(Rc)
         # dot labels in the reported (possibly half-turned) frame, sorted
         N = bt.blob.shape[1]
         used = bt.used[rows]
@@ -851,6 +853,13 @@ class DotDetector:
                 ambiguous=bool(ambiguous[k]), alternatives=alt, symmetric=bool(sym[k]),
                 covariance=None if cov is None else cov[k], image_points=pts_sorted[k, :nk]))
         return out
+
+    @staticmethod
+    def _rvecs(R: np.ndarray) -> np.ndarray:
+        """Rotation vectors of (B, 3, 3) rotations (OpenCV's Rodrigues for a few)."""
+        if R.shape[0] > 6:
+            return so3_log(R)
+        return np.array([cv2.Rodrigues(Rk)[0].ravel() for Rk in R]).reshape(-1, 3)
 
     @staticmethod
     def _canonical_flip(R: np.ndarray) -> bool:

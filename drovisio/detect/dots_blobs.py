@@ -442,10 +442,12 @@ def refine_centers(image_bgr: np.ndarray, blobs: Blobs, index: np.ndarray | None
         ys = cy[:, None] + offs[None, :]
         vx = (xs >= 0) & (xs < W)
         vy = (ys >= 0) & (ys < H)
-        win = image_bgr[np.minimum(np.maximum(ys, 0), H - 1)[:, :, None],
-                        np.minimum(np.maximum(xs, 0), W - 1)[:, None, :]]
         m = sel.size
-        win = win.reshape(m, w * w, 3).astype(np.float32)        # (m, w², 3)
+        # np.take on the flattened frame: several times faster than 2-D fancy indexing
+        flat_idx = (np.minimum(np.maximum(ys, 0), H - 1)[:, :, None] * W
+                    + np.minimum(np.maximum(xs, 0), W - 1)[:, None, :]).ravel()
+        win = np.take(image_bgr.reshape(-1, image_bgr.shape[2]), flat_idx, axis=0)
+        win = win.reshape(m, w * w, -1)[:, :, :3].astype(np.float32)   # (m, w², 3)
         valid = (vy[:, :, None] & vx[:, None, :]).reshape(m, w * w)
         # Mahalanobis radius in the blob's ellipse (boundary at 1)
         dx = (xs - bx[sel][:, None]).astype(np.float32)          # (m, w)

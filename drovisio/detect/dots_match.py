@@ -416,7 +416,7 @@ def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int 
     diff = qq[:, None, :] - qq[None, :, :]
     D2 = (diff * diff).sum(axis=2)
     D2.flat[::M + 1] = np.inf
-    K = min(M - 1, 2 * N + 2)
+    K = min(M - 1, N + 3)
     order = np.argsort(D2, axis=1)[:, :K]                     # (M, K) nearest blobs
     near = D2[np.arange(M)[:, None], order] <= (reach * reach)[:, None]
     # ---- seed pairs: each blob with its nearest few (within reach), layout pairs by colour
@@ -559,13 +559,14 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
         scores = np.concatenate([h.score for h in hyps])
         which = np.concatenate([np.full(h.score.size, k) for k, h in enumerate(hyps)])
         row = np.concatenate([np.arange(h.score.size) for h in hyps])
-    with np.errstate(over="ignore"):
-        hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))
-        key = np.where(A >= 0, hv[np.maximum(A, 0)], np.uint64(0)).sum(axis=1) \
-            + _splitmix64(which.astype(np.uint64) + np.uint64(1 << 40))
     order = np.argsort(-scores, kind="stable")
-    _, first = np.unique(key[order], return_index=True)
-    order = order[np.sort(first)]
+    if order.size > 64:     # many rows: merge duplicates first (few rows: the rounds do it)
+        with np.errstate(over="ignore"):
+            hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))
+            key = np.where(A >= 0, hv[np.maximum(A, 0)], np.uint64(0)).sum(axis=1) \
+                + _splitmix64(which.astype(np.uint64) + np.uint64(1 << 40))
+        _, first = np.unique(key[order], return_index=True)
+        order = order[np.sort(first)]
     A = A[order].copy()
     # one blob for two dots of a hypothesis: the first dot keeps it
     srt = np.sort(np.where(A >= 0, A, -np.arange(1, W + 1)[None, :]), axis=1)

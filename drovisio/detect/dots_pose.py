@@ -5,18 +5,23 @@ Everything works in *normalised* image coordinates (x/z, y/z of the OpenCV camer
 the measured dot centres are undistorted once, after which the camera is an ideal pinhole
 and a dot — a circle on a plane — projects to an exact ellipse.
 
-* :func:`homography_dlt` / :func:`pose_from_homography`: a first pose of each brick from the
-  plane-to-image homography (batched).
-* :func:`mirror_pose`: the other planar solution (the tilt reflected about the line of sight,
-  as in IPPE); both are refined, so the ambiguity of a small or distant brick is measured.
-* :func:`refine_poses`: Levenberg–Marquardt on the reprojection error, all bricks and both
-  solutions in one batch (numpy), so that the cost grows with the number of dots, not with a
-  Python loop per brick.
+The detector (:mod:`.dots`) takes each brick's two planar solutions from OpenCV's IPPE (or
+SQPnP and :func:`mirror_pose` where three of four dots are in a line), then uses, for all
+bricks and both solutions in one batch (numpy, so that the cost grows with the number of
+dots, not with a Python loop per brick):
+
+* :func:`refine_poses`: Levenberg–Marquardt on the reprojection error (after a dot was
+  dropped or added);
 * :func:`conic_center_offsets`: where the centre of a projected circle's ellipse lies relative
   to the projection of the circle's centre (they differ under perspective). The measured
-  centres are ellipse centres; subtracting the offset predicted by the current pose and
-  refining again gives unbiased poses and unbiased circle centres.
-* :func:`pose_covariance`: 6×6 covariance of (rvec, tvec) from the Jacobian.
+  centres are ellipse centres; subtracting the offset predicted by the pose and taking one
+  Gauss–Newton step (:func:`gn_step`, which also turns IPPE's pose into the least-squares
+  one) gives unbiased poses and unbiased circle centres;
+* :func:`pose_covariance_from_normal`: 6×6 covariance of (rvec, tvec).
+
+:func:`homography_dlt` / :func:`pose_from_homography` (a pose from the plane-to-image
+homography, batched) and :func:`layout_degeneracy` (is a subset of dots fit for a homography)
+complete the set.
 
 Conventions: ``camera_from_brick``: X_cam = R · X_brick + t; rotations as 3×3 matrices
 inside, OpenCV rotation vectors at the edges.
