@@ -593,6 +593,8 @@ def part_memory(src, det, args, nframes) -> dict:
     t0 = time.time()
     rss_warm = None
     traced0 = None
+    if args.memory_trace:
+        tracemalloc.start()
     for k in range(nframes):
         fr = frames[k % len(frames)]
         detect_dots(fr.image, src.camera, [src.layout], gravity=fr.gravity, state=state)
@@ -600,7 +602,6 @@ def part_memory(src, det, args, nframes) -> dict:
             gc.collect()
             rss_warm = _rss_kb()
             if args.memory_trace:
-                tracemalloc.start()
                 traced0 = tracemalloc.get_traced_memory()[0]
         if k >= warm and (k - warm) % 250 == 0:
             gc.collect()
