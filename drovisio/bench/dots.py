@@ -193,41 +193,39 @@ class FrameSource:
             cache.mkdir(parents=True, exist_ok=True)
 
     def get(self, key: str, seed: int, spec, hide: tuple[int, int] | None = None) -> Frame:
-        import cv2
-
         from drovisio.scenes import random_scene
 
         tag = hashlib.sha1(repr((key, seed, _spec_repr(spec), hide, self.layout.name,
                                  "v2")).encode()).hexdigest()[:16]
-        png = js = None
-        if self.cache is not None:
-            stem = f"{key}-{seed}-{tag}"
-            png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
-            if png.exists() and js.exists():
-                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
-                meta = json.loads(js.read_text())
-                if img is not None:
-                    return Frame(image=img, gravity=np.array(meta["gravity"]),
-                                 bricks=[DotTruth(**b) for b in meta["bricks"]])
+        hit, png, js = self._cached(key, seed, tag)
+        if hit is not None:
+            return hit
         scene, fx = random_scene(seed, spec, self.camera)
-        return self._render(scene, fx, png if self.cache else None,
-                            js if self.cache else None, seed, hide)
+        return self._render(scene, fx, png, js, seed, hide)
+
+    def _cached(self, key: str, seed: int, tag: str):
+        """(frame from the cache or None, png path, json path); paths are None without a
+        cache."""
+        import cv2
+
+        if self.cache is None:
+            return None, None, None
+        stem = f"{key}-{seed}-{tag}"
+        png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
+        if png.exists() and js.exists():
+            img = cv2.imread(str(png), cv2.IMREAD_COLOR)
+            meta = json.loads(js.read_text())
+            if img is not None:
+                return (Frame(image=img, gravity=np.array(meta["gravity"]),
+                              bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
+        return None, png, js
 
     def get_scene(self, key: str, seed: int, build) -> Frame:
         """A frame of a scene made by ``build() -> (Scene, Effects)`` (cached by key, seed)."""
-        import cv2
-
         tag = hashlib.sha1(repr((key, seed, self.layout.name, "v2")).encode()).hexdigest()[:16]
-        png = js = None
-        if self.cache is not None:
-            stem = f"{key}-{seed}-{tag}"
-            png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
-            if png.exists() and js.exists():
-                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
-                meta = json.loads(js.read_text())
-                if img is not None:
-                    return Frame(image=img, gravity=np.array(meta["gravity"]),
-                                 bricks=[DotTruth(**b) for b in meta["bricks"]])
+        hit, png, js = self._cached(key, seed, tag)
+        if hit is not None:
+            return hit
         scene, fx = build()
         return self._render(scene, fx, png, js, seed, None)
 
