@@ -511,23 +511,29 @@ def _timing_frames(src, args, nbricks: int, n: int) -> list[Frame]:
 
 
 def part_timing(src, det, args, n, repeats) -> dict:
+    """Per-frame time of the detector and of the minimal pass on the same frames, for 1, 5
+    and 20 bricks in view. Every repeat visits every frame of every brick count once (minimal
+    pass, then detector), so a change of the machine's load hits all counts alike; each
+    figure is the median over a frame's repeats, then the median over frames."""
     import cv2
 
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
     minimal = _minimal_pass(det.specs)
-    out = {"threads": cv2.getNumThreads()}
-    base = None
-    for nb in (1, 5, 20):
-        frames = _timing_frames(src, args, nb, n)
-        t_min, t_det, c_min, c_det, found, inview = [], [], [], [], [], []
-        wall, cpu = time.perf_counter, time.process_time
-        for fr in frames:
-            a, b, ca, cb = [], [], [], []
+    counts = (1, 5, 20)
+    frames = {nb: _timing_frames(src, args, nb, n) for nb in counts}
+    wall, cpu = time.perf_counter, time.process_time
+    samples = {(nb, k): ([], [], [], []) for nb in counts for k in range(n)}
+    found = {nb: [0] * n for nb in counts}
+    for fr_list in frames.values():
+        for fr in fr_list:
             for _ in range(3):  # warm-up
                 minimal(fr.image)
                 det.detect(fr.image, gravity=fr.gravity)
-            for _ in range(repeats):  # interleaved, so that load changes hit both alike
+    for _ in range(repeats):
+        for nb in counts:
+            for k, fr in enumerate(frames[nb]):
+                a, b, ca, cb = samples[(nb, k)]
                 t, c = wall(), cpu()
                 minimal(fr.image)
                 a.append(wall() - t)
@@ -536,14 +542,18 @@ def part_timing(src, det, args, n, repeats) -> dict:
                 poses = det.detect(fr.image, gravity=fr.gravity)
                 b.append(wall() - t)
                 cb.append(cpu() - c)
-            t_min.append(float(np.median(a)))
-            t_det.append(float(np.median(b)))
-            c_min.append(float(np.median(ca)))
-            c_det.append(float(np.median(cb)))
-            found.append(len(poses))
-            inview.append(sum(int(np.sum(x.visible)) >= 4 for x in fr.bricks))
-        row = {"frames": len(frames), "bricks_in_view_median": float(np.median(inview)),
-               "bricks_found_median": float(np.median(found)),
+                found[nb][k] = len(poses)
+    from drovisio.detect import dots_kernels
+
+    out = {"threads": cv2.getNumThreads(), "repeats": repeats, "frames_per_count": n,
+           "compiled_kernels": dots_kernels.enabled()}
+    base = None
+    for nb in counts:
+        t_min, t_det, c_min, c_det = ([float(np.median(samples[(nb, k)][i])) for k in range(n)]
+                                      for i in range(4))
+        inview = [sum(int(np.sum(x.visible)) >= 4 for x in fr.bricks) for fr in frames[nb]]
+        row = {"frames": n, "bricks_in_view_median": float(np.median(inview)),
+               "bricks_found_median": float(np.median(found[nb])),
                "minimal_ms": 1e3 * float(np.median(t_min)),
                "detect_ms": 1e3 * float(np.median(t_det)),
                "ratio": float(np.median(np.asarray(t_det) / np.asarray(t_min))),
@@ -674,8 +684,12 @@ def _print_report(rep: dict) -> None:
               f"{_fmt(r['yaw_p95_deg'])}°, false {r['false_bricks']}")
     tim = rep.get("timing")
     if tim:
-        w(f"\nTiming (medians; minimal pass = cvtColor to HSV + one cv2.inRange per colour; "
-          f"OpenCV threads {tim['threads']}; wall clock, then process CPU time)")
+        kern = "compiled kernels" if tim.get("compiled_kernels") else \
+            "numpy path (no numba, or DROVISIO_NUMBA=0)"
+        w(f"\nTiming (medians of {tim.get('repeats', '?')} interleaved runs of "
+          f"{tim.get('frames_per_count', '?')} frames per count; minimal pass = cvtColor to "
+          f"HSV + one cv2.inRange per colour; OpenCV threads {tim['threads']}; {kern}; wall "
+          f"clock, then process CPU time)")
         w(f"{'':12}{'in view':>8}{'found':>7}{'minimal ms':>12}{'detect ms':>11}{'ratio':>7}"
           f"{'vs 1 brick':>11}{'cpu ratio':>10}{'cpu vs 1':>9}{'load':>6}")
         for k in ("1_bricks", "5_bricks", "20_bricks"):

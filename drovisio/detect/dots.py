@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.detect import dots_kernels as _k
 from drovisio.detect.dots_blobs import (
     BlobFilter,
     Blobs,
@@ -173,6 +174,8 @@ class _Batch:
     hidden: np.ndarray = None  # (B, N) dots hidden by the brick's own relief
     gravity: np.ndarray = None  # (3,) gravity in the camera frame, if known
     normal_eq: np.ndarray = None  # (B, 6, 6) JᵀJ of the chosen solution (covariance)
+    single: DotModel | None = None  # the model of every brick, when they share one
+    colors: np.ndarray = None  # (B, N) colour index of each dot, -1 for padding
 
     @property
     def used(self) -> np.ndarray:
@@ -237,6 +240,10 @@ class DotDetector:
         self._v_ranges = np.array([[s.hsv[0][2], s.hsv[1][2]] for s in specs], float) \
             if specs else np.zeros((0, 2))
         self.last_diagnostics: dict = {}
+        # the distortion as 12 coefficients for the compiled undistortion (None: tilted model)
+        d = np.zeros(14)
+        d[:camera.dist.size] = camera.dist
+        self._dist12 = d[:12].copy() if not d[12:].any() else None
         self._hsv: np.ndarray | None = None    # frame buffers, reused (no allocation per frame)
 
     # ------------------------------------------------------------------------------ stages
@@ -251,17 +258,23 @@ class DotDetector:
         masks = []
         pad = 2 * cfg.morph_kernel_px + 2
         for m in self.classifier.masks(hsv, reuse=True):
-            if not cv2.countNonZero(m):
+            # only the regions with colour pixels: bands of rows separated by empty rows, each
+            # cut to its columns (padded: the morphology reaches no further, so separate bands
+            # give the blobs of the whole mask)
+            # (REDUCE_SUM to int32: OpenCV 5's REDUCE_MAX on uint8 is ~100× slower)
+            rows = np.flatnonzero(cv2.reduce(m, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).ravel())
+            if rows.size == 0:
                 masks.append(None)
                 continue
-            # only the region with colour pixels (padded: the morphology reaches no further)
-            x, y, w, h = cv2.boundingRect(m)
-            x0, y0 = max(x - pad, 0), max(y - pad, 0)
-            x1, y1 = min(x + w + pad, W), min(y + h + pad, H)
-            if (x1 - x0) * (y1 - y0) < 0.6 * H * W:
-                masks.append((clean_mask(m[y0:y1, x0:x1], cfg.morph_kernel_px), (x0, y0)))
-            else:
-                masks.append(clean_mask(m, cfg.morph_kernel_px))
+            cut = np.flatnonzero(np.diff(rows) > 2 * pad + 1)
+            parts = []
+            for r0, r1 in zip([rows[0], *rows[cut + 1].tolist()],
+                              [*rows[cut].tolist(), rows[-1]]):
+                y0, y1 = max(int(r0) - pad, 0), min(int(r1) + 1 + pad, H)
+                x, _, w, _ = cv2.boundingRect(m[y0:y1])
+                x0, x1 = max(x - pad, 0), min(x + w + pad, W)
+                parts.append((clean_mask(m[y0:y1, x0:x1], cfg.morph_kernel_px), (x0, y0)))
+            masks.append(parts)
         blobs, _ = find_blobs_multi(masks, self.blob_filter,
                                     extra=(lambda b: self._clahe_ok(b, hsv)) if cfg.clahe
                                     else None, shape=(H, W))
@@ -272,6 +285,13 @@ class DotDetector:
         cfg = self.config
         v = hsv[:, :, 2]
         H, W = v.shape
+        tx, ty = cfg.clahe_tiles
+        rng = self._v_ranges[blobs.color]
+        if _k.enabled() and W % tx == 0 and H % ty == 0 and hsv.flags.c_contiguous:
+            eq = _k.clahe_at(hsv, np.ascontiguousarray(blobs.x, np.float64),
+                             np.ascontiguousarray(blobs.y, np.float64), int(tx), int(ty),
+                             int(cfg.clahe_stride), float(cfg.clahe_clip))
+            return (eq >= rng[:, 0] - 0.5) & (eq <= rng[:, 1] + 0.5)
         xi = np.clip(np.rint(blobs.x).astype(np.int64), 1, W - 2)
         yi = np.clip(np.rint(blobs.y).astype(np.int64), 1, H - 2)
         raw = (v[yi, xi].astype(np.float64) + v[yi - 1, xi] + v[yi + 1, xi] + v[yi, xi - 1]
@@ -281,10 +301,23 @@ class DotDetector:
         rng = self._v_ranges[blobs.color]
         return (eq >= rng[:, 0] - 0.5) & (eq <= rng[:, 1] + 0.5)
 
+    def _undistort_compiled(self, px: np.ndarray):
+        """(normalised points, d(normalised)/d(pixel)) with the compiled kernel, or None when
+        the kernels are off or the distortion model has a tilt."""
+        if self._dist12 is None or not _k.enabled():
+            return None
+        K = self.camera.K
+        return _k.undistort(np.ascontiguousarray(px, np.float64).reshape(-1, 2),
+                            float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                            self._dist12)
+
     def _normalize(self, px: np.ndarray) -> np.ndarray:
         px = np.asarray(px, np.float64).reshape(-1, 1, 2)
         if px.shape[0] == 0:
             return np.zeros((0, 2))
+        got = self._undistort_compiled(px)
+        if got is not None:
+            return got[0]
         return cv2.undistortPoints(px, self.camera.K, self.camera.dist, None, None, None,
                                    _UNDISTORT_CRITERIA).reshape(-1, 2)
 
@@ -294,6 +327,11 @@ class DotDetector:
         flat = Y.reshape(-1, 3)
         if flat.shape[0] == 0:
             return np.zeros(shp + (2,))
+        if self._dist12 is not None and _k.enabled():
+            K = self.camera.K
+            return _k.project(np.ascontiguousarray(flat, np.float64), float(K[0, 0]),
+                              float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                              self._dist12).reshape(shp + (2,))
         p, _ = cv2.projectPoints(flat, _ZERO3, _ZERO3, self.camera.K, self.camera.dist)
         return p.reshape(shp + (2,))
 
@@ -301,6 +339,10 @@ class DotDetector:
         """Normalised centres and second-moment matrices of blobs (local undistortion)."""
         n = len(blobs)
         c = np.stack([blobs.x, blobs.y], axis=1)
+        got = self._undistort_compiled(c)
+        if got is not None:
+            q, J = got
+            return q, J @ blobs.cov @ J.transpose(0, 2, 1)
         pts = (c[None] + _STENCIL[:, None, :]).reshape(-1, 2)
         qn = self._normalize(pts).reshape(5, n, 2)
         J = np.stack([qn[1] - qn[2], qn[3] - qn[4]], axis=2) * 0.5        # (n, 2, 2)
@@ -373,22 +415,25 @@ class DotDetector:
 
             X, U, V, nrm, rad = m.batch_arrays(B)
             return _Batch(models=[m] * B, blob=np.stack([c.assign for c in cands]),
-                          X=X.copy(), U=U, V=V, normals=nrm, radii=rad)
+                          X=X.copy(), U=U, V=V, normals=nrm, radii=rad, single=m,
+                          colors=np.broadcast_to(m.colors, (B, N)))
         blob = np.full((B, N), -1, np.int64)
         X = np.zeros((B, N, 3))
         U = np.tile(np.array([1.0, 0, 0]), (B, N, 1))
         V = np.tile(np.array([0, 1.0, 0]), (B, N, 1))
         normals = np.tile(np.array([0, 0, 1.0]), (B, N, 1))
         radii = np.full((B, N), 0.01)
+        colors = np.full((B, N), -1, np.int64)
         for k, c in enumerate(cands):
             m = c.model
             n = m.n
             blob[k, :n] = c.assign
+            colors[k, :n] = m.colors
             X[k, :n], U[k, :n], V[k, :n] = m.X, m.axes_u, m.axes_v
             normals[k, :n] = m.normals
             radii[k, :n] = m.radii
         return _Batch(models=[c.model for c in cands], blob=blob, X=X, U=U, V=V,
-                      normals=normals, radii=radii)
+                      normals=normals, radii=radii, colors=colors)
 
     def _set_centers(self, bt: _Batch, centers: np.ndarray, rows=None) -> None:
         m = bt.used
@@ -415,6 +460,9 @@ class DotDetector:
             bt.cost = np.full((Bt, 2), np.inf)
         special, warm, done, rvs_all, tvs_all, errs = [], [], [], [], [], []
         bits = (bt.used * _BITS[:bt.blob.shape[1]]).sum(axis=1).tolist()
+        if _k.enabled():
+            self._initial_poses_compiled(bt, rows, bits)
+            return
         for r in rows:
             m = bt.models[r]
             if m.degeneracy(bits[r]) <= 0.02:
@@ -441,6 +489,46 @@ class DotDetector:
             bt.t[d] = np.concatenate(tvs_all, axis=1).T.reshape(-1, 2, 3)
             e = np.array(errs)
             bt.cost[d] = e[:, :2] ** 2 * e[:, 2:3]
+        if special:
+            self._special_poses(bt, np.array(special))
+        if warm:
+            self._refine_both(bt, np.array(warm))
+        self._prefer_level(bt, rows, bt.gravity)
+
+    def _initial_poses_compiled(self, bt: _Batch, rows, bits: list[int]) -> None:
+        """:meth:`_initial_poses` with the compiled IPPE (all bricks of a layout at once)."""
+        special, warm, groups = [], [], {}
+        if bt.single is not None:
+            m = bt.single
+            rr = np.asarray(rows, np.int64)
+            degen = np.array([m.degeneracy(bits[r]) <= 0.02 for r in rr.tolist()])
+            if degen.any():
+                fin = np.isfinite(bt.cost[rr, 0])
+                warm = rr[degen & fin].tolist()
+                special = rr[degen & ~fin].tolist()
+            if not degen.all():
+                groups[id(m)] = rr[~degen].tolist()
+        else:
+            for r in rows:
+                m = bt.models[r]
+                if m.degeneracy(bits[r]) <= 0.02:
+                    (warm if np.isfinite(bt.cost[r, 0]) else special).append(r)
+                else:
+                    groups.setdefault(id(m), []).append(r)
+        for g in groups.values():
+            m = bt.models[g[0]]
+            ga = np.asarray(g, np.int64)
+            Pm = np.zeros((ga.size, bt.blob.shape[1], 2))
+            Pm[:, :m.n] = m.P
+            T = m.plane_from_brick
+            R, t, cost, ok = _k.ippe(Pm, np.ascontiguousarray(bt.q[ga]),
+                                     np.ascontiguousarray(bt.w[ga]),
+                                     np.ascontiguousarray(T[:3, :3]),
+                                     np.ascontiguousarray(T[:3, 3]))
+            bt.R[ga[ok]] = R[ok]
+            bt.t[ga[ok]] = t[ok]
+            bt.cost[ga[ok]] = cost[ok]
+            special.extend(ga[~ok].tolist())
         if special:
             self._special_poses(bt, np.array(special))
         if warm:
@@ -552,7 +640,7 @@ class DotDetector:
         bt = self._make_batch(cands)
         B = len(cands)
         allrows = list(range(B))
-        used = np.unique(bt.blob[bt.used])
+        used = bt.blob[bt.used]     # each blob belongs to one dot of one brick at most
         centers = np.stack([blobs.x, blobs.y], axis=1)
         refined = np.zeros(len(blobs), bool)
         centers[used] = refine_centers(img, blobs, used)[0]
@@ -641,10 +729,7 @@ class DotDetector:
         """Add dots a partial match missed: a free blob of the right colour where the pose
         puts a missing dot."""
         cfg = self.config
-        missing = ~bt.used & ~bt.hidden & (bt.radii > 0)
-        for k, m in enumerate(bt.models):
-            if m.n < missing.shape[1]:
-                missing[k, m.n:] = False
+        missing = ~bt.used & ~bt.hidden & (bt.colors >= 0)
         if not missing.any():
             return
         free = np.flatnonzero(~taken)
@@ -661,7 +746,7 @@ class DotDetector:
         tol2 = np.maximum(1.5, 0.25 * size_px) ** 2
         dd = pred[:, None, :] - centers[free][None, :, :]
         d2 = (dd * dd).sum(axis=2)
-        want = np.array([bt.models[b].colors[k] for b, k in zip(bi.tolist(), di.tolist())])
+        want = bt.colors[bi, di]
         d2[blobs.color[free][None, :] != want[:, None]] = np.inf
         best = d2.argmin(axis=1)
         ok = d2[np.arange(bi.size), best] <= tol2
@@ -717,6 +802,15 @@ class DotDetector:
     def _self_occluded(self, bt: _Batch, sol: int = 0, rows=None) -> np.ndarray:
         """(B, N) (or (len(rows), N)) clearance of the dots from the shadows of the brick's
         own mesh under solution ``sol``, in dot radii (< 1: partly hidden)."""
+        if bt.single is not None:
+            m = bt.single
+            if not m.occluders.shape[0]:
+                n = bt.blob.shape[0] if rows is None else len(rows)
+                return np.full((n, bt.blob.shape[1]), np.inf)
+            if rows is None:
+                return occluded_dots(m, bt.R[:, sol], bt.t[:, sol], clearance=True)
+            rr = np.asarray(rows, np.int64)
+            return occluded_dots(m, bt.R[rr, sol], bt.t[rr, sol], clearance=True)
         rows = list(range(bt.blob.shape[0])) if rows is None else list(rows)
         out = np.full((len(rows), bt.blob.shape[1]), np.inf)
         groups: dict[int, list[int]] = {}
@@ -798,7 +892,10 @@ class DotDetector:
         rm = rmse[rows][ar, choose]
         qsel = bt.q[rows] - bt.offset[rows][ar, choose]
         # ---- symmetric layouts: one canonical half-turn (the previous frame's, in a stream)
-        sym = np.array([bt.models[r].sym_perm is not None for r in rows.tolist()])
+        if bt.single is not None:
+            sym = np.full(B, bt.single.sym_perm is not None)
+        else:
+            sym = np.array([bt.models[r].sym_perm is not None for r in rows.tolist()])
         flip = np.zeros(B, bool)
         if sym.any():
             x = Rc[:, :, 0]
@@ -819,14 +916,20 @@ class DotDetector:
                 2 * n - 6, 1))) / self.f
             A = bt.normal_eq[rows][ar, choose]
             rvecs = self._rvecs(Rc)
-            cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
+            if _k.enabled():
+                cov = _k.pose_covariance(np.ascontiguousarray(A), rvecs,
+                                         np.ascontiguousarray(sig, np.float64))
+            else:
+                cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
         else:
             rvecs = self._rvecs(Rc)
         # dot labels in the reported (possibly half-turned) frame, sorted
         N = bt.blob.shape[1]
         used = bt.used[rows]
         lab = np.broadcast_to(np.arange(N), (B, N))
-        if flip.any():
+        if flip.any() and bt.single is not None:
+            lab = np.where(flip[:, None], bt.single.sym_perm, lab)
+        elif flip.any():
             perm = np.stack([bt.models[r].sym_perm if bt.models[r].sym_perm is not None
                              else np.arange(bt.models[r].n) for r in rows.tolist()]) \
                 if N == max(bt.models[r].n for r in rows.tolist()) else None
@@ -837,26 +940,30 @@ class DotDetector:
         counts = used.sum(axis=1).tolist()
         lab_sorted = np.take_along_axis(key, order, axis=1).tolist()
         pts_sorted = img_pts[ar[:, None], order]
-        names = [bt.models[r].name for r in rows.tolist()]
+        names = [bt.single.name] * B if bt.single is not None else \
+            [bt.models[r].name for r in rows.tolist()]
         out = []
+        amb, syml, rml, chl = ambiguous.tolist(), sym.tolist(), rm.tolist(), choose.tolist()
         for k in range(B):
             nk = counts[k]
             alt = []
-            if ambiguous[k]:
-                Ra = R2[k, 1 - choose[k]]
-                if sym[k] and self._canonical_flip(Ra):
+            if amb[k]:
+                Ra = R2[k, 1 - chl[k]]
+                if syml[k] and self._canonical_flip(Ra):
                     Ra = Ra * _HALF
-                alt = [(cv2.Rodrigues(Ra)[0].ravel(), t2[k, 1 - choose[k]].copy())]
+                alt = [(cv2.Rodrigues(Ra)[0].ravel(), t2[k, 1 - chl[k]].copy())]
             out.append(BrickPose(
                 layout=names[k], instance=None, method="dots", rvec=rvecs[k], tvec=tc[k],
-                reprojection_rmse_px=float(rm[k]), markers=lab_sorted[k][:nk],
-                ambiguous=bool(ambiguous[k]), alternatives=alt, symmetric=bool(sym[k]),
+                reprojection_rmse_px=rml[k], markers=lab_sorted[k][:nk],
+                ambiguous=amb[k], alternatives=alt, symmetric=syml[k],
                 covariance=None if cov is None else cov[k], image_points=pts_sorted[k, :nk]))
         return out
 
     @staticmethod
     def _rvecs(R: np.ndarray) -> np.ndarray:
         """Rotation vectors of (B, 3, 3) rotations (OpenCV's Rodrigues for a few)."""
+        if _k.enabled():
+            return _k.so3_log(np.ascontiguousarray(R, np.float64))
         if R.shape[0] > 6:
             return so3_log(R)
         return np.array([cv2.Rodrigues(Rk)[0].ravel() for Rk in R]).reshape(-1, 3)

@@ -25,6 +25,8 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
+from drovisio.detect import dots_kernels as _k
+
 __all__ = [
     "BlobFilter",
     "Blobs",
@@ -156,10 +158,13 @@ def _segment_sums(x0, y0, x1, y1, starts):
 
 
 def _measure(contours: list[np.ndarray], color, shape: tuple[int, int],
-             index: np.ndarray | None = None) -> Blobs:
-    """Vectorised measures of contours of one mask (all contours at once)."""
+             index: np.ndarray | None = None, flt: BlobFilter | None = None) -> Blobs:
+    """Vectorised measures of contours of one mask (all contours at once); the compiled path
+    also measures the convexity of the contours that ``flt``'s shape filters may keep."""
     if not contours:
         return Blobs.empty()
+    if _k.enabled():
+        return _measure_compiled(contours, color, shape, index, flt)
     n_pts = np.array(list(map(len, contours)), np.int64)
     pts = np.concatenate(contours).reshape(-1, 2).astype(np.float64)
     starts = np.zeros(len(contours), np.int64)
@@ -238,6 +243,34 @@ def _measure(contours: list[np.ndarray], color, shape: tuple[int, int],
                  contour=np.arange(len(contours)) if index is None else index)
 
 
+def _measure_compiled(contours, color, shape, index, flt, n_pts=None) -> Blobs:
+    """:func:`_measure` with the compiled kernel (same measures)."""
+    n = len(contours)
+    if n_pts is None:
+        n_pts = np.fromiter(map(len, contours), np.int64, n)
+    pts = np.concatenate(contours).reshape(-1, 2)
+    starts = np.zeros(n, np.int64)
+    np.cumsum(n_pts[:-1], out=starts[1:])
+    gate = _NO_HULL if flt is None else np.array(
+        [flt.min_area, flt.max_area, flt.min_aspect, flt.min_circularity, flt.min_fill,
+         flt.max_ellipse_err, flt.ellipse_err_px])
+    out, bbox, border = _k.measure_contours(pts, starts, n_pts, int(shape[0]), int(shape[1]),
+                                            gate)
+    cov = np.empty((n, 2, 2))
+    cov[:, 0, 0] = out[:, 10]
+    cov[:, 0, 1] = cov[:, 1, 0] = out[:, 11]
+    cov[:, 1, 1] = out[:, 12]
+    color = np.asarray(color, np.int64)
+    return Blobs(x=out[:, 0], y=out[:, 1], area=out[:, 2], a=out[:, 3], b=out[:, 4],
+                 angle=out[:, 5], cov=cov, perimeter=out[:, 6], circularity=out[:, 7],
+                 fill=out[:, 8], convexity=out[:, 13], ellipse_err=out[:, 9],
+                 holes=np.zeros(n), color=np.broadcast_to(color, (n,)).copy(), bbox=bbox,
+                 border=border, contour=np.arange(n) if index is None else index)
+
+
+_NO_HULL = np.array([np.inf, -np.inf, 0.0, 0.0, 0.0, 0.0, 0.0])
+
+
 def find_blobs(mask: np.ndarray, color: int = 0, flt: BlobFilter | None = None
                ) -> tuple[Blobs, list[np.ndarray]]:
     """Stage 5: the blobs of a (cleaned) mask, measured and filtered.
@@ -259,7 +292,8 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
                      shape: tuple[int, int] | None = None) -> tuple[Blobs, list[np.ndarray]]:
     """:func:`find_blobs` for one mask per colour, measured in one pass (colour k = mask k;
     None = no pixel of that colour; ``(roi_mask, (x0, y0))`` = a region of the frame's mask
-    whose top-left pixel is (x0, y0), with ``shape`` the frame's (H, W)). ``extra(blobs) ->
+    whose top-left pixel is (x0, y0), with ``shape`` the frame's (H, W); a list of such
+    regions = separate regions of one colour's mask). ``extra(blobs) ->
     bool mask`` is one more filter, applied with the convexity filter (e.g. the CLAHE V gate).
 
     Outlines and holes come from ``cv2.findContours`` (two-level hierarchy); all outlines are
@@ -270,37 +304,42 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
     """
     flt = flt or BlobFilter()
     allc: list[np.ndarray] = []
-    colors: list[int] = []
-    parent: list[int] = []
+    colors: list[np.ndarray] = []
+    parent: list[np.ndarray] = []
     shape = tuple(shape) if shape is not None else None
-    for k, mask in enumerate(masks):
-        if mask is None:
+    for k, entry in enumerate(masks):
+        if entry is None:
             continue
-        offset = (0, 0)
-        if isinstance(mask, tuple):
-            mask, offset = mask
-        else:
-            shape = shape or mask.shape
-        cs, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE,
-                                    offset=offset)
-        if not cs:
-            continue
-        base = len(allc)
-        allc.extend(cs)
-        colors.extend([k] * len(cs))
-        par = hier[0][:, 3]
-        parent.extend(np.where(par >= 0, par + base, -1).tolist())
+        for mask in (entry if isinstance(entry, list) else [entry]):
+            offset = (0, 0)
+            if isinstance(mask, tuple):
+                mask, offset = mask
+            else:
+                shape = shape or mask.shape
+            cs, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE,
+                                        offset=offset)
+            if not cs:
+                continue
+            base = len(allc)
+            allc.extend(cs)
+            colors.append(np.full(len(cs), k, np.int64))
+            par = hier[0][:, 3].astype(np.int64)
+            parent.append(np.where(par >= 0, par + base, -1))
     if not allc:
         return Blobs.empty(), []
-    parent_a = np.asarray(parent, np.int64)
-    n_pts = np.array(list(map(len, allc)), np.int64)
+    parent_a = np.concatenate(parent)
+    n_pts = np.fromiter(map(len, allc), np.int64, len(allc))
     outer = parent_a < 0
     keep = np.nonzero(outer & (n_pts >= max(4, int(2.5 * math.sqrt(flt.min_area))))
                       & (n_pts <= 8 * math.sqrt(flt.max_area)))[0]
     if keep.size == 0:
         return Blobs.empty(), allc
-    col = np.asarray(colors, np.int64)[keep]
-    blobs = _measure([allc[i] for i in keep], col, shape, index=keep)
+    col = np.concatenate(colors)[keep]
+    kept = [allc[i] for i in keep.tolist()]
+    if _k.enabled():
+        blobs = _measure_compiled(kept, col, shape, keep, flt, n_pts[keep])
+    else:
+        blobs = _measure(kept, col, shape, index=keep, flt=flt)
     holes = np.nonzero(~outer)[0]
     if holes.size:
         pos = np.full(len(allc), -1, np.int64)
@@ -308,8 +347,17 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         owner = pos[parent_a[holes]]
         sel = owner >= 0
         if np.any(sel):
-            hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0, 0.0)
-                                  for h in holes[sel]])
+            hs = holes[sel]
+            if _k.enabled():
+                hc = [allc[h] for h in hs]
+                nh = n_pts[hs]
+                starts = np.zeros(hs.size, np.int64)
+                np.cumsum(nh[:-1], out=starts[1:])
+                hole_area = np.maximum(_k.polygon_areas(np.concatenate(hc).reshape(-1, 2),
+                                                        starts, nh) - nh / 2.0 + 1.0, 0.0)
+            else:
+                hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0,
+                                          0.0) for h in hs])
             total = np.zeros(keep.size)
             np.add.at(total, owner[sel], hole_area)
             blobs.holes = total / np.maximum(blobs.area, 1.0)
@@ -341,7 +389,9 @@ def filter_blobs(blobs: Blobs, flt: BlobFilter, contours: list[np.ndarray] | Non
         doubt = (blobs.fill < 0.97) | (blobs.ellipse_err > 0.5 * (
             flt.max_ellipse_err + flt.ellipse_err_px / b_poly))
         conv = np.ones(len(blobs))
-        for k in np.flatnonzero(doubt).tolist():
+        known = ~np.isnan(blobs.convexity)      # measured with the shape (compiled path)
+        conv[doubt & known] = blobs.convexity[doubt & known]
+        for k in np.flatnonzero(doubt & ~known).tolist():
             c = contours[int(blobs.contour[k])]
             hull_area = cv2.contourArea(cv2.convexHull(c))
             conv[k] = cv2.contourArea(c) / hull_area if hull_area > 0 else 0.0
@@ -414,6 +464,10 @@ def refine_centers(image_bgr: np.ndarray, blobs: Blobs, index: np.ndarray | None
     """
     idx = np.arange(len(blobs)) if index is None else np.asarray(index, np.int64)
     n = idx.size
+    if _k.enabled() and n:
+        return _k.refine_centers(image_bgr, blobs.x[idx], blobs.y[idx], blobs.a[idx],
+                                 blobs.b[idx], blobs.cov[idx], float(margin_px),
+                                 _WINDOW_SIZES[-1])
     bx, by = blobs.x[idx], blobs.y[idx]
     ba, bb, bcov = blobs.a[idx], blobs.b[idx], blobs.cov[idx]
     out = np.stack([bx, by], axis=1)

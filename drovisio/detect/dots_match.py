@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drovisio.detect import dots_kernels as _k
 from drovisio.layout import MarkerLayout
 
 __all__ = [
@@ -291,6 +292,9 @@ def occluded_dots(model: DotModel, R: np.ndarray, t: np.ndarray,
     Tpb = model.plane_from_brick
     C = -np.einsum("bji,bj->bi", R, t)                      # camera centre, brick frame
     Cp = C @ Tpb[:3, :3].T + Tpb[:3, 3]                      # ... plane frame (B, 3)
+    if _k.enabled():
+        clear = _k.occlusion_clearance(model.occluders_plane, model.P, model.radii, Cp)
+        return clear if clearance else clear < 1.0
     V = model.occluders_plane                                # (T, 3, 3): x, y, height
     h = np.maximum(V[..., 2], 0.0)[None]                     # (1, T, 3)
     ch = Cp[:, 2][:, None, None]                             # (B, 1, 1)
@@ -410,6 +414,20 @@ def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int 
     M = idx.size
     if M < min_dots:
         return Hypotheses.empty(model)
+    if _k.enabled():
+        assign, score, scale, A, origin = _k.hypotheses(
+            geo.q[idx], geo.color[idx], geo.S[idx], geo.Si[idx], geo.semi_major[idx],
+            model.pairs, model.pair_color_match, model.pair_len, model.pair_vec,
+            model.pair_mid, model.pair_ra_half, model.pair_rb_half, model.pair_ia,
+            model.pair_ib, model.P, model.colors, float(model.min_spacing),
+            float(model.reach_per_semi_axis), int(seeds_per_blob), float(ratio_tol),
+            float(match_tol), int(min_dots), float(orientation))
+        if score.size == 0:
+            return Hypotheses.empty(model)
+        sel = np.argsort(-score, kind="stable")
+        assign = assign[sel]
+        assign = np.where(assign >= 0, idx[np.maximum(assign, 0)], -1)
+        return Hypotheses(model, assign, score[sel], scale[sel], A[sel], origin[sel])
     qq, col = geo.q[idx], geo.color[idx]
     S, Si = geo.S[idx], geo.Si[idx]
     reach = geo.semi_major[idx] * model.reach_per_semi_axis
@@ -560,6 +578,16 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
         which = np.concatenate([np.full(h.score.size, k) for k, h in enumerate(hyps)])
         row = np.concatenate([np.arange(h.score.size) for h in hyps])
     order = np.argsort(-scores, kind="stable")
+    if _k.enabled():
+        A = np.ascontiguousarray(A[order])
+        acc, rows_a = _k.assign_greedy(A, int(min_dots), taken)
+        out = []
+        for k, r in zip(acc.tolist(), rows_a):
+            o = int(order[k])
+            h = hyps[int(which[o])]
+            out.append(Candidate(h.model, r[:h.model.n], float(scores[o]),
+                                 float(h.scale[int(row[o])])))
+        return out
     if order.size > 64:     # many rows: merge duplicates first (few rows: the rounds do it)
         with np.errstate(over="ignore"):
             hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from drovisio.detect import dots_kernels as _k
+
 __all__ = [
     "conic_center_offsets",
     "gn_step",
@@ -246,6 +248,8 @@ def refine_poses(X: np.ndarray, q: np.ndarray, w: np.ndarray, R: np.ndarray, t: 
     Returns:
         (R, t, cost) with cost the weighted sum of squared residuals (normalised units²).
     """
+    if _k.enabled():
+        return _k.refine_poses(*_f64(X, q, w, R, t), int(iterations), float(tol))
     R = np.array(R, np.float64)
     t = np.array(t, np.float64)
     lam = np.full(R.shape[0], 1e-6)
@@ -290,6 +294,9 @@ def gn_step(X: np.ndarray, q: np.ndarray, w: np.ndarray, R: np.ndarray, t: np.nd
         (R, t, cost) at the new poses; with ``return_normal`` also the normal matrices JᵀJ
         (B, 6, 6) (for the covariance) and each point's residual distance (B, N).
     """
+    if _k.enabled():
+        R, t, cost, A, resid = _k.gn_step(*_f64(X, q, w, R, t))
+        return (R, t, cost, A, resid) if return_normal else (R, t, cost)
     res, J, _ = _residual_jacobian(X, q, w, R, t)
     Jt = J.transpose(0, 2, 1)
     A = Jt @ J
@@ -298,6 +305,11 @@ def gn_step(X: np.ndarray, q: np.ndarray, w: np.ndarray, R: np.ndarray, t: np.nd
     t = t + delta[:, 3:]
     cost, resid = _cost(X, q, w, R, t)
     return (R, t, cost, A, resid) if return_normal else (R, t, cost)
+
+
+def _f64(*arrays):
+    """C-contiguous float64 copies-if-needed (one compiled specialisation per kernel)."""
+    return tuple(np.ascontiguousarray(a, np.float64) for a in arrays)
 
 
 def _cost(X, q, w, R, t):
