@@ -615,6 +615,9 @@ def part_memory(src, det, args, nframes) -> dict:
             gc.collect()
             xs.append(k)
             samples.append(_rss_kb())
+        if (k + 1) % 2000 == 0:
+            print(f"  memory: {k + 1}/{nframes} frames ({time.time() - t0:.0f} s, RSS "
+                  f"{_rss_kb() / 1024:.1f} MB)", file=sys.stderr, flush=True)
     gc.collect()
     rss_end = _rss_kb()
     xs.append(nframes)

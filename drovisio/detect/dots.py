@@ -21,6 +21,10 @@ The thesis's pipeline, stage by stage (each a small function of its own module):
 
 Entry point: :func:`detect_dots` (what ``drovisio detect --method dots`` calls), or a
 :class:`DotDetector` kept across frames.
+
+The per-frame geometry of stages 4–8 runs in compiled kernels (:mod:`.dots_kernels`, numba)
+when numba is installed; the numpy functions of the stage modules are the reference (tests
+compare the two) and the fallback (``DROVISIO_NUMBA=0``, 32-bit ARM).
 """
 
 from __future__ import annotations
@@ -218,6 +222,7 @@ class DotDetector:
                     specs.append(spec)
                 mapping[name] = index[key]
             mappings.append(mapping)
+        _k.notice_first_compile(log)
         if len(specs) > 8:
             raise LayoutNotSupported(f"the layouts use {len(specs)} distinct dot colours; the "
                                      "dot detector handles up to 8")

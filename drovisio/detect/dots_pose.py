@@ -5,10 +5,10 @@ Everything works in *normalised* image coordinates (x/z, y/z of the OpenCV camer
 the measured dot centres are undistorted once, after which the camera is an ideal pinhole
 and a dot — a circle on a plane — projects to an exact ellipse.
 
-The detector (:mod:`.dots`) takes each brick's two planar solutions from OpenCV's IPPE (or
-SQPnP and :func:`mirror_pose` where three of four dots are in a line), then uses, for all
-bricks and both solutions in one batch (numpy, so that the cost grows with the number of
-dots, not with a Python loop per brick):
+The detector (:mod:`.dots`) takes each brick's two planar solutions from IPPE (OpenCV's, or
+the compiled one of :mod:`.dots_kernels`; SQPnP and :func:`mirror_pose` where three of four
+dots are in a line), then uses, for all bricks and both solutions in one batch (numpy here;
+the same arithmetic compiled in :mod:`.dots_kernels` when numba is there):
 
 * :func:`refine_poses`: Levenberg–Marquardt on the reprojection error (after a dot was
   dropped or added);
@@ -336,6 +336,8 @@ def conic_center_offsets(X: np.ndarray, normals: np.ndarray, radii: np.ndarray,
     a conic whose centre is the pole of the line at infinity:
     c ∝ r²(e_z − n_c n_c,z) − Y Y_z, with Y = R·C + t and n_c = R·n (camera frame).
     """
+    if _k.enabled():
+        return _k.conic_center_offsets(*_f64(X, normals, radii, R, t))
     Y = np.einsum("bij,bnj->bni", R, X) + t[:, None, :]
     nc = np.einsum("bij,bnj->bni", R, normals)
     r2 = (radii ** 2)[..., None]

@@ -184,6 +184,12 @@ def test_pose_kernels(drick, cam):
     ga, gb = _both(lambda: dots_pose.gn_step(X, q, w, Ra, ta, return_normal=True))
     for u, v in zip(ga, gb):
         np.testing.assert_allclose(u, v, rtol=1e-7, atol=1e-12)
+    # perspective shift of the ellipse centres
+    nrm = np.repeat(m.normals[None], B, axis=0)
+    rad = np.repeat(m.radii[None], B, axis=0)
+    oa, ob = _both(lambda: dots_pose.conic_center_offsets(X, nrm, rad, R, t))
+    np.testing.assert_allclose(oa, ob, rtol=1e-9, atol=1e-15)
+    assert np.abs(oa).max() > 1e-6
     # occlusion by the drick's pyramids
     oa, ob = _both(lambda: occluded_dots(m, R, t, clearance=True))
     np.testing.assert_allclose(oa, ob, atol=1e-9)
