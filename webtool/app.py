@@ -41,6 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router, prefix="/api")
     app.include_router(calibration.router, prefix="/api/calibration")
     app.include_router(designer.router, prefix="/api/designer")
+    app.include_router(designer.viewer_router)  # /designer/3d: the 3D view, proxied
     app.include_router(live_routes.router)  # /api/live/..., /live/3d (issue #7)
     app.include_router(replay_routes.router)  # /api/replay/..., /replay/3d (issue #8)
     app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")

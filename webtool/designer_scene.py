@@ -2,8 +2,9 @@
 
 :class:`DesignerSession` owns the :class:`drovisio.designer.model.DesignDocument`, a lock, the
 change notifications the page long-polls, and, once the page asks for it, a
-:class:`DesignerViewer`: a viser server of its own (own port, started lazily, stopped with the
-app) that shows the mesh, the brick axes and the markers (codes with their real pattern as a
+:class:`DesignerViewer`: a viser server of its own (own port on 127.0.0.1, started lazily,
+stopped with the app; browsers reach it through the app at ``/designer/3d/``, under the
+access token) that shows the mesh, the brick axes and the markers (codes with their real pattern as a
 texture, dots in their colour) and carries a small panel (what a click does, undo/redo, the
 selected marker, the checks).
 
@@ -99,7 +100,8 @@ class DesignerSession:
                 camera = None
         mb = float(getattr(settings, "designer_max_upload_mb", 50.0))
         return cls(layouts_dir=getattr(settings, "designer_layouts_dir", None), camera=camera,
-                   viewer_host=getattr(settings, "host", "127.0.0.1") or "127.0.0.1",
+                   # the app proxies the viewer (/designer/3d), so that the token covers it
+                   viewer_host="127.0.0.1",
                    max_upload_bytes=int(mb * 1024 * 1024))
 
     # ---------------------------------------------------------------- layouts
@@ -368,8 +370,8 @@ class DesignerViewer:
         import viser
 
         self.session = session
-        bind = "0.0.0.0" if host in ("", "0.0.0.0") else host
-        self.server = viser.ViserServer(host=bind, port=0, label="Drovisio marker designer",
+        self.server = viser.ViserServer(host=host or "127.0.0.1", port=0,
+                                        label="Drovisio marker designer",
                                         verbose=False)
         self.port = int(self.server.get_port())
         self._mesh_version = -1

@@ -52,7 +52,7 @@ def test_design_a_drick_in_the_browser(browser, live_server_factory, tmp_path):
         page.wait_for_function("document.querySelector('#viewer').src.startsWith('http')")
         src = page.eval_on_selector("#viewer", "e => e.src")
         viewer = app.state.designer.viewer()
-        assert src == f"http://127.0.0.1:{viewer.port}/"
+        assert src == base + "/designer/3d/"           # through the app, not viser's port
         page.frame_locator("#viewer").locator("canvas").first.wait_for(state="visible")
 
         # upload the mesh through the file input

@@ -273,7 +273,7 @@ def test_viewer_url_click_handler_and_shutdown(tmp_path):
     with TestClient(app, base_url="http://192.168.7.21:8080") as c:
         upload(c)
         v = c.get(f"{API}/viewer").json()
-        assert v["url"] == f"http://192.168.7.21:{v['port']}/"
+        assert v["url"] == "/designer/3d/"
         session = app.state.designer
         viewer = session.viewer()
         mesh_node = viewer.mesh_handle
@@ -339,3 +339,34 @@ def test_page_has_the_panel_and_viewer(client):
     for needle in ('id="viewer"', 'id="upload-input"', 'id="checks"', 'id="marker-list"',
                    'id="save-button"', 'id="dl-pdf"', "/api/designer"):
         assert needle in html
+
+
+def test_viewer_is_proxied_and_needs_full_access(tmp_path):
+    """The designer's viser listens on 127.0.0.1 only, even when the tool serves the network;
+    the page reaches it through the app (/designer/3d), under the token; a view-only link
+    cannot open its socket (the 3D view edits the design)."""
+    import viser
+    from starlette.websockets import WebSocketDisconnect
+
+    from webtool.access import COOKIE_NAME
+
+    full, view = "full-token-abc", "view-token-def"
+    app = create_app(Settings(host="0.0.0.0", token=full, viewer_token=view,
+                              designer_layouts_dir=tmp_path))
+    proto = [f"viser-v{viser.__version__}"]
+    with TestClient(app) as remote:          # client "testclient": not loopback
+        assert remote.get("/designer/3d/").status_code == 401
+        remote.cookies.set(COOKIE_NAME, full)
+        v = remote.get(f"{API}/viewer").json()
+        assert v["url"] == "/designer/3d/" and v["direct_url"] is None
+        server = app.state.designer.viewer().server
+        assert server.get_host() == "127.0.0.1"
+        r = remote.get("/designer/3d/")
+        assert r.status_code == 200 and b"<html" in r.content[:2000].lower()
+        with remote.websocket_connect("/designer/3d", subprotocols=proto) as ws:
+            assert ws.receive().get("bytes")          # viser's first message, relayed
+        remote.cookies.set(COOKIE_NAME, view)
+        with pytest.raises(WebSocketDisconnect) as e, \
+                remote.websocket_connect("/designer/3d", subprotocols=proto) as ws:
+            ws.receive()
+        assert e.value.code == 1008

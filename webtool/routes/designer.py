@@ -3,8 +3,9 @@
 =======  ==============================  ======================================================
 GET      /state[?after=V]                everything the page shows; with ``after``, waits up to
                                          4 s for a version other than V (long poll)
-GET      /viewer                         start the 3D viewer (viser, own port) and give its URL,
-                                         built from the host this request came to
+GET      /viewer                         start the 3D viewer (viser, own port on 127.0.0.1) and
+                                         give its URL: ``/designer/3d/``, served through this
+                                         app (so the access token covers it)
 POST     /mesh?filename=F&units=U        upload a mesh: the request body is the file (STL, OBJ,
                                          PLY, GLB/GLTF, OFF); refused by size before reading
 POST     /open   {example}               ``mesh:drick.stl`` or ``layout:NAME.json``
@@ -34,6 +35,10 @@ POST     /verify                         try the layout on a simulated photo (dr
                                          the detectors' errors and the photo (JPEG data URL)
 =======  ==============================  ======================================================
 
+Outside ``/api/designer`` (``viewer_router``): ``GET /designer/3d/`` is viser's client and
+``WebSocket /designer/3d`` its socket, relayed to the viewer; the socket needs full access
+(the 3D view edits the design), a view-only link gets it closed.
+
 Mutating calls answer the new state. Errors answer ``{"detail": "..."}`` in plain words: 409
 (nothing loaded yet), 413 (upload too big), 422 (bad input or a design problem).
 """
@@ -44,9 +49,10 @@ import threading
 from contextlib import asynccontextmanager
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request
+from fastapi import APIRouter, Body, Depends, HTTPException, Query, Request, WebSocket
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, Response
+from starlette.requests import HTTPConnection
 
 from drovisio.designer.model import DesignError
 from webtool.designer_scene import DesignerSession, viewer_url
@@ -65,7 +71,7 @@ async def _lifespan(app):
 router = APIRouter(tags=["designer"], lifespan=_lifespan)
 
 
-def get_session(request: Request) -> DesignerSession:
+def get_session(request: HTTPConnection) -> DesignerSession:
     """The app's designer session (made on first use)."""
     app = request.app
     s = getattr(app.state, "designer", None)
@@ -132,8 +138,42 @@ def viewer(request: Request, session: Session) -> JSONResponse:
         raise _fail(e, 503) from None
     except OSError as e:
         raise HTTPException(503, f"The 3D view could not start ({e}). Reload the page.") from None
-    return JSONResponse({"url": viewer_url(request.url.hostname, v.port), "port": v.port},
+    from webtool.settings import is_loopback
+
+    # a browser on this machine may also open viser's own port (debugging); others may not
+    direct = viewer_url(request.url.hostname, v.port, request.url.scheme) \
+        if request.client and is_loopback(request.client.host) else None
+    return JSONResponse({"url": "/designer/3d/", "direct_url": direct, "port": v.port},
                         headers=NO_STORE)
+
+
+# ------------------------------------------------------------------------------ 3D proxy
+
+viewer_router = APIRouter(tags=["designer"])
+
+
+@viewer_router.get("/designer/3d/{path:path}")
+async def viewer_client(request: Request, path: str = "") -> Response:
+    from webtool.viser_proxy import client_response
+
+    return await client_response(request, path)
+
+
+@viewer_router.websocket("/designer/3d")
+async def viewer_socket(ws: WebSocket) -> None:
+    from webtool.access import access_level
+    from webtool.viser_proxy import proxy_socket
+
+    if access_level(ws) != "full":
+        await ws.close(code=1008)      # view-only links cannot edit the design
+        return
+    session = get_session(ws)
+    try:
+        v = await run_in_threadpool(session.viewer)
+    except (DesignError, OSError):
+        await ws.close(code=1011)
+        return
+    await proxy_socket(ws, v.port)
 
 
 # ------------------------------------------------------------------------------ mesh
