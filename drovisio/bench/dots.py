@@ -13,6 +13,8 @@ Measured on the renderer's scenes (:mod:`drovisio.scenes`), with exact truth. Pa
 * ``timing``    per-frame time against a minimal pass (cvtColor to HSV + one cv2.inRange per
   colour) on the same frames, with 1, 5 and 20 bricks in view; medians.
 * ``memory``    resident memory over many frames (a loop over cached frames).
+* ``kernels``   each compiled kernel against what it replaces (the numpy reference, or
+  OpenCV: IPPE, undistortion, projection) on the inputs of the 20-brick timing frames.
 
 Definitions (printed with the table):
 
@@ -52,7 +54,7 @@ EXAMPLE = """example:
   drovisio bench dots --json report.json   # also write the figures as JSON
 """
 
-PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory")
+PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory", "kernels")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -523,7 +525,10 @@ def part_timing(src, det, args, n, repeats) -> dict:
     counts = (1, 5, 20)
     frames = {nb: _timing_frames(src, args, nb, n) for nb in counts}
     wall, cpu = time.perf_counter, time.process_time
-    samples = {(nb, k): ([], [], [], []) for nb in counts for k in range(n)}
+    from drovisio.detect import dots_kernels
+
+    compiled = dots_kernels.enabled()
+    samples = {(nb, k): ([], [], [], [], []) for nb in counts for k in range(n)}
     found = {nb: [0] * n for nb in counts}
     for fr_list in frames.values():
         for fr in fr_list:
@@ -533,7 +538,7 @@ def part_timing(src, det, args, n, repeats) -> dict:
     for _ in range(repeats):
         for nb in counts:
             for k, fr in enumerate(frames[nb]):
-                a, b, ca, cb = samples[(nb, k)]
+                a, b, ca, cb, _ = samples[(nb, k)]
                 t, c = wall(), cpu()
                 minimal(fr.image)
                 a.append(wall() - t)
@@ -543,10 +548,21 @@ def part_timing(src, det, args, n, repeats) -> dict:
                 b.append(wall() - t)
                 cb.append(cpu() - c)
                 found[nb][k] = len(poses)
-    from drovisio.detect import dots_kernels
-
+    if compiled:
+        # the same detector on its numpy path, for comparison (a pass of its own: interleaved,
+        # its larger working set would evict the compiled path's data between calls)
+        dots_kernels.set_enabled(False)
+        try:
+            for _ in range(max(3, repeats // 4)):
+                for nb in counts:
+                    for k, fr in enumerate(frames[nb]):
+                        t = wall()
+                        det.detect(fr.image, gravity=fr.gravity)
+                        samples[(nb, k)][4].append(wall() - t)
+        finally:
+            dots_kernels.set_enabled(True)
     out = {"threads": cv2.getNumThreads(), "repeats": repeats, "frames_per_count": n,
-           "compiled_kernels": dots_kernels.enabled()}
+           "compiled_kernels": compiled}
     base = None
     for nb in counts:
         t_min, t_det, c_min, c_det = ([float(np.median(samples[(nb, k)][i])) for k in range(n)]
@@ -561,12 +577,122 @@ def part_timing(src, det, args, n, repeats) -> dict:
                "detect_cpu_ms": 1e3 * float(np.median(c_det)),
                "ratio_cpu": float(np.median(c_det) / max(np.median(c_min), 1e-9)),
                "loadavg": os.getloadavg()[0]}
+        if compiled:
+            t_npy = [float(np.median(samples[(nb, k)][4])) for k in range(n)]
+            row["numpy_path_ms"] = 1e3 * float(np.median(t_npy))
+            row["numpy_path_vs_compiled"] = float(np.median(np.asarray(t_npy)
+                                                            / np.asarray(t_det)))
         if base is None:
             base = row
         row["vs_1_brick"] = row["detect_ms"] / base["detect_ms"]
         row["vs_1_brick_cpu"] = row["detect_cpu_ms"] / base["detect_cpu_ms"]
         out[f"{nb}_bricks"] = row
     return out
+
+
+def part_kernels(src, det, args, n, repeats) -> dict:
+    """Median time of each compiled kernel and of what it replaces, on the same inputs (the
+    stages of the 20-brick timing frames), in this process."""
+    import cv2
+
+    from drovisio.detect import dots_kernels as K
+    from drovisio.detect import dots_pose
+    from drovisio.detect.dots_blobs import refine_centers
+    from drovisio.detect.dots_color import ClaheMap
+    from drovisio.detect.dots_match import BlobGeometry, generate_hypotheses
+
+    if not K.enabled():
+        return {"skipped": "numba is not installed (or DROVISIO_NUMBA=0)"}
+    cfg = det.config
+    m = det.models[0]
+    T = m.plane_from_brick
+    cases: dict[str, list[tuple]] = {}
+
+    def both(name, fast, ref):
+        cases.setdefault(name, []).append((fast, ref))
+
+    for fr in _timing_frames(src, args, 20, n):
+        img = fr.image
+        blobs, hsv = det.blobs(img)
+        poses = det.detect(img, gravity=fr.gravity)
+        if not len(blobs) or not poses:
+            continue
+        idx = np.arange(len(blobs))
+
+        def off(fn):
+            def run():
+                K.set_enabled(False)
+                try:
+                    return fn()
+                finally:
+                    K.set_enabled(True)
+            return run
+
+        both("sub-pixel centres (all blobs)", lambda: refine_centers(img, blobs, idx),
+             off(lambda: refine_centers(img, blobs, idx)))
+        v = hsv[:, :, 2]
+        x, y = np.ascontiguousarray(blobs.x), np.ascontiguousarray(blobs.y)
+        raw = v[np.clip(np.rint(y).astype(int), 0, v.shape[0] - 1),
+                np.clip(np.rint(x).astype(int), 0, v.shape[1] - 1)].astype(float)
+        both("CLAHE at the blobs", lambda: K.clahe_at(hsv, x, y, 8, 8, cfg.clahe_stride,
+                                                      cfg.clahe_clip),
+             lambda: ClaheMap(v, cfg.clahe_clip, cfg.clahe_tiles, cfg.clahe_stride)(x, y, raw))
+        q, cov = det._blob_geometry(blobs)
+        geo = BlobGeometry.build(q, cov, blobs.color, ~blobs.border)
+        hyp = lambda: generate_hypotheses(m, geo, cfg.seeds_per_blob, cfg.ratio_tol,  # noqa
+                                          cfg.match_tol, cfg.min_dots)
+        both("matching hypotheses", hyp, off(hyp))
+        # poses: the bricks found, their dots' normalised image points
+        B = len(poses)
+        qs = np.zeros((B, m.n, 2))
+        w = np.zeros((B, m.n))
+        for b, p in enumerate(poses):
+            qs[b, p.markers] = det._normalize(p.image_points)
+            w[b, p.markers] = 1.0
+        Pm = np.repeat(m.P[None], B, axis=0)
+        Rpb, tpb = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+        both("IPPE, both solutions (vs cv2.solvePnPGeneric per brick)",
+             lambda: K.ippe(Pm, qs, w, Rpb, tpb),
+             lambda: [cv2.solvePnPGeneric(m.X[w[b] > 0], qs[b][w[b] > 0], np.eye(3), None,
+                                          flags=cv2.SOLVEPNP_IPPE) for b in range(B)])
+        R0 = np.array([cv2.Rodrigues(p.rvec)[0] for p in poses])
+        t0 = np.array([p.tvec for p in poses])
+        X = np.repeat(m.X[None], B, axis=0)
+        lm = lambda: dots_pose.refine_poses(X, qs, w, R0, t0 + 0.003, 4)  # noqa: E731
+        both("Levenberg-Marquardt, all bricks", lm, off(lm))
+        px = np.stack([blobs.x, blobs.y], axis=1)
+        Kc, dist = det.camera.K, det.camera.dist
+        if det._dist12 is not None:
+            args12 = (Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2], det._dist12)
+            both("undistortion + local Jacobian (vs cv2.undistortPoints, 5-point stencil)",
+                 lambda: K.undistort(px, *args12),
+                 lambda: cv2.undistortPoints((px[None] + _STENCIL5[:, None]).reshape(-1, 1, 2),
+                                             Kc, dist, None, None, None,
+                                             (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+                                              20, 1e-12)))
+    out = {}
+    for name, pairs in cases.items():
+        tf, tr = [], []
+        for fast, ref in pairs:
+            fast()
+            ref()
+            a, b = [], []
+            for _ in range(repeats):
+                t = time.perf_counter()
+                fast()
+                a.append(time.perf_counter() - t)
+                t = time.perf_counter()
+                ref()
+                b.append(time.perf_counter() - t)
+            tf.append(float(np.median(a)))
+            tr.append(float(np.median(b)))
+        out[name] = {"compiled_us": 1e6 * float(np.median(tf)),
+                     "reference_us": 1e6 * float(np.median(tr)),
+                     "speedup": float(np.median(np.asarray(tr) / np.asarray(tf)))}
+    return out
+
+
+_STENCIL5 = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
 
 def _rss_kb() -> int:
@@ -639,6 +765,8 @@ def part_memory(src, det, args, nframes) -> dict:
 
 # ================================================================================= report
 def _fmt(v, nd=2):
+    if v is None:
+        return "–"
     if isinstance(v, float):
         return "nan" if math.isnan(v) else f"{v:.{nd}f}"
     return str(v)
@@ -694,7 +822,7 @@ def _print_report(rep: dict) -> None:
           f"HSV + one cv2.inRange per colour; OpenCV threads {tim['threads']}; {kern}; wall "
           f"clock, then process CPU time)")
         w(f"{'':12}{'in view':>8}{'found':>7}{'minimal ms':>12}{'detect ms':>11}{'ratio':>7}"
-          f"{'vs 1 brick':>11}{'cpu ratio':>10}{'cpu vs 1':>9}{'load':>6}")
+          f"{'vs 1 brick':>11}{'cpu ratio':>10}{'cpu vs 1':>9}{'load':>6}{'numpy ms':>10}")
         for k in ("1_bricks", "5_bricks", "20_bricks"):
             r = tim.get(k)
             if r:
@@ -702,7 +830,17 @@ def _print_report(rep: dict) -> None:
                   f"{_fmt(r['bricks_found_median'], 0):>7}{_fmt(r['minimal_ms'], 3):>12}"
                   f"{_fmt(r['detect_ms'], 3):>11}{_fmt(r['ratio']):>7}"
                   f"{_fmt(r['vs_1_brick']):>11}{_fmt(r['ratio_cpu']):>10}"
-                  f"{_fmt(r['vs_1_brick_cpu']):>9}{_fmt(r['loadavg'], 1):>6}")
+                  f"{_fmt(r['vs_1_brick_cpu']):>9}{_fmt(r['loadavg'], 1):>6}"
+                  f"{_fmt(r.get('numpy_path_ms'), 3):>10}")
+    ker = rep.get("kernels")
+    if ker:
+        w("\nCompiled kernels vs what they replace (20-brick frames, medians, µs)")
+        if "skipped" in ker:
+            w(f"  skipped: {ker['skipped']}")
+        for name, r in ker.items():
+            if isinstance(r, dict):
+                w(f"  {name:74}{r['compiled_us']:9.1f}{r['reference_us']:10.1f}"
+                  f"  ×{r['speedup']:.1f}")
     mem = rep.get("memory")
     if mem:
         w(f"\nMemory: {mem['frames']} frames ({mem['seconds']:.0f} s), RSS after "
@@ -755,6 +893,8 @@ def main(argv: list[str]) -> int:
         rep["timing"] = part_timing(src, det, args, n_tim, reps)
     if "memory" in parts:
         rep["memory"] = part_memory(src, det, args, n_mem)
+    if "kernels" in parts:
+        rep["kernels"] = part_kernels(src, det, args, n_tim, max(10, reps // 2))
     rep["seconds"] = time.time() - t0
     _print_report(rep)
     if args.json:
