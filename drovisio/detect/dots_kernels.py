@@ -10,7 +10,8 @@ file, so only the first run on a machine compiles, ~10 s).
 
 The detector uses them when numba is importable (it is a dependency on x86-64 and 64-bit ARM;
 32-bit ARM boards such as the Odroid XU4 have no numba wheels and run the numpy versions) and
-``DROVISIO_NUMBA`` is not ``0``. Tests check every kernel against its numpy reference.
+``DROVISIO_NUMBA`` is not ``0`` (:mod:`drovisio._numba`). Tests check every kernel against
+its numpy reference.
 
 Conventions are those of the numpy versions: pixel (0, 0) is the centre of the top-left
 pixel; normalised image coordinates are x/z, y/z of the OpenCV camera frame; poses are
@@ -20,36 +21,13 @@ pixel; normalised image coordinates are x/z, y/z of the OpenCV camera frame; pos
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "enabled"]
+from drovisio._numba import AVAILABLE, enabled, missing_cache, set_enabled
+from drovisio._numba import jit as _jit
 
-try:  # pragma: no cover - depends on the platform
-    if os.environ.get("DROVISIO_NUMBA", "1") == "0":
-        raise ImportError("disabled by DROVISIO_NUMBA=0")
-    import numba as _numba
-
-    def _jit(fn):
-        return _numba.njit(cache=True, nogil=True)(fn)
-
-    AVAILABLE = True
-except ImportError:  # pragma: no cover
-    _numba = None
-    AVAILABLE = False
-
-    def _jit(fn):
-        return fn
-
-
-_FORCE_OFF = False
-
-
-def enabled() -> bool:
-    """Whether the detector uses the compiled kernels (numba importable and not disabled)."""
-    return AVAILABLE and not _FORCE_OFF
-
+__all__ = ["AVAILABLE", "enabled", "notice_first_compile", "set_enabled"]
 
 _NOTICED = False
 
@@ -61,21 +39,10 @@ def notice_first_compile(log) -> None:
     if _NOTICED or not enabled():
         return
     _NOTICED = True
-    try:
-        missing = [name for name, obj in globals().items()
-                   if not name.startswith("_") and hasattr(obj, "_cache") and not os.path.exists(
-                       obj._cache._cache_file._index_path)]
-    except Exception:  # noqa: BLE001 - numba internals changed: say nothing
-        return
+    missing = missing_cache(globals())
     if missing:
         log.warning("first use of the colour-dot detector on this machine: compiling its "
                     "kernels (%d functions, ~15-20 s, kept for later runs)", len(missing))
-
-
-def set_enabled(on: bool) -> None:
-    """Switch the kernels off (``False``) or back on, e.g. to compare with the numpy path."""
-    global _FORCE_OFF
-    _FORCE_OFF = not on
 
 
 # ================================================================================ blobs
