@@ -12,9 +12,12 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import socket
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -28,6 +31,12 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
+
+# The web tool keeps calibration sessions and the calibration in use under $XDG_DATA_HOME:
+# tests get a folder of their own, so that neither the user's data nor a previous run's
+# changes what a test sees.
+os.environ["XDG_DATA_HOME"] = _DATA_HOME = tempfile.mkdtemp(prefix="drovisio-test-data-")
+atexit.register(shutil.rmtree, _DATA_HOME, ignore_errors=True)
 
 # DROVISIO_CHROMIUM overrides the path (other distributions); the default is Debian's.
 CHROMIUM = Path(os.environ.get("DROVISIO_CHROMIUM", "/usr/bin/chromium"))

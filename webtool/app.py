@@ -24,6 +24,12 @@ def drovisio_version() -> str:
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings if settings is not None else Settings()
+    if settings.camera is None:
+        # the calibration chosen on the calibration page ("Use this calibration") lasts
+        # across restarts; a --camera given to `drovisio serve` takes precedence
+        from webtool.calibration_service import camera_in_use
+
+        settings.camera = camera_in_use(settings)
     app = FastAPI(
         title="Drovisio web tool",
         version=drovisio_version(),

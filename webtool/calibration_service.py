@@ -63,6 +63,7 @@ __all__ = [
     "ServiceError",
     "atomic_write_bytes",
     "decode_image",
+    "camera_in_use",
     "default_calibration_dir",
 ]
 
@@ -86,6 +87,26 @@ class ServiceError(Exception):
 def default_calibration_dir() -> Path:
     base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
     return Path(base) / "drovisio" / "calibration"
+
+
+IN_USE_FILE = "in-use.json"
+
+
+def camera_in_use(settings) -> Path | None:
+    """The camera file last chosen with "Use this calibration" (``calibration_dir/in-use.json``),
+    if it still loads; None otherwise (a broken choice is logged and ignored)."""
+    root = Path(settings.calibration_dir) if getattr(settings, "calibration_dir", None) \
+        else default_calibration_dir()
+    f = root / IN_USE_FILE
+    if not f.is_file():
+        return None
+    try:
+        path = Path(json.loads(f.read_text(encoding="utf-8"))["camera_file"])
+        load_camera(path)
+    except Exception as e:  # noqa: BLE001 - any failure: keep the default camera
+        log.warning("calibration in use (%s) not restored: %s", f, e)
+        return None
+    return path
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -1081,6 +1102,10 @@ class CalibrationService:
         with self._lock:
             self.used_camera = str(path)
         self._save()
+        # remembered for the next start of the web tool (webtool.app.create_app)
+        atomic_write_bytes(self.root / IN_USE_FILE, json.dumps(
+            {"camera_file": str(path), "session": self.session_id, "at": time.time()},
+            indent=2).encode())
         return {"camera_file": str(path),
                 "message": f"In use: this server's camera file is now {path}."}
 

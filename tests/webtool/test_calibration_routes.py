@@ -337,6 +337,16 @@ def test_solve_result_downloads_and_use(make_client, tmp_path):
     s = c.get(f"{API}/state").json()
     assert s["in_use"] == {"camera_file": str(used), "this_session": True}
     assert str(used) in c.get("/").text  # the start page shows the camera now in use
+    # a restart of the web tool keeps it; a camera given on the command line wins; a
+    # choice whose file is gone is ignored
+    again = create_app(Settings(calibration_dir=tmp_path / "cal"))
+    assert again.state.settings.camera == used
+    given = tmp_path / "given.yaml"
+    given.write_bytes(used.read_bytes())
+    assert create_app(Settings(calibration_dir=tmp_path / "cal", camera=given)
+                      ).state.settings.camera == given
+    used.unlink()
+    assert create_app(Settings(calibration_dir=tmp_path / "cal")).state.settings.camera is None
 
 
 def test_resume_after_restart_and_recover_orphans(make_client, tmp_path):
