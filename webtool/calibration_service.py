@@ -286,6 +286,13 @@ class CaptureSource:
         self.label = f"camera {spec}"
         self._cap = None
         self._is_file = Path(spec).is_file()
+        s = spec.strip()
+        # a V4L2 device is shared with the live view (drovisio.sources.SharedCamera): the
+        # device can be opened once only
+        self._device = int(s) if s.isdigit() else int(s[len("/dev/video"):]) \
+            if s.startswith("/dev/video") and s[len("/dev/video"):].isdigit() else None
+        self._shared = None
+        self._seq = 0
 
     def _open(self) -> bool:
         target: int | str = int(self.spec) if self.spec.strip().isdigit() else self.spec
@@ -301,6 +308,17 @@ class CaptureSource:
         return True
 
     def read(self) -> np.ndarray | None:
+        if self._device is not None:
+            from drovisio.sources import SharedCamera
+
+            if self._shared is None:
+                self._shared, self._seq = SharedCamera.acquire(self._device), 0
+            got = self._shared.next(self._seq, timeout=2.0)
+            if got is None:
+                self.close()
+                return None
+            img, self._seq, _ = got
+            return img
         if self._cap is None and not self._open():
             return None
         ok, frame = self._cap.read()
@@ -314,6 +332,9 @@ class CaptureSource:
         return frame
 
     def close(self) -> None:
+        if self._shared is not None:
+            shared, self._shared = self._shared, None
+            shared.release()
         if self._cap is not None:
             self._cap.release()
             self._cap = None

@@ -82,3 +82,75 @@ def test_missing_camera_is_lost_and_retried_not_raised():
     st = src.status()
     src.stop()
     assert st.state == "lost" and st.error and st.frames == 0
+
+
+class _FakeV4L2:
+    """A fake camera device: numbered frames at ~200 fps; ``unplugged`` makes reads fail and
+    opening impossible; counts the open devices (a real one can be open once only)."""
+
+    open_now = 0
+    opened = 0
+    unplugged = False
+
+    def __init__(self, index, *args):
+        self.ok = not _FakeV4L2.unplugged and _FakeV4L2.open_now == 0
+        if self.ok:
+            _FakeV4L2.open_now += 1
+            _FakeV4L2.opened += 1
+        self.n = 0
+
+    def isOpened(self):  # noqa: N802 - cv2's name
+        return self.ok
+
+    def read(self):
+        time.sleep(0.005)
+        if _FakeV4L2.unplugged:
+            return False, None
+        self.n += 1
+        return True, np.full((48, 64, 3), self.n % 256, np.uint8)
+
+    def release(self):
+        if self.ok:
+            _FakeV4L2.open_now -= 1
+            self.ok = False
+
+
+def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch):
+    """Two users of camera 0 in one process (the live pipeline's reader and the calibration
+    page's source): the device is opened once, both get fresh frames, an unplug reaches both
+    and they recover; the device closes when the last user goes."""
+    from drovisio.sources import SharedCamera
+    from webtool.calibration_service import CaptureSource
+
+    monkeypatch.setattr(SharedCamera, "opener", staticmethod(_FakeV4L2))
+    monkeypatch.setattr(_FakeV4L2, "open_now", 0)
+    monkeypatch.setattr(_FakeV4L2, "opened", 0)
+    monkeypatch.setattr(_FakeV4L2, "unplugged", False)
+    live = FrameSource(reader_for("/dev/video0"), backoff=(0.02, 0.05)).start()
+    calib = CaptureSource("0")
+    try:
+        seen = [calib.read() for _ in range(5)]
+        assert all(f is not None and f.shape == (48, 64, 3) for f in seen)
+        assert len({int(f[0, 0, 0]) for f in seen}) == 5           # a new frame each read
+        fr = live.get(timeout=2.0)
+        assert fr is not None and live.status().state == "live"
+        assert _FakeV4L2.open_now == 1 and _FakeV4L2.opened == 1    # one open device
+        # unplugged: both see the loss, nothing raises; plugged back: both recover
+        _FakeV4L2.unplugged = True
+        deadline = time.monotonic() + 3
+        while live.status().state != "lost" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert live.status().state == "lost" and calib.read() is None
+        _FakeV4L2.unplugged = False
+        deadline = time.monotonic() + 5
+        while live.status().state != "live" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert live.status().state == "live"
+        assert calib.read() is not None and _FakeV4L2.open_now == 1
+    finally:
+        live.stop()
+        calib.close()
+    deadline = time.monotonic() + 3
+    while _FakeV4L2.open_now and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert _FakeV4L2.open_now == 0 and not SharedCamera._registry
