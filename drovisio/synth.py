@@ -26,7 +26,8 @@ from drovisio.camera import Camera
 
 __all__ = [
     "Board", "BrickInstance", "Effects", "Ground", "Prop", "RenderResult", "Scene",
-    "BrickTruth", "look_at", "camera_over", "render", "render_chessboard", "transform",
+    "BrickTruth", "look_at", "camera_over", "render", "render_chessboard", "render_charuco",
+    "transform",
     "rvec_tvec", "rot_z", "ground_texture", "brick_mesh_for", "apply_effects",
 ]
 
@@ -863,3 +864,54 @@ def render_chessboard(camera: Camera, camera_from_board: np.ndarray, cols: int =
     img = apply_effects(canvas.resolve(), effects or Effects())
     obj = board.object_points()
     return img, camera.project_from(obj, camera_from_board), obj
+
+
+def render_charuco(camera: Camera, camera_from_board: np.ndarray, charuco, square: float,
+                   effects: Effects | None = None, ss: int = 3, px_per_square: int = 48
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render a ChArUco board (printed on a large white sheet) for calibration.
+
+    The board's own image (``charuco.generateImage``, ``px_per_square`` pixels a square) is
+    mapped onto the board plane and sampled through the camera model, distortion included,
+    ``ss``×``ss`` rays a pixel.
+
+    Args:
+        camera: The camera.
+        camera_from_board: 4×4 pose of the board frame: OpenCV's (origin at the first inner
+            chessboard corner, x along a row, y down the board, z into the board).
+        charuco: A ``cv2.aruco.CharucoBoard``.
+        square: Square side, metres.
+        effects: Image degradations.
+        ss: Samples per pixel per axis.
+        px_per_square: Resolution of the board's image.
+
+    Returns:
+        (image BGR uint8, true inner corners (N, 2) in distorted pixels in ChArUco id order,
+        object points (N, 3) in metres).
+    """
+    cols, rows = charuco.getChessboardSize()          # squares
+    img = charuco.generateImage((cols * px_per_square, rows * px_per_square), marginSize=0)
+    tex = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR).astype(np.float32) * (
+        (PAPER_WHITE[0] - INK_BLACK[0]) / 255.0) + INK_BLACK[0]
+    canvas = _Canvas(camera, ss, SKY)
+
+    def sample(u: np.ndarray, v: np.ndarray):
+        # board metres (u, −v in the flipped plane) → image pixels; white sheet around it
+        mx = ((u / square + 1.0) * px_per_square - 0.5).astype(np.float32)
+        my = ((-v / square + 1.0) * px_per_square - 0.5).astype(np.float32)
+        width = 2048
+        n = mx.size
+        rows_ = -(-n // width)
+        pad = rows_ * width - n
+        out = cv2.remap(tex, np.pad(mx, (0, pad)).reshape(rows_, width),
+                        np.pad(my, (0, pad)).reshape(rows_, width), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=PAPER_WHITE)
+        return out.reshape(-1, 3)[:n], None
+
+    # the plane drawn faces the camera: the board frame turned half about its x axis
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    canvas.draw_world_plane_full(np.asarray(camera_from_board, float) @ flip, sample, 1.0)
+    out = apply_effects(canvas.resolve(), effects or Effects())
+    obj = np.asarray(charuco.getChessboardCorners(), np.float64).reshape(-1, 3) - [square,
+                                                                                   square, 0]
+    return out, camera.project_from(obj, camera_from_board), obj

@@ -294,7 +294,16 @@ def detect(image: np.ndarray, board: BoardSpec, window: int | None = None,
     side = min_square_px(corners, ids, board)
     if not np.isfinite(side):
         return None
-    win = refine_window(side) if window is None else int(window)
+    if window is not None:
+        win = int(window)
+    elif board.kind == "charuco":
+        # the window must stay in the white margin between the corner and the markers of the
+        # two white squares: their edges pull the corner (measured on renders: RMS 0.20 px
+        # with the chessboard's window, 0.07 px inside the margin)
+        margin = (1.0 - board.marker_ratio) / 2.0 * side
+        win = int(np.clip(min(refine_window(side), round(margin)), WINDOW_MIN, WINDOW_MAX))
+    else:
+        win = refine_window(side)
     refined = cv2.cornerSubPix(gray, corners.reshape(-1, 1, 2).copy(), (win, win), (-1, -1),
                                _SUBPIX_CRITERIA)
     refined = np.asarray(refined, np.float64).reshape(-1, 2)
