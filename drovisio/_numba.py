@@ -20,8 +20,12 @@ try:  # pragma: no cover - depends on the platform
     import numba as _numba
 
     def jit(fn):
-        """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk)."""
-        return _numba.njit(cache=True, nogil=True)(fn)
+        """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk; where
+        no cache folder is writable, compiled again in each process)."""
+        try:
+            return _numba.njit(cache=True, nogil=True)(fn)
+        except RuntimeError:  # "no locator available": read-only install, no writable home
+            return _numba.njit(nogil=True)(fn)
 
     AVAILABLE = True
 except ImportError:  # pragma: no cover
