@@ -538,6 +538,22 @@ def hypotheses(qq, col, S, Si, semi_major, pairs, pcm, pair_len, pair_vec, pair_
         reach = semi_major[i] * reach_per_semi_axis
         for k in range(K):
             near[i, k] = bestd[k] <= reach * reach
+    # each blob's candidates for the other dots (itself and its near blobs), by colour, in
+    # the order of distance (the seed first)
+    n_col = pcm.shape[0]
+    by_col = np.empty((M, n_col, K + 1), np.int64)
+    n_by = np.zeros((M, n_col), np.int64)
+    for i in range(M):
+        for c in range(K + 1):
+            if c == 0:
+                cb = i
+            else:
+                if not near[i, c - 1]:
+                    continue
+                cb = order[i, c - 1]
+            cc = col[cb]
+            by_col[i, cc, n_by[i, cc]] = cb
+            n_by[i, cc] += 1
     ks = min(seeds_per_blob, K)
     keys = np.empty(M * ks, np.int64)
     nk = 0
@@ -647,15 +663,12 @@ def hypotheses(qq, col, S, Si, semi_major, pairs, pcm, pair_len, pair_vec, pair_
                 py = o1 + A10 * P[d, 0] + A11 * P[d, 1]
                 best = -1
                 bd = np.inf
-                for c in range(K + 1):
-                    if c == 0:
-                        cb = i
-                    else:
-                        if not near[i, c - 1]:
-                            continue
-                        cb = order[i, c - 1]
-                    if col[cb] != colors[d]:
-                        continue
+                if d == a or d == b:
+                    ncand = 0           # the seed's own dots: no search
+                else:
+                    ncand = n_by[i, colors[d]]
+                for c in range(ncand):
+                    cb = by_col[i, colors[d], c]
                     dx = px - qq[cb, 0]
                     dy = py - qq[cb, 1]
                     dd = dx * dx + dy * dy
