@@ -81,3 +81,37 @@ def test_novelty(sharp_and_blurred):
     assert gate_novel(_shifted(det, 60.0), [det]).ok
     # same place but turned 20° more: new information
     assert gate_novel(_shifted(det, 5.0), [det], tilt_deg=35.0, kept_tilts_deg=[15.0]).ok
+
+
+def test_charuco_sharpness_is_measured_in_the_margin_around_the_markers():
+    """On a ChArUco board the white squares hold markers, so a square side has only 1/8 of a
+    square of white beside it: the edge is fitted as a blurred bar of that width. Sharp
+    views (including one half outside the image) pass; defocus σ = 1.5 px and an 8 px motion
+    streak are rejected."""
+    from drovisio.calibration.board import parse_board
+    from drovisio.camera import Camera
+    from drovisio.synth import Effects, render_charuco, transform
+    from drovisio.synth_samples import calibration_poses as sample_poses
+
+    cam = Camera.drone_webcam()
+    board = parse_board("charuco:9x6:DICT_4X4_50", 0.025)
+    P = sample_poses(cam, 0.025)
+    poses = [P[0], P[3], P[9] @ transform(None, [-0.15, 0.0, 0.0]), P[15]]
+
+    def widths(fx):
+        out = []
+        for T in poses:
+            img, _, _ = render_charuco(cam, T, board.charuco_board(), 0.025, fx, ss=2)
+            det = detect(img, board)
+            if det is not None:
+                g, es = gate_sharpness(img, det, board)
+                out.append((g.ok, es.width_px))
+        return out
+
+    sharp = widths(Effects(blur_sigma_px=0.6, noise_sigma=1.5, seed=2))
+    assert len(sharp) == 4 and all(ok and w < 3.6 for ok, w in sharp), sharp
+    for fx in (Effects(blur_sigma_px=1.5, noise_sigma=1.5, seed=3),
+               Effects(blur_sigma_px=0.6, motion_px=8, motion_angle_deg=30, noise_sigma=1.5,
+                       seed=4)):
+        got = widths(fx)
+        assert got and not any(ok for ok, _ in got), got
