@@ -1024,6 +1024,17 @@ def gn_step(X, q, w, R, t):
 
 
 @_jit
+def _mm3(A, B, out):
+    """out = A·B for 3×3 matrices (no BLAS: numba's needs SciPy)."""
+    for r in range(3):
+        for c in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += A[r, k] * B[k, c]
+            out[r, c] = acc
+
+
+@_jit
 def _homography(P, q, w, H):
     """Plane → image homography of weighted points (normalised DLT with h33 = 1, solved from
     its normal equations); False when degenerate."""
@@ -1111,19 +1122,9 @@ def _homography(P, q, w, H):
     Tqi[0, 2] = cqx
     Tqi[1, 2] = cqy
     Tqi[2, 2] = 1.0
-    tmp = np.zeros((3, 3))
-    for r in range(3):
-        for c in range(3):
-            s = 0.0
-            for k in range(3):
-                s += Hn[r, k] * Tp[k, c]
-            tmp[r, c] = s
-    for r in range(3):
-        for c in range(3):
-            s = 0.0
-            for k in range(3):
-                s += Tqi[r, k] * tmp[k, c]
-            H[r, c] = s
+    tmp = np.empty((3, 3))
+    _mm3(Hn, Tp, tmp)
+    _mm3(Tqi, tmp, H)
     return True
 
 
@@ -1142,11 +1143,8 @@ def _ippe_rotations(v0, v1, J, R1, R2):
         K[1, 2] = v1 / tn
         K[2, 0] = -v0 / tn
         K[2, 1] = -v1 / tn
-        K2 = np.zeros((3, 3))
-        for r in range(3):
-            for c in range(3):
-                for k in range(3):
-                    K2[r, c] += K[r, k] * K[k, c]
+        K2 = np.empty((3, 3))
+        _mm3(K, K, K2)
         for r in range(3):
             for c in range(3):
                 Rv[r, c] += sinth * K[r, c] + (1.0 - costh) * K2[r, c]
@@ -1203,15 +1201,8 @@ def _ippe_rotations(v0, v1, J, R1, R2):
     M2[1, 2] = -c1
     M2[2, 0] = -b0
     M2[2, 1] = -b1
-    for r in range(3):
-        for c in range(3):
-            s1 = 0.0
-            s2 = 0.0
-            for k in range(3):
-                s1 += Rv[r, k] * M1[k, c]
-                s2 += Rv[r, k] * M2[k, c]
-            R1[r, c] = s1
-            R2[r, c] = s2
+    _mm3(Rv, M1, R1)
+    _mm3(Rv, M2, R2)
     return True
 
 
