@@ -41,7 +41,9 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from drovisio import _numba
 from drovisio.camera import Camera
+from drovisio.detect import corners_kernels as _ck
 
 __all__ = ["RefinedCode", "code_bits", "normalized_grid", "refine_codes"]
 
@@ -324,6 +326,68 @@ def _homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return _solve(A, b)
 
 
+def _select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre, scale, g, lo, hi, band,
+                    ns, bits_pad, M):
+    """The fit's samples (numpy reference of :func:`.corners_kernels.select_samples`)."""
+    C = P.shape[0]
+    W_img = grid.shape[1]
+    code = np.repeat(np.arange(C), P)
+    start = np.cumsum(P) - P
+    k = np.arange(code.size) - np.repeat(start, P)
+    big = np.repeat(P_box > K, P)
+    if big.any():
+        rnd = _RANDOM[(np.arange(code.size) * 7919) % _RANDOM.size]
+        k = np.where(big, (rnd * np.repeat(P_box, P)).astype(np.int64), k)
+    bwc = np.repeat(bw, P)
+    px = np.repeat(x0, P) + k % bwc
+    py = np.repeat(y0, P) + k // bwc
+    xy = grid.reshape(-1, 2)[py * W_img + px]
+    inv_scale = np.repeat(1.0 / scale, P)
+    lx = (xy[:, 0] - np.repeat(centre[:, 0], P)) * inv_scale
+    ly = (xy[:, 1] - np.repeat(centre[:, 1], P)) * inv_scale
+    gc = np.repeat(g, P, axis=0)
+    D = gc[:, 6] * lx + gc[:, 7] * ly + 1.0
+    u = (gc[:, 0] * lx + gc[:, 1] * ly + gc[:, 2]) / D
+    v = (gc[:, 3] * lx + gc[:, 4] * ly + gc[:, 5]) / D
+    loc_, hic = np.repeat(lo, P), np.repeat(hi, P)
+    inside = (u >= loc_) & (u <= hic) & (v >= loc_) & (v <= hic)
+    nm1 = np.repeat(ns, P) - 1
+    # near an edge: the cell across the nearest cell boundary (within `band`) differs
+    d = np.repeat(band, P)
+    fu, fv = np.floor(u), np.floor(v)
+    ru, rv = u - fu, v - fv
+    ui = np.minimum(np.maximum(fu.astype(np.int64), 0), nm1)
+    vi = np.minimum(np.maximum(fv.astype(np.int64), 0), nm1)
+    uj = np.minimum(np.maximum(ui - (ru < d) + (ru > 1.0 - d), 0), nm1)
+    vj = np.minimum(np.maximum(vi - (rv < d) + (rv > 1.0 - d), 0), nm1)
+    here = bits_pad[code, vi, ui]
+    near = ((bits_pad[code, vi, uj] != here) | (bits_pad[code, vj, ui] != here)
+            | (bits_pad[code, vj, uj] != here))
+    sel = np.nonzero(inside & near)[0]
+    # at most M per code, chosen at random (a fixed table: deterministic and cheap); `sel`
+    # is sorted by code already
+    sc = code[sel]
+    counts = np.bincount(sc, minlength=C)
+    if counts.max(initial=0) > M:  # shuffle within codes (only then is a subset taken)
+        order = np.argsort(sc + _RANDOM[np.arange(sel.size) % _RANDOM.size], kind="stable")
+        sel, sc = sel[order], sc[order]
+    first = np.cumsum(counts) - counts
+    rank = np.arange(sel.size) - first[sc]
+    keep = rank < M
+    sel, sc, rank = sel[keep], sc[keep], rank[keep]
+    cnt = np.bincount(sc, minlength=C).astype(np.float64)
+    M = max(int(cnt.max()), 1)  # pad to the largest code's count only
+    xs = np.zeros((C, M))
+    ys = np.zeros((C, M))
+    vals = np.zeros((C, M))
+    wts = np.zeros((C, M))
+    xs[sc, rank] = lx[sel]
+    ys[sc, rank] = ly[sel]
+    vals[sc, rank] = gray[py[sel], px[sel]]
+    wts[sc, rank] = 1.0
+    return xs, ys, vals, wts, cnt
+
+
 def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | np.ndarray,
                  bits: list[np.ndarray], iterations: int = 3, coarse_iterations: int = 1,
                  chord_from: int | None = None, max_samples: int = MAX_SAMPLES,
@@ -421,64 +485,18 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     # edges), about 4 candidates per sample kept
     K = 8 * M
     P = np.minimum(P_box, K)
-    code = np.repeat(np.arange(C), P)
-    start = np.cumsum(P) - P
-    k = np.arange(code.size) - np.repeat(start, P)
-    big = np.repeat(P_box > K, P)
-    if big.any():
-        rnd = _RANDOM[(np.arange(code.size) * 7919) % _RANDOM.size]
-        k = np.where(big, (rnd * np.repeat(P_box, P)).astype(np.int64), k)
-    bwc = np.repeat(bw, P)
-    px = np.repeat(x0, P) + k % bwc
-    py = np.repeat(y0, P) + k // bwc
-    xy = grid.reshape(-1, 2)[py * W_img + px]
-    inv_scale = np.repeat(1.0 / scale, P)
-    lx = (xy[:, 0] - np.repeat(centre[:, 0], P)) * inv_scale
-    ly = (xy[:, 1] - np.repeat(centre[:, 1], P)) * inv_scale
-    gc = np.repeat(g, P, axis=0)
-    D = gc[:, 6] * lx + gc[:, 7] * ly + 1.0
-    u = (gc[:, 0] * lx + gc[:, 1] * ly + gc[:, 2]) / D
-    v = (gc[:, 3] * lx + gc[:, 4] * ly + gc[:, 5]) / D
-    loc_, hic = np.repeat(lo, P), np.repeat(hi, P)
-    inside = (u >= loc_) & (u <= hic) & (v >= loc_) & (v <= hic)
-    nm1 = np.repeat(ns, P) - 1
-    # near an edge: the cell across the nearest cell boundary (within `band`) differs
-    d = np.repeat(band, P)
-    fu, fv = np.floor(u), np.floor(v)
-    ru, rv = u - fu, v - fv
-    ui = np.minimum(np.maximum(fu.astype(np.int64), 0), nm1)
-    vi = np.minimum(np.maximum(fv.astype(np.int64), 0), nm1)
-    uj = np.minimum(np.maximum(ui - (ru < d) + (ru > 1.0 - d), 0), nm1)
-    vj = np.minimum(np.maximum(vi - (rv < d) + (rv > 1.0 - d), 0), nm1)
-    here = bits_pad[code, vi, ui]
-    near = ((bits_pad[code, vi, uj] != here) | (bits_pad[code, vj, ui] != here)
-            | (bits_pad[code, vj, uj] != here))
-    sel = np.nonzero(inside & near)[0]
-    # at most M per code, chosen at random (a fixed table: deterministic and cheap); `sel`
-    # is sorted by code already
-    sc = code[sel]
-    counts = np.bincount(sc, minlength=C)
-    if counts.max(initial=0) > M:  # shuffle within codes (only then is a subset taken)
-        order = np.argsort(sc + _RANDOM[np.arange(sel.size) % _RANDOM.size], kind="stable")
-        sel, sc = sel[order], sc[order]
-    first = np.cumsum(counts) - counts
-    rank = np.arange(sel.size) - first[sc]
-    keep = rank < M
-    sel, sc, rank = sel[keep], sc[keep], rank[keep]
-    cnt = np.bincount(sc, minlength=C).astype(np.float64)
+    if _numba.enabled():   # one compiled pass, the same samples
+        xs, ys, vals, wts, cnt = _ck.select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre,
+                                                    scale, g, lo, hi, band, ns, bits_pad,
+                                                    _RANDOM, M)
+    else:
+        xs, ys, vals, wts, cnt = _select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre,
+                                                 scale, g, lo, hi, band, ns, bits_pad, M)
+    cnt = cnt.astype(np.float64)
     few = valid & (cnt < 24)
     for c in np.nonzero(few)[0]:
         reasons[c] = "too few pixels"
     valid &= ~few
-    M = max(int(cnt.max()), 1)  # pad to the largest code's count only
-    xs = np.zeros((C, M))
-    ys = np.zeros((C, M))
-    vals = np.zeros((C, M))
-    wts = np.zeros((C, M))
-    xs[sc, rank] = lx[sel]
-    ys[sc, rank] = ly[sel]
-    vals[sc, rank] = gray[py[sel], px[sel]]
-    wts[sc, rank] = 1.0
     wts[~valid] = 0.0
     # start: levels from the sample distribution, blur ~0.9 px
     srt = np.sort(np.where(wts > 0, vals, np.inf), axis=1)

@@ -209,3 +209,38 @@ def test_other_bricks_and_the_previous_frame_resolve_flips(layouts, cam):
     assert {v.decided_by for v in stream.last_results.values()} == {"previous"}
     for a, b in zip(first, second):
         assert np.allclose(a.tvec, b.tvec, atol=1e-3)
+
+
+def test_compiled_sample_selection_equals_numpy(frames, layouts, cam, monkeypatch):
+    """The code fit's samples chosen by the compiled kernel are exactly numpy's, and so are
+    the refined corners (kernels on and off)."""
+    from drovisio import _numba
+    from drovisio.detect import corners, corners_kernels
+
+    if not _numba.AVAILABLE:
+        pytest.skip("numba is not installed here")
+    calls = []
+    kernel = corners_kernels.select_samples
+
+    def spy(*a):
+        calls.append(a)
+        return kernel(*a)
+
+    monkeypatch.setattr(corners._ck, "select_samples", spy)
+    det = ArucoBrickDetector(cam, layouts)
+    on = [det.detect_codes(np.ascontiguousarray(fr.image[:, :, 1])) for fr in frames[:3]]
+    assert calls and sum(int(a[5].sum()) for a in calls) > 1000      # candidates seen
+    for a in calls:
+        got = kernel(*a)
+        want = corners._select_samples(*a[:16], a[17])
+        for x, y in zip(got, want):
+            assert x.shape == y.shape and np.array_equal(x, y)
+    _numba.set_enabled(False)
+    try:
+        off = [det.detect_codes(np.ascontiguousarray(fr.image[:, :, 1])) for fr in frames[:3]]
+    finally:
+        _numba.set_enabled(True)
+    for a, b in zip(on, off):
+        assert [c.marker_id for c in a] == [c.marker_id for c in b]
+        for ca, cb in zip(a, b):
+            assert np.array_equal(ca.refined.corners_px, cb.refined.corners_px)
