@@ -31,6 +31,7 @@ $(VPY):
 # Reinstalled only when pyproject.toml changes (or the venv is new).
 $(STAMP): pyproject.toml | $(VPY)
 	$(VPY) -m pip install --disable-pip-version-check -q -e '.[test]'
+	$(VPY) -m drovisio.detect.warmup
 	@touch $@
 
 install: $(STAMP)

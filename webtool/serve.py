@@ -52,6 +52,23 @@ def open_lines(settings: Settings) -> list[str]:
     return lines
 
 
+def _warm_up_in_background() -> None:
+    """Load (or, the first time on a machine, compile) the detectors' kernels while the
+    server starts, so that the live view's first frame does not wait for them."""
+    import threading
+
+    def work() -> None:
+        try:
+            from drovisio.detect.warmup import warm_up
+
+            warm_up()
+        except Exception as e:  # noqa: BLE001 - the detectors then compile on first use
+            print(f"  (detector warm-up failed: {e}; they will compile on first use)",
+                  flush=True)
+
+    threading.Thread(target=work, name="detector-warm-up", daemon=True).start()
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -69,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(open_lines(settings)), flush=True)
     print(f"  source: {src}" + ("" if settings.source else "  (no --source given)"), flush=True)
     print("  stop with Ctrl+C", flush=True)
+    _warm_up_in_background()
     uvicorn.run(app, host=settings.host, port=settings.port, log_level="info")
     return 0
 

@@ -490,9 +490,11 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     K = 8 * M
     P = np.minimum(P_box, K)
     if _numba.enabled():   # one compiled pass, the same samples
-        xs, ys, vals, wts, cnt = _ck.select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre,
-                                                    scale, g, lo, hi, band, ns, bits_pad,
-                                                    _RANDOM, M)
+        c_ = np.ascontiguousarray   # one compiled signature whatever the views
+        xs, ys, vals, wts, cnt = _ck.select_samples(
+            grid, c_(gray), c_(x0), c_(y0), c_(bw), c_(P), c_(P_box), K, c_(centre), c_(scale),
+            c_(g), c_(lo, np.float64), c_(hi, np.float64), c_(band, np.float64), c_(ns),
+            c_(bits_pad), _RANDOM, M)
     else:
         xs, ys, vals, wts, cnt = _select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre,
                                                  scale, g, lo, hi, band, ns, bits_pad, M)

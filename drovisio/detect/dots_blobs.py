@@ -465,8 +465,8 @@ def refine_centers(image_bgr: np.ndarray, blobs: Blobs, index: np.ndarray | None
     idx = np.arange(len(blobs)) if index is None else np.asarray(index, np.int64)
     n = idx.size
     if _k.enabled() and n:
-        return _k.refine_centers(image_bgr, blobs.x[idx], blobs.y[idx], blobs.a[idx],
-                                 blobs.b[idx], blobs.cov[idx], float(margin_px),
+        return _k.refine_centers(np.ascontiguousarray(image_bgr), blobs.x[idx], blobs.y[idx],
+                                 blobs.a[idx], blobs.b[idx], blobs.cov[idx], float(margin_px),
                                  _WINDOW_SIZES[-1])
     bx, by = blobs.x[idx], blobs.y[idx]
     ba, bb, bcov = blobs.a[idx], blobs.b[idx], blobs.cov[idx]

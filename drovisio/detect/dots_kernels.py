@@ -6,7 +6,7 @@ numpy is fast for big arrays but a frame of the dot detector is made of many *sm
 few blobs, a few bricks of six dots. There each numpy call costs more in dispatch than in
 arithmetic, and a 640×480 frame needed ~1 300 of them. These kernels do the same arithmetic
 in plain loops, compiled once by numba (``cache=True``: the machine code is kept next to this
-file, so only the first run on a machine compiles, ~10 s).
+file, so only the first run on a machine compiles, ~30 s; :mod:`.warmup` does it ahead).
 
 The detector uses them when numba is importable (it is a dependency on x86-64 and 64-bit ARM;
 32-bit ARM boards such as the Odroid XU4 have no numba wheels and run the numpy versions) and
@@ -34,7 +34,7 @@ _NOTICED = False
 
 def notice_first_compile(log) -> None:
     """Once per process: tell the user when the kernels have no compiled cache yet (the first
-    frame then waits for numba, ~15–20 s once per machine)."""
+    frame then waits for numba, ~30 s once per machine)."""
     global _NOTICED
     if _NOTICED or not enabled():
         return
@@ -42,7 +42,7 @@ def notice_first_compile(log) -> None:
     missing = missing_cache(globals())
     if missing:
         log.warning("first use of the colour-dot detector on this machine: compiling its "
-                    "kernels (%d functions, ~15-20 s, kept for later runs)", len(missing))
+                    "kernels (%d functions, ~30 s, kept for later runs)", len(missing))
 
 
 # ================================================================================ blobs

@@ -285,3 +285,13 @@ def test_environment_switch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**os.environ, "DROVISIO_NUMBA": "0"}, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def test_warm_up_runs_every_kernel_on_a_drawn_frame():
+    """The warm-up frame (drawn, not rendered) holds a dot brick and a code brick that the
+    detectors find, so every kernel is compiled with the argument types of real frames."""
+    from drovisio.detect.warmup import warm_up
+
+    r = warm_up()
+    assert r["compiled"] and r["dots"] == 1 and r["codes"] == 1
+    assert not K.missing_cache(vars(K))
