@@ -218,7 +218,7 @@ def test_compiled_sample_selection_equals_numpy(frames, layouts, cam, monkeypatc
     from drovisio.detect import corners, corners_kernels
 
     if not _numba.AVAILABLE:
-        pytest.skip("numba is not installed here")
+        pytest.skip("numba is not installed here (or DROVISIO_NUMBA=0)")
     calls = []
     kernel = corners_kernels.select_samples
 

@@ -27,7 +27,7 @@ from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import render
 
-pytestmark = pytest.mark.skipif(not K.AVAILABLE, reason="numba is not installed here")
+pytestmark = pytest.mark.skipif(not K.AVAILABLE, reason="numba is not installed here (or DROVISIO_NUMBA=0)")
 
 
 @pytest.fixture(autouse=True)
