@@ -455,24 +455,34 @@ class DotDetector:
             bt.q[rows] = q
 
     def _initial_poses(self, bt: _Batch, rows) -> None:
-        """Both planar solutions of the given bricks (OpenCV's IPPE on the normalised
-        points; SQPnP and its mirrored pose, refined, where three of four dots are in a
+        """Both planar solutions of the given bricks (IPPE on the normalised points: compiled,
+        or OpenCV's; SQPnP and its mirrored pose, refined, where three of four dots are in a
         line). Solution 0 reprojects best."""
         if bt.R is None:
             Bt = bt.blob.shape[0]
             bt.R = np.tile(np.eye(3), (Bt, 2, 1, 1))
             bt.t = np.zeros((Bt, 2, 3))
             bt.cost = np.full((Bt, 2), np.inf)
-        special, warm, done, rvs_all, tvs_all, errs = [], [], [], [], [], []
         bits = (bt.used * _BITS[:bt.blob.shape[1]]).sum(axis=1).tolist()
-        if _k.enabled():
-            self._initial_poses_compiled(bt, rows, bits)
-            return
+        special, warm, fit = [], [], []
         for r in rows:
-            m = bt.models[r]
-            if m.degeneracy(bits[r]) <= 0.02:
+            if bt.models[r].degeneracy(bits[r]) <= 0.02:   # no homography from these dots
                 (warm if np.isfinite(bt.cost[r, 0]) else special).append(r)
-                continue
+            else:
+                fit.append(r)
+        if fit:
+            ippe = self._ippe_compiled if _k.enabled() else self._ippe_opencv
+            special += ippe(bt, fit)
+        if special:
+            self._special_poses(bt, np.array(special))
+        if warm:
+            self._refine_both(bt, np.array(warm))
+        self._prefer_level(bt, rows, bt.gravity)
+
+    def _ippe_opencv(self, bt: _Batch, rows: list[int]) -> list[int]:
+        """Both IPPE solutions of each brick with OpenCV; returns the bricks it failed on."""
+        failed, done, rvs_all, tvs_all, errs = [], [], [], [], []
+        for r in rows:
             sel = bt.blob[r] >= 0
             try:
                 n, rvs, tvs, err = cv2.solvePnPGeneric(bt.X[r][sel], bt.q[r][sel], _EYE3, None,
@@ -480,7 +490,7 @@ class DotDetector:
             except cv2.error:
                 n = 0
             if not n:
-                special.append(r)
+                failed.append(r)
                 continue
             done.append(r)
             j = 1 if n > 1 else 0
@@ -489,37 +499,19 @@ class DotDetector:
             errs.append((float(err[0, 0]), float(err[j, 0]), int(sel.sum())))
         if done:
             d = np.array(done)
-            Rk = so3_exp(np.concatenate(rvs_all, axis=1).T).reshape(-1, 2, 3, 3)
-            bt.R[d] = Rk
+            bt.R[d] = so3_exp(np.concatenate(rvs_all, axis=1).T).reshape(-1, 2, 3, 3)
             bt.t[d] = np.concatenate(tvs_all, axis=1).T.reshape(-1, 2, 3)
             e = np.array(errs)
             bt.cost[d] = e[:, :2] ** 2 * e[:, 2:3]
-        if special:
-            self._special_poses(bt, np.array(special))
-        if warm:
-            self._refine_both(bt, np.array(warm))
-        self._prefer_level(bt, rows, bt.gravity)
+        return failed
 
-    def _initial_poses_compiled(self, bt: _Batch, rows, bits: list[int]) -> None:
-        """:meth:`_initial_poses` with the compiled IPPE (all bricks of a layout at once)."""
-        special, warm, groups = [], [], {}
-        if bt.single is not None:
-            m = bt.single
-            rr = np.asarray(rows, np.int64)
-            degen = np.array([m.degeneracy(bits[r]) <= 0.02 for r in rr.tolist()])
-            if degen.any():
-                fin = np.isfinite(bt.cost[rr, 0])
-                warm = rr[degen & fin].tolist()
-                special = rr[degen & ~fin].tolist()
-            if not degen.all():
-                groups[id(m)] = rr[~degen].tolist()
-        else:
-            for r in rows:
-                m = bt.models[r]
-                if m.degeneracy(bits[r]) <= 0.02:
-                    (warm if np.isfinite(bt.cost[r, 0]) else special).append(r)
-                else:
-                    groups.setdefault(id(m), []).append(r)
+    def _ippe_compiled(self, bt: _Batch, rows: list[int]) -> list[int]:
+        """Both IPPE solutions with the compiled kernel, all bricks of a layout at once;
+        returns the bricks it failed on."""
+        groups: dict[int, list[int]] = {}
+        for r in rows:
+            groups.setdefault(id(bt.models[r]), []).append(r)
+        failed: list[int] = []
         for g in groups.values():
             m = bt.models[g[0]]
             ga = np.asarray(g, np.int64)
@@ -533,12 +525,8 @@ class DotDetector:
             bt.R[ga[ok]] = R[ok]
             bt.t[ga[ok]] = t[ok]
             bt.cost[ga[ok]] = cost[ok]
-            special.extend(ga[~ok].tolist())
-        if special:
-            self._special_poses(bt, np.array(special))
-        if warm:
-            self._refine_both(bt, np.array(warm))
-        self._prefer_level(bt, rows, bt.gravity)
+            failed.extend(ga[~ok].tolist())
+        return failed
 
     def _resolve(self, bt: _Batch, rows) -> None:
         """Solve again bricks whose dots changed: both solutions refined from where they are
@@ -550,13 +538,17 @@ class DotDetector:
 
     def _refine_both(self, bt: _Batch, rows: np.ndarray, iterations: int = 4) -> None:
         """Refine both solutions of bricks that already have poses (their dots changed)."""
+        self._refine_pair(bt, rows, bt.R[rows, 0], bt.R[rows, 1], bt.t[rows, 0],
+                          bt.t[rows, 1], iterations)
+
+    @staticmethod
+    def _refine_pair(bt: _Batch, rows: np.ndarray, R0, R1, t0, t1, iterations: int) -> None:
+        """Refine two starting poses of each brick (one batch), store them best first."""
         B = rows.size
         X, w, q = bt.X[rows], bt.w[rows], bt.q[rows]
         Rr, tr, cost = refine_poses(np.concatenate([X, X]), np.concatenate([q, q]),
-                                    np.concatenate([w, w]),
-                                    np.concatenate([bt.R[rows, 0], bt.R[rows, 1]]),
-                                    np.concatenate([bt.t[rows, 0], bt.t[rows, 1]]),
-                                    iterations=iterations)
+                                    np.concatenate([w, w]), np.concatenate([R0, R1]),
+                                    np.concatenate([t0, t1]), iterations=iterations)
         bt.R[rows, 0], bt.R[rows, 1] = Rr[:B], Rr[B:]
         bt.t[rows, 0], bt.t[rows, 1] = tr[:B], tr[B:]
         bt.cost[rows, 0], bt.cost[rows, 1] = cost[:B], cost[B:]
@@ -596,18 +588,7 @@ class DotDetector:
         Rm, tm = mirror_pose(Rcp, tcp, cen)
         R1 = Rm @ Rpb
         t1 = (Rm @ tpb[:, :, None])[:, :, 0] + tm
-        Rr, tr, cost = refine_poses(np.concatenate([X, X]),
-                                    np.concatenate([bt.q[rows], bt.q[rows]]),
-                                    np.concatenate([w, w]), np.concatenate([R0, R1]),
-                                    np.concatenate([t0, t1]), iterations=8)
-        bt.R[rows, 0], bt.R[rows, 1] = Rr[:B], Rr[B:]
-        bt.t[rows, 0], bt.t[rows, 1] = tr[:B], tr[B:]
-        bt.cost[rows, 0], bt.cost[rows, 1] = cost[:B], cost[B:]
-        swap = rows[bt.cost[rows, 1] < bt.cost[rows, 0]]
-        if swap.size:
-            bt.R[swap] = bt.R[swap][:, ::-1]
-            bt.t[swap] = bt.t[swap][:, ::-1]
-            bt.cost[swap] = bt.cost[swap][:, ::-1]
+        self._refine_pair(bt, rows, R0, R1, t0, t1, iterations=8)
 
     def _residuals_px(self, bt: _Batch, q: np.ndarray | None = None) -> np.ndarray:
         """(B, N) distance of each dot from where the best solution puts it (≈ pixels)."""
