@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -405,16 +404,11 @@ def _from_ros(p: Path, data: dict) -> Camera:
 
 # ================================================================================ writing
 def _atomic_write(path: Path, write_to_tmp) -> None:
-    """Write through a temporary file in the same folder, then rename over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write_to_tmp(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write through a temporary file in the same folder (named with ``path``'s suffix:
+    OpenCV's FileStorage picks the format by it), then rename over ``path``."""
+    from drovisio.fileio import atomic_write
+
+    atomic_write(path, write_to_tmp, suffix=path.suffix, make_parents=True)
 
 
 def _fmt_float(x: float) -> str:

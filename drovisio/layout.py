@@ -27,7 +27,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -46,6 +45,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+from drovisio.fileio import atomic_write_bytes
 
 __all__ = [
     "SCHEMA_ID",
@@ -1201,42 +1202,21 @@ def save_layout(layout: MarkerLayout, path: str | os.PathLike[str], overwrite: b
                           "overwrite=True to replace it")
     text = layout_to_json(layout)
     folder = dest.parent if str(dest.parent) else Path(".")
+    if not folder.is_dir():
+        raise LayoutError(f"{src}: folder {os.fspath(folder)} does not exist")
+    if dest.exists():
+        mode = dest.stat().st_mode & 0o777
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=folder)
-    except FileNotFoundError:
-        raise LayoutError(f"{src}: folder {os.fspath(folder)} does not exist") from None
+        atomic_write_bytes(dest, text.encode("utf-8"), overwrite=overwrite, mode=mode)
+    except FileExistsError:
+        raise LayoutError(f"{src}: already exists; choose another file name or pass "
+                          "overwrite=True to replace it") from None
     except OSError as e:
         raise LayoutError(f"{src}: cannot write in {os.fspath(folder)}: {e.strerror}") from None
-    tmp = Path(tmp_name)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        if dest.exists():
-            mode = dest.stat().st_mode & 0o777
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        os.chmod(tmp, mode)
-        if overwrite:
-            os.replace(tmp, dest)
-        else:
-            try:
-                os.link(tmp, dest)  # atomic, and fails if dest appeared meanwhile
-            except FileExistsError:
-                raise LayoutError(f"{src}: already exists; choose another file name or pass "
-                                  "overwrite=True to replace it") from None
-            except OSError:  # no hard links on this file system
-                if dest.exists():
-                    raise LayoutError(f"{src}: already exists; choose another file name or "
-                                      "pass overwrite=True to replace it") from None
-                os.replace(tmp, dest)
-    except OSError as e:
-        raise LayoutError(f"{src}: cannot write: {e.strerror}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
     layout._source = dest
     return dest
 

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from drovisio.fileio import atomic_write
+
 __all__ = [
     "DRICK_BODY",
     "DRICK_PYRAMID_CENTERS_X",
@@ -146,9 +148,7 @@ def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[P
     written = []
     for name, make in _SHIPPED.items():
         path = out / name
-        tmp = path.with_name(f".{name}.tmp")
-        make().export(tmp, file_type="stl")
-        os.replace(tmp, path)
+        atomic_write(path, lambda tmp, make=make: make().export(tmp, file_type="stl"))
         written.append(path)
     return written
 

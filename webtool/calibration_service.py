@@ -53,6 +53,7 @@ from drovisio.calibration.session import CalibrationSession, FrameResult, Sessio
 from drovisio.calibration.verdict import Verdict
 from drovisio.camera import Camera, load_camera, save_camera
 from drovisio.commands.calibrate import IMAGE_SUFFIXES
+from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
 
 __all__ = [
     "SESSION_SCHEMA",
@@ -110,19 +111,8 @@ def camera_in_use(settings) -> Path | None:
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder, flushed to disk,
-    then renamed over ``path``: a reader (or a crash) sees the old file or the new one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}-", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` atomically (:mod:`drovisio.fileio`), making its folder."""
+    _atomic_write_bytes(path, data, make_parents=True)
 
 
 def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray | None, str | None]:

@@ -597,6 +597,7 @@ def part_kernels(src, det, args, n, repeats) -> dict:
 
     from drovisio.detect import dots_kernels as K
     from drovisio.detect import dots_pose
+    from drovisio.detect.dots import _STENCIL    # the detector's 5-point stencil
     from drovisio.detect.dots_blobs import refine_centers
     from drovisio.detect.dots_color import ClaheMap
     from drovisio.detect.dots_match import BlobGeometry, generate_hypotheses
@@ -666,7 +667,7 @@ def part_kernels(src, det, args, n, repeats) -> dict:
             args12 = (Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2], det._dist12)
             both("undistortion + local Jacobian (vs cv2.undistortPoints, 5-point stencil)",
                  lambda: K.undistort(px, *args12),
-                 lambda: cv2.undistortPoints((px[None] + _STENCIL5[:, None]).reshape(-1, 1, 2),
+                 lambda: cv2.undistortPoints((px[None] + _STENCIL[:, None]).reshape(-1, 1, 2),
                                              Kc, dist, None, None, None,
                                              (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
                                               20, 1e-12)))
@@ -690,9 +691,6 @@ def part_kernels(src, det, args, n, repeats) -> dict:
                      "reference_us": 1e6 * float(np.median(tr)),
                      "speedup": float(np.median(np.asarray(tr) / np.asarray(tf)))}
     return out
-
-
-_STENCIL5 = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
 
 def _rss_kb() -> int:

@@ -236,8 +236,7 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
 
     messages: list[str] = []
     n_frames = n_bricks = n_errors = n_gravity = 0
-    t_total = 0.0
-    times: list[float] = []
+    times: list[float] = []   # detection + pose time of each frame
     noted: set[str] = set()
     for item in iter_frames(args.inputs, messages):
         for m in messages:
@@ -284,9 +283,7 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
                     res.error = f"detection failed: {type(e).__name__}: {e}"
                     n_errors += 1
                     _err(f"{item.file}: {res.error}")
-                dt = time.perf_counter() - t0
-                t_total += dt
-                times.append(dt)
+                times.append(time.perf_counter() - t0)
         n_bricks += len(res.bricks)
         out.write(json.dumps(res.to_json(), allow_nan=False) + "\n")
         out.flush()
@@ -296,11 +293,11 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
     if n_frames == 0:
         _err("no frames to process")
         return 1
-    ms = 1000.0 * t_total / max(1, n_frames)
+    ms = 1000.0 * sum(times) / max(1, n_frames)
     grav = f", gravity for {n_gravity}" if gravity is not None else ""
     # the first frame also loads the detectors (compiled kernels, dictionaries): the median
     # is what a stream costs per frame
-    med = 1000.0 * float(sorted(times)[len(times) // 2]) if times else ms
+    med = 1000.0 * float(np.median(times)) if times else ms
     timing = f"{ms:.1f} ms per frame (detection and pose)" if len(times) < 3 else \
         f"median {med:.1f} ms per frame (detection and pose; mean {ms:.1f} ms, the first " \
         f"frame {1000.0 * times[0]:.0f} ms with the detectors' set-up)"

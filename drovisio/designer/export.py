@@ -20,7 +20,6 @@ from __future__ import annotations
 import io
 import os
 import re
-import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -85,28 +84,13 @@ class SavedDesign:
 
 
 def _write_new(path: Path, data: bytes, overwrite: bool) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    from drovisio.fileio import atomic_write_bytes
+
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError:
-                raise DesignError(f"{path} already exists: choose another name, or tick "
-                                  "'Replace existing files'.") from None
-            except OSError:
-                if path.exists():
-                    raise DesignError(f"{path} already exists: choose another name, or tick "
-                                      "'Replace existing files'.") from None
-                os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+        atomic_write_bytes(path, data, overwrite=overwrite, mode=0o644)
+    except FileExistsError:
+        raise DesignError(f"{path} already exists: choose another name, or tick "
+                          "'Replace existing files'.") from None
 
 
 def save_design(doc: DesignDocument, folder: str | os.PathLike[str], overwrite: bool = False,

@@ -45,7 +45,6 @@ def select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre, scale, g, lo, hi
     sel_val = np.empty(total)
     counts = np.zeros(C, np.int64)
     nsel = 0
-    W = grid.shape[1]
     start = 0
     for c in range(C):
         big = P_box[c] > K

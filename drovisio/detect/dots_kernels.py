@@ -572,8 +572,6 @@ def hypotheses(qq, col, S, Si, semi_major, pairs, pcm, pair_len, pair_vec, pair_
     origin = np.empty((cap, 2))
     nh = 0
     lo_r = 1.0 / ratio_tol
-    found = np.empty(N, np.bool_)
-    bdist = np.empty(N)
     # blobs of a complete, tight hypothesis: another seed pair of the same brick would only
     # find the same dots again, so pairs of two such blobs are not tried
     explained = np.zeros(M, np.bool_)
@@ -677,18 +675,14 @@ def hypotheses(qq, col, S, Si, semi_major, pairs, pcm, pair_len, pair_vec, pair_
                         best = cb
                 if d == a:
                     assign[nh, d] = i
-                    found[d] = True
                 elif d == b:
                     assign[nh, d] = j
-                    found[d] = True
                 elif best >= 0 and bd <= tol2:
                     assign[nh, d] = best
-                    found[d] = True
                     close += math.sqrt(bd / tol2)
                 else:
                     assign[nh, d] = -1
-                    found[d] = False
-                if found[d]:
+                if assign[nh, d] >= 0:
                     count += 1
                 elif count + N - 1 - d < min_dots:
                     break       # too few dots left to reach min_dots
