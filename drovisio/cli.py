@@ -1,28 +1,31 @@
 """The ``drovisio`` command line.
 
-This module only *declares* the commands (their arguments, help and examples: the contract of
-DESIGN.md) and dispatches to their implementations, which are imported lazily so that
+This module *declares* the commands (their arguments, help and examples: the contract of
+DESIGN.md) and dispatches to their implementations, imported lazily so that ``drovisio --help``
+stays fast (no OpenCV, no web stack). Where a command's code lives is written in ``COMMANDS``
+as ``"module:function"`` (default ``drovisio.commands.<name>:run``).
 
-* ``drovisio --help`` stays fast (no OpenCV, no web stack imported), and
-* a missing or broken implementation of one command does not break the others.
-
-Where a command's code lives is written in ``COMMANDS`` as ``"module:function"``. By default that
-is ``drovisio.commands.<name>:run``: adding ``drovisio/commands/detect.py`` with
-``def run(args: argparse.Namespace) -> int`` makes ``drovisio detect`` work, with no change here.
-Until that module exists the command says so plainly on stderr and exits 2.
+Every error is handled once, here: bad input (:class:`~drovisio.errors.InputError`, and
+:class:`~drovisio.errors.WriteError` for a file that could not be written) prints one line
+``drovisio COMMAND: FILE: FIELD: what to do`` and exits 2; anything unexpected prints one line
+and the path of a file holding the full traceback (``--debug`` prints it instead) and exits 1.
+A closed output pipe (``drovisio detect ... | head -1``) ends the command quietly.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "drovisio"
-EXIT_NOT_IMPLEMENTED = 2
+EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 1
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
 
 
 def _version() -> str:
@@ -34,13 +37,45 @@ def _version() -> str:
         return "0+unknown"
 
 
-def repo_root() -> Path:
-    """The folder that holds ``drovisio/``, ``templates/``, ``sample_sessions/`` (a checkout)."""
-    return Path(__file__).resolve().parents[1]
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{v} must be 1 or more")
+    return v
 
 
-def default_sample_sessions_dir() -> Path:
-    return repo_root() / "sample_sessions"
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (v > 0 and v != float("inf")):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
+    return v
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number")
+    return v
+
+
+def port_number(text: str) -> int:
+    """argparse type: a TCP port, 1 to 65535."""
+    v = positive_int(text)
+    if v > 65535:
+        raise argparse.ArgumentTypeError(f"{v} is not a port (1 to 65535)")
+    return v
 
 
 # --------------------------------------------------------------------------------------------
@@ -56,7 +91,6 @@ class Command:
     example: str  # shown under "Example:" in `drovisio NAME --help`
     add_arguments: Callable[[argparse.ArgumentParser], None]
     target: str = ""  # "module:function"; default drovisio.commands.<name>:run
-    issue: str = ""  # where the missing implementation is tracked, e.g. "issue #3"
 
     @property
     def entry_point(self) -> str:
@@ -65,7 +99,8 @@ class Command:
 
 def _add_bench(p: argparse.ArgumentParser) -> None:
     p.add_argument("benchmark", metavar="NAME",
-                   help="which benchmark: renderer (exactness of the synthetic renderer), aruco (issue #3), dots (issue #4)")
+                   help="which benchmark: renderer (exactness of the synthetic renderer), aruco "
+                        "(code bricks), dots (colour-dot bricks), pipeline (latency, memory)")
     p.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="...",
                    help="options of that benchmark (drovisio bench NAME --help)")
 
@@ -88,7 +123,7 @@ def _add_detect(p: argparse.ArgumentParser) -> None:
 def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--board", required=True, metavar="KIND:COLSxROWS",
                    help="calibration target, e.g. chessboard:9x6 (inner corners, columns x rows)")
-    p.add_argument("--square", required=True, type=float, metavar="METRES",
+    p.add_argument("--square", required=True, type=positive_float, metavar="METRES",
                    help="side of one board square in metres, e.g. 0.025")
     p.add_argument("--report", metavar="REPORT.json",
                    help="write the calibration report (errors, rejected views, verdict) here")
@@ -111,7 +146,6 @@ def _add_run(p: argparse.ArgumentParser) -> None:
                    help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION or ws://HOST:PORT "
                         "(WebSocket feed); repeatable (default jsonl:-)")
     p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
-    # issue #7 additions (optional; the contract above is unchanged)
     p.add_argument("--target", default="nearest", metavar="TARGET",
                    help="brick sent to the flight controller: nearest (default), LAYOUT, "
                         "LAYOUT:INSTANCE, track:N or none; changeable at run time through a "
@@ -120,12 +154,13 @@ def _add_run(p: argparse.ArgumentParser) -> None:
                    help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
                         "distance, default) or px4 (LOCAL_NED from the link's attitude and "
                         "position)")
-    p.add_argument("--max-age", type=float, default=0.5, metavar="SECONDS",
+    p.add_argument("--max-age", type=positive_float, default=0.5, metavar="SECONDS",
                    help="drop a brick not seen for this long (default 0.5 s)")
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime",
                    help="files and recordings: play at their own frame rate like a camera "
                         "(realtime, default) or process every frame as fast as possible (max)")
-    p.add_argument("--frames", type=int, metavar="N", help="stop after N processed frames")
+    p.add_argument("--frames", type=positive_int, metavar="N",
+                   help="stop after N processed frames")
     p.add_argument("--quiet", action="store_true", help="no status line every second")
 
 
@@ -133,7 +168,8 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default: 127.0.0.1, this machine only; any other "
                         "address turns on token access)")
-    p.add_argument("--port", type=int, default=8080, help="port to listen on (default: 8080)")
+    p.add_argument("--port", type=port_number, default=8080,
+                   help="port to listen on (default: 8080)")
     p.add_argument("--source", metavar="SOURCE",
                    help="camera index, video file, folder of images or stream URL "
                         "(default: the built-in sample session)")
@@ -141,10 +177,6 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
     p.add_argument("--replay-dir", metavar="DIR",
                    help="folder of mission recordings (drovisio mission simulate --record) to "
                         "replay in 3D on the live page")
-
-
-def _add_nothing(p: argparse.ArgumentParser) -> None:
-    """Arguments are added here when the command is implemented (the contract lives in this file)."""
 
 
 def _add_mission(p: argparse.ArgumentParser) -> None:
@@ -184,15 +216,16 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     s.add_argument("--seed", type=int, default=0, help="simulator seed (default: 0)")
     s.add_argument("--fault", action="append", metavar="NAME",
                    help="inject the faults of a fault case (see `check`); repeatable")
-    s.add_argument("--bricks", type=int, metavar="N", help="build only the first N bricks")
-    s.add_argument("--ss", type=int, default=2,
+    s.add_argument("--bricks", type=positive_int, metavar="N",
+                   help="build only the first N bricks")
+    s.add_argument("--ss", type=positive_int, default=2,
                    help="render: samples per pixel per axis (default: 2)")
-    s.add_argument("--render-rate", type=float, default=4.0, metavar="HZ",
+    s.add_argument("--render-rate", type=positive_float, default=4.0, metavar="HZ",
                    help="render: frames per second while vision is in use (default: 4)")
     s.add_argument("--render-bricks", metavar="IDS",
                    help="render: only while working on these bricks (comma-separated); the "
                         "others use the detector model")
-    s.add_argument("--heading-bias", type=float, metavar="DEG",
+    s.add_argument("--heading-bias", type=finite_float, metavar="DEG",
                    help="compass bias of the simulated autopilot (default: 1)")
     s.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
     d = sub.add_parser(
@@ -233,7 +266,6 @@ COMMANDS: dict[str, Command] = {
             example="drovisio detect --camera camera.yaml \\\n"
                     "    --layout marker_layouts/drick-aruco-pyramids.json frames/ > poses.jsonl",
             add_arguments=_add_detect,
-            issue="issue #3",
         ),
         Command(
             name="calibrate",
@@ -244,7 +276,6 @@ COMMANDS: dict[str, Command] = {
             example="drovisio calibrate --board chessboard:9x6 --square 0.025 \\\n"
                     "    --report report.json --out camera.yaml calib_images/",
             add_arguments=_add_calibrate,
-            issue="issue #5",
         ),
         Command(
             name="run",
@@ -256,7 +287,6 @@ COMMANDS: dict[str, Command] = {
                     "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.yaml \\\n"
                     "    --sink jsonl:- --sink mavlink:udpout:127.0.0.1:14550",
             add_arguments=_add_run,
-            issue="issue #7",
         ),
         Command(
             name="serve",
@@ -279,7 +309,6 @@ COMMANDS: dict[str, Command] = {
                         "(the evaluation study).",
             example="drovisio bench aruco --frames 50\n  drovisio bench dots --help",
             add_arguments=_add_bench,
-            issue="issues #3 and #4",
         ),
         Command(
             name="mission",
@@ -293,7 +322,6 @@ COMMANDS: dict[str, Command] = {
                     "  drovisio mission simulate wall-2-courses --record runs/wall\n"
                     "  drovisio mission diagram --format mermaid",
             add_arguments=_add_mission,
-            issue="issue #8",
         ),
         Command(
             name="synth",
@@ -324,6 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--debug", action="store_true",
+                        help="print the full traceback of an unexpected error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for cmd in COMMANDS.values():
         p = sub.add_parser(
@@ -337,52 +367,53 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class NotImplementedYet(Exception):
-    pass
-
-
-def _is_missing(exc: ModuleNotFoundError, module_name: str) -> bool:
-    """True if *exc* says that *module_name* itself (or a parent package) does not exist.
-
-    An ImportError raised from *inside* an existing implementation (a missing third-party
-    package, a typo) is a real error and must not be disguised as "not implemented".
-    """
-    if exc.name is None:
-        return False
-    parts = module_name.split(".")
-    return exc.name in {".".join(parts[: i + 1]) for i in range(len(parts))}
-
-
 def resolve(entry_point: str) -> Callable[[argparse.Namespace], int | None]:
+    """The function of a ``"module:function"`` entry point."""
     module_name, _, func_name = entry_point.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if _is_missing(exc, module_name):
-            raise NotImplementedYet(entry_point) from exc
-        raise
-    func = getattr(module, func_name or "run", None)
-    if func is None:
-        raise NotImplementedYet(entry_point)
-    return func
-
-
-def _not_implemented(label: str, issue: str) -> int:
-    where = f" (tracked in {issue})" if issue else ""
-    print(f"{PROG} {label}: not implemented yet{where}", file=sys.stderr)
-    return EXIT_NOT_IMPLEMENTED
+    module = importlib.import_module(module_name)
+    return getattr(module, func_name or "run")
 
 
 def _run_synth(args: argparse.Namespace) -> int:
-    if args.synth_action == "samples":
-        try:
-            generate = resolve("drovisio.synth_samples:main")
-        except NotImplementedYet:
-            return _not_implemented("synth samples", "")
-        out = args.out if args.out is not None else default_sample_sessions_dir()
-        result = generate(out)
-        return int(result or 0)
-    raise AssertionError(f"unhandled synth action {args.synth_action!r}")  # argparse guards this
+    from drovisio.synth_samples import main as generate
+
+    return int(generate(args.out) or 0)
+
+
+def _crash_report(command: str, exc: BaseException) -> str | None:
+    """Write the traceback of an unexpected error to a file; its path, or None."""
+    import tempfile
+    import time
+    import traceback
+
+    text = "".join(traceback.format_exception(exc))
+    name = f"drovisio-{command}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
+    path = Path(tempfile.gettempdir()) / name
+    try:
+        path.write_text(f"drovisio {_version()} {command}\n{' '.join(sys.argv)}\n\n{text}",
+                        encoding="utf-8")
+    except OSError:
+        return None
+    return str(path)
+
+
+def _say(label: str, message: str) -> None:
+    from drovisio.errors import one_line
+
+    try:
+        print(f"{label}: {one_line(message, 600)}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):  # stderr itself is gone
+        pass
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe, point stdout at /dev/null so the interpreter's final flush does
+    not raise again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -394,15 +425,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
-    cmd = COMMANDS[args.command]
+    label = f"{PROG} {args.command}"
+    debug = args.debug or os.environ.get("DROVISIO_DEBUG", "") not in ("", "0")
+    from drovisio.errors import InputError, WriteError
+
     try:
-        func = resolve(cmd.entry_point)
-    except NotImplementedYet:
-        return _not_implemented(cmd.name, cmd.issue)
-    try:
+        func = resolve(COMMANDS[args.command].entry_point)
         result = func(args)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_BROKEN_PIPE
+    except (InputError, WriteError) as e:
+        if debug:
+            raise
+        _say(label, str(e))
+        return EXIT_BAD_INPUT
+    except Exception as e:  # noqa: BLE001 - the one place that reports what nobody expected
+        if debug:
+            raise
+        where = _crash_report(args.command, e)
+        _say(label, f"internal error: {type(e).__name__}: {e}"
+                    + (f" (full traceback in {where}; --debug prints it; please report it)"
+                       if where else " (run with --debug for the traceback)"))
+        return EXIT_INTERNAL
     return int(result or 0)
 
 

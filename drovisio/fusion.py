@@ -25,6 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from drovisio.detect.result import BrickPose
+from drovisio.geometry import skew, so3_exp, so3_log
 
 __all__ = [
     "CHI2_6_999",
@@ -49,41 +50,6 @@ CHI2_6_999 = 22.458
 #: Used when a detector gives no covariance: 2° and 2 cm (1σ), uncorrelated.
 DEFAULT_SIGMA_ROT = math.radians(2.0)
 DEFAULT_SIGMA_T = 0.02
-
-
-def skew(w: np.ndarray) -> np.ndarray:
-    x, y, z = np.asarray(w, np.float64).ravel()
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of the rotation vector ``w`` (Rodrigues)."""
-    w = np.asarray(w, np.float64).ravel()
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / th ** 2 * K @ K
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of ``R`` (angle in [0, π]), robust near 0 and π."""
-    R = np.asarray(R, np.float64)
-    c = max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))
-    th = math.acos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-6:
-        return 0.5 * v
-    if math.pi - th > 1e-4:
-        return th / (2 * math.sin(th)) * v
-    # near π: axis from the symmetric part
-    B = (R + np.eye(3)) / 2.0
-    k = int(np.argmax(np.diag(B)))
-    axis = B[:, k] / math.sqrt(max(B[k, k], 1e-300))
-    axis /= np.linalg.norm(axis)
-    if axis @ v < 0:
-        axis = -axis
-    return th * axis
 
 
 def right_jacobian(w: np.ndarray) -> np.ndarray:

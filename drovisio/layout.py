@@ -46,7 +46,9 @@ from pydantic import (
     model_validator,
 )
 
+from drovisio.errors import LIMITS, InputError
 from drovisio.fileio import atomic_write_bytes
+from drovisio.textfile import check_regular_file, parse_json
 
 __all__ = [
     "SCHEMA_ID",
@@ -90,7 +92,7 @@ SYMMETRY_TOL_M = 0.001  #: a half-turn must map each dot onto a dot within 1 mm.
 UP_MIN_ANGLE_DEG = 1.0  #: ``up`` must be at least 1 degree away from ``normal``.
 
 
-class LayoutError(ValueError):
+class LayoutError(InputError):
     """A layout file (or a set of layouts) is invalid.
 
     The message is meant for the user: every line names the file, the place (marker index
@@ -544,8 +546,10 @@ class MarkerLayout(BaseModel):
     units: Literal["m", "cm", "mm"] = Field(
         description="Length unit of every coordinate, size, diameter and of the mesh."
     )
-    dimensions: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
-        description="Bounding box size [x, y, z] of the brick, each > 0."
+    dimensions: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = Field(
+        default=None,
+        description="Bounding box size [x, y, z] of the brick, each > 0; when absent, the "
+        "bounding box of the markers (and of the mesh) is used.",
     )
     mesh: str | None = Field(
         default=None,
@@ -569,7 +573,9 @@ class MarkerLayout(BaseModel):
     colors: dict[str, ColorSpec] | None = Field(
         default=None, description="Dot colours overriding/adding to the default palette."
     )
-    markers: list[Marker] = Field(min_length=1, description="The markers on the brick.")
+    markers: list[Marker] = Field(min_length=1, max_length=LIMITS.max_markers,
+                                  description="The markers on the brick (at most "
+                                  f"{LIMITS.max_markers}).")
 
     _source: Path | None = PrivateAttr(default=None)
 
@@ -702,8 +708,36 @@ class MarkerLayout(BaseModel):
 
     @property
     def dimensions_m(self) -> np.ndarray:
-        """Bounding box size [x, y, z] in metres, (3,) float64."""
-        return np.array(self.dimensions, np.float64) * self.scale_to_m
+        """Bounding box size [x, y, z] in metres, (3,) float64: ``dimensions`` when the file
+        gives them, else the bounding box of the markers and of the mesh (each side at
+        least 1 mm: a flat tag still has a thickness to draw)."""
+        if self.dimensions is not None:
+            return np.array(self.dimensions, np.float64) * self.scale_to_m
+        lo, hi = self._markers_bounds_m()
+        mesh = self._mesh_bounds_m()
+        if mesh is not None:
+            lo, hi = np.minimum(lo, mesh[0]), np.maximum(hi, mesh[1])
+        return np.maximum(hi - lo, 0.001)
+
+    def _markers_bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """(min, max) corners of the box around every code square and dot disc, metres."""
+        pts = [c for c in self.code_corners_m().values()]
+        lo = [p.min(axis=0) for p in pts]
+        hi = [p.max(axis=0) for p in pts]
+        if self.has_dots:
+            centres, normals = self.dot_centers_m(), self.dot_normals()
+            radii = self.dot_diameters_m() / 2
+            # a disc of radius r and normal n reaches r·sqrt(1 − n_e²) along axis e
+            reach = radii[:, None] * np.sqrt(np.clip(1 - normals ** 2, 0, 1))
+            lo.append((centres - reach).min(axis=0))
+            hi.append((centres + reach).max(axis=0))
+        return np.min(lo, axis=0), np.max(hi, axis=0)
+
+    def _mesh_bounds_m(self) -> tuple[np.ndarray, np.ndarray] | None:
+        path = self.mesh_path()
+        if path is None or not path.is_file():
+            return None
+        return _mesh_bounds(str(path), path.stat().st_mtime_ns, self.scale_to_m)
 
     @property
     def source(self) -> Path | None:
@@ -987,6 +1021,19 @@ def _convert_validation_error(exc: ValidationError, data: Any, source: str) -> L
 # --------------------------------------------------------------------------------------
 
 
+@lru_cache(maxsize=32)
+def _mesh_bounds(path: str, _mtime_ns: int, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Bounds of a mesh file in metres (None when it cannot be read: the markers decide)."""
+    try:
+        import trimesh
+
+        mesh = trimesh.load(path, force="mesh")
+        b = np.asarray(mesh.bounds, np.float64) * scale
+    except Exception:  # noqa: BLE001 - a broken mesh is reported where it is drawn
+        return None
+    return (b[0], b[1]) if b.shape == (2, 3) and np.all(np.isfinite(b)) else None
+
+
 def _reject_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in pairs:
@@ -1000,10 +1047,6 @@ class _DuplicateKey(ValueError):
     def __init__(self, key: str):
         super().__init__(key)
         self.key = key
-
-
-def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not valid JSON")
 
 
 def parse_layout(data: dict[str, Any] | str | bytes, source: str | os.PathLike[str] = "<layout>",
@@ -1025,18 +1068,14 @@ def parse_layout(data: dict[str, Any] | str | bytes, source: str | os.PathLike[s
     if isinstance(data, (str, bytes)):
         try:
             text = data.decode("utf-8") if isinstance(data, bytes) else data
-            data = json.loads(text, object_pairs_hook=_reject_duplicate_keys,
-                              parse_constant=_reject_constant)
+            data = parse_json(text, src, object_pairs_hook=_reject_duplicate_keys)
         except UnicodeDecodeError as e:
             raise LayoutError(f"{src}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-        except json.JSONDecodeError as e:
-            raise LayoutError(f"{src}: invalid JSON at line {e.lineno}, column {e.colno}: "
-                              f"{e.msg}") from None
         except _DuplicateKey as e:
             raise LayoutError(f"{src}: duplicate key {e.key!r} in a JSON object; keep only "
                               "one") from None
-        except ValueError as e:
-            raise LayoutError(f"{src}: invalid JSON: {e}") from None
+        except InputError as e:
+            raise LayoutError(str(e)) from None
     if not isinstance(data, dict):
         raise LayoutError(f"{src}: a layout file must hold one JSON object {{...}}, "
                           f"not {type(data).__name__}")
@@ -1063,11 +1102,14 @@ def load_layout(path: str | os.PathLike[str]) -> MarkerLayout:
     """
     src = os.fspath(path)
     try:
-        raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise LayoutError(f"{src}: no such layout file") from None
-    except IsADirectoryError:
-        raise LayoutError(f"{src}: is a folder, not a layout file") from None
+        p = check_regular_file(path, "layout file")
+        if p.stat().st_size > LIMITS.max_file_bytes:
+            raise LayoutError(f"{src}: larger than {LIMITS.max_file_bytes // 1024} KiB; is it "
+                              "the right file?")
+        raw = p.read_bytes()
+    except InputError as e:
+        raise LayoutError(str(e).replace("layout file not found", "no such layout file")) \
+            from None
     except OSError as e:
         raise LayoutError(f"{src}: cannot read: {e.strerror}") from None
     return parse_layout(raw, src)
@@ -1193,7 +1235,8 @@ def save_layout(layout: MarkerLayout, path: str | os.PathLike[str], overwrite: b
         The path written.
 
     Raises:
-        LayoutError: the file exists and ``overwrite`` is False, or it cannot be written.
+        LayoutError: the file exists and ``overwrite`` is False.
+        drovisio.errors.WriteError: it cannot be written (any previous file is kept).
     """
     dest = Path(path)
     src = os.fspath(path)
@@ -1204,19 +1247,15 @@ def save_layout(layout: MarkerLayout, path: str | os.PathLike[str], overwrite: b
     folder = dest.parent if str(dest.parent) else Path(".")
     if not folder.is_dir():
         raise LayoutError(f"{src}: folder {os.fspath(folder)} does not exist")
-    if dest.exists():
-        mode = dest.stat().st_mode & 0o777
-    else:
-        umask = os.umask(0)
-        os.umask(umask)
-        mode = 0o666 & ~umask
+    def verify(tmp: Path) -> None:
+        if parse_layout(tmp.read_bytes(), src) != layout:
+            raise ValueError("the layout read back differs from the one written")
+
     try:
-        atomic_write_bytes(dest, text.encode("utf-8"), overwrite=overwrite, mode=mode)
+        atomic_write_bytes(dest, text.encode("utf-8"), overwrite=overwrite, verify=verify)
     except FileExistsError:
         raise LayoutError(f"{src}: already exists; choose another file name or pass "
                           "overwrite=True to replace it") from None
-    except OSError as e:
-        raise LayoutError(f"{src}: cannot write in {os.fspath(folder)}: {e.strerror}") from None
     layout._source = dest
     return dest
 
@@ -1235,8 +1274,10 @@ def layout_json_schema() -> dict[str, Any]:
 
 
 def shipped_layouts_dir() -> Path:
-    """The repository's ``marker_layouts/`` folder (next to the ``drovisio`` package)."""
-    return Path(__file__).resolve().parents[1] / "marker_layouts"
+    """The shipped ``marker_layouts/`` folder (installed with the package)."""
+    from drovisio.resources import layouts_dir
+
+    return layouts_dir()
 
 
 def list_shipped_layouts() -> list[Path]:

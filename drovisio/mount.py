@@ -18,7 +18,6 @@ direction of gravity in the camera frame from the vehicle's roll and pitch.
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Literal
@@ -26,6 +25,8 @@ from typing import Literal
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from drovisio.geometry import ned_from_body
 
 __all__ = [
     "MOUNT_SCHEMA",
@@ -75,17 +76,6 @@ class MountFile(BaseModel):
         if np.abs(T[:3, 3]).max() > 10:
             raise ValueError("translation larger than 10 m: units must be metres")
         return T.tolist()
-
-
-def ned_from_body(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Rotation NED ← FRD body from MAVLink ``ATTITUDE`` Euler angles (rad, ZYX order)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
-    Ry = np.array([[cp, 0, sp], [0, 1.0, 0], [-sp, 0, cp]])
-    Rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return Rz @ Ry @ Rx
 
 
 class Mount:

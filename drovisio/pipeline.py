@@ -61,32 +61,35 @@ class Detector(Protocol):
 
 
 class ArucoDetectorAdapter:
-    """Bricks by their codes (:mod:`drovisio.detect.aruco`), with a pose history per stream."""
+    """Bricks by their codes (:mod:`drovisio.detect.aruco`); a stream keeps a pose history
+    (the previous frame helps decide an ambiguous pose), single images do not."""
 
     name = "aruco"
 
-    def __init__(self, camera, layouts):
+    def __init__(self, camera, layouts, stream: bool = True):
         from drovisio.detect.aruco import ArucoBrickDetector
         from drovisio.pose import PoseHistory
 
-        self.impl = ArucoBrickDetector(camera, layouts, history=PoseHistory())
+        self.impl = ArucoBrickDetector(camera, layouts,
+                                       history=PoseHistory() if stream else None)
 
     def detect(self, image, timestamp, gravity=None):
         return self.impl.detect(image, gravity=gravity)
 
 
 class DotsDetectorAdapter:
-    """Bricks by their colour dots (:mod:`drovisio.detect.dots`), with a per-stream state."""
+    """Bricks by their colour dots (:mod:`drovisio.detect.dots`), with a state per stream
+    (symmetric yaws stay in the half-turn of the previous frame)."""
 
     name = "dots"
 
-    def __init__(self, camera, layouts):
+    def __init__(self, camera, layouts, stream: bool = True):
         from drovisio.detect.dots import DotsState, detect_dots
 
         self._detect = detect_dots
         self.camera = camera
-        self.layouts = list(layouts)
-        self.state = DotsState()
+        self.layouts = [lay for lay in layouts if getattr(lay, "has_dots", False)]
+        self.state = DotsState() if stream else None
 
     def detect(self, image, timestamp, gravity=None):
         return self._detect(image, self.camera, self.layouts, gravity=gravity, state=self.state)
@@ -184,6 +187,11 @@ class Pipeline:
         parallel: Run several detectors in parallel threads.
         fuse: Fuse code and dot poses of the same brick.
         layouts: The loaded layouts (tells which bricks' dots alone are half-turn symmetric).
+        camera: The camera the detectors were made for. With it, a frame of another size is
+            reported instead of measured with the wrong intrinsics, and a camera file without
+            an image size takes the first frame's (detectors rebuilt by
+            ``detector_factory(camera)``).
+        detector_factory: Makes the detectors for a camera (with ``camera``).
     """
 
     def __init__(self, source: FrameSource, detectors: Sequence[Detector],
@@ -191,9 +199,14 @@ class Pipeline:
                  target: TargetSelector | None = None,
                  gravity: Callable[[float], np.ndarray | None] | None = None,
                  recorder=None, max_age: float = 0.5, parallel: bool = True,
-                 fuse: bool = True, layouts: Sequence = ()):
+                 fuse: bool = True, layouts: Sequence = (), camera=None,
+                 detector_factory: Callable[[object], list[Detector]] | None = None):
         self.source = source
         self.detectors = list(detectors)
+        self.camera = camera
+        self.detector_factory = detector_factory
+        self.notes: list[str] = []
+        """Things said once about the run (e.g. the image size taken from the source)."""
         self.sinks = list(sinks)
         self.mount = mount
         self.tracker = tracker or BrickTracker(TrackerConfig(max_age=max_age), mount=mount)
@@ -210,6 +223,7 @@ class Pipeline:
                                 if getattr(lay, "has_codes", False)
                                 and dots_half_turn_symmetric(lay)}
         self.stats = PipelineStats()
+        self._parallel = parallel
         self._listeners: list[Callable[[Frame | None, FrameOutput | None], None]] = []
         self._stop = threading.Event()
         self._pool = (ThreadPoolExecutor(max_workers=len(self.detectors),
@@ -263,7 +277,13 @@ class Pipeline:
             except Exception:  # noqa: BLE001
                 g = None
         t0 = time.perf_counter()
-        poses, errors = self._detect(frame, g)
+        mismatch = self._fit_camera(frame.image) if frame.image is not None else None
+        if frame.image is None:   # a frame the source could not decode: said, not detected
+            poses, errors = [], [frame.error or "frame could not be decoded"]
+        elif mismatch is not None:
+            poses, errors = [], [mismatch]
+        else:
+            poses, errors = self._detect(frame, g)
         detect_ms = (time.perf_counter() - t0) * 1e3
         if self.fuse:
             poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
@@ -286,11 +306,35 @@ class Pipeline:
         st.frame_times.append(now)
         st.frames += 1
         st.bricks = len(bricks)
-        if self.recorder is not None:
+        if self.recorder is not None and frame.image is not None:
             self.recorder.add(frame, out)
         self.last_output = out
         self._notify(frame, out)
         return out
+
+    def _fit_camera(self, image: np.ndarray) -> str | None:
+        """None when the frame fits the camera (a camera without a size takes the frame's);
+        else why it does not."""
+        cam = self.camera
+        if cam is None:
+            return None
+        size = (int(image.shape[1]), int(image.shape[0]))
+        if cam.size_known and cam.size == size:
+            return None
+        try:
+            new, note = cam.for_image(*size)
+        except ValueError as e:
+            return str(e)
+        self.camera = new
+        if note:
+            self.notes.append(note)
+            log.warning("%s", note)
+        if self.detector_factory is not None:
+            self.detectors = list(self.detector_factory(new))
+            if self._parallel and self._pool is None and len(self.detectors) > 1:
+                self._pool = ThreadPoolExecutor(max_workers=len(self.detectors),
+                                                thread_name_prefix="detect")
+        return None
 
     def step(self, timeout: float = 0.1) -> FrameOutput | None:
         """Process the newest frame if one arrives within ``timeout``; else age the tracks."""

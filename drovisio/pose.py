@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.geometry import quat_wxyz
 
 __all__ = [
     "PoseCandidate",
@@ -147,21 +148,13 @@ def yaw_about_axis_deg(R_true: np.ndarray, R_est: np.ndarray, axis=(0.0, 0.0, 1.
     decomposition: the twist about ``axis``.
     """
     dR = np.asarray(R_true).T @ np.asarray(R_est)
-    q = _quat_wxyz(dR)
+    q = np.asarray(quat_wxyz(dR))
     a = np.asarray(axis, np.float64)
     a = a / np.linalg.norm(a)
     p = float(q[1:] @ a)
     ang = 2.0 * math.atan2(p, q[0])
     ang = (ang + math.pi) % (2 * math.pi) - math.pi
     return math.degrees(ang)
-
-
-def _quat_wxyz(R: np.ndarray) -> np.ndarray:
-    rvec = cv2.Rodrigues(np.asarray(R, np.float64))[0].ravel()
-    th = float(np.linalg.norm(rvec))
-    if th < 1e-15:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    return np.concatenate([[math.cos(th / 2)], math.sin(th / 2) * rvec / th])
 
 
 def is_planar(points: np.ndarray, rel_tol: float = 1e-3) -> bool:

@@ -14,8 +14,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.synth import (BrickInstance, Effects, Ground, Prop, RenderResult, Scene,
-                            camera_over, render, rot_z, transform)
+from drovisio.synth import (
+    BrickInstance,
+    Effects,
+    Ground,
+    Prop,
+    RenderResult,
+    Scene,
+    camera_over,
+    render,
+    rot_z,
+    transform,
+)
 
 __all__ = ["SceneSpec", "random_scene", "render_random", "gravity_in_camera"]
 

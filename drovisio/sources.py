@@ -1,5 +1,6 @@
-"""Frame sources: camera, video file, folder of images, stream URL, recording — timestamped,
-newest frame first, and never crashing on loss.
+"""Frame sources: camera, video file, folder of images, stream URL, recording, sample
+playback — the one way Drovisio reads frames (the pipeline, the web tool's pages, the command
+line and the benchmarks all use these readers).
 
 A source is a :class:`Reader` (opens, reads one frame, closes; knows nothing about threads)
 wrapped in a :class:`FrameSource`, which reads in its own thread and keeps **only the newest
@@ -17,7 +18,14 @@ as fast as the consumer takes them without dropping any (``pace="max"``).
 A V4L2 camera is opened once per process (:class:`SharedCamera`) and shared by all its
 readers, so that the web tool's calibration page and live view can watch the same camera.
 
-SOURCE strings (:func:`open_source`, the ``--source`` of ``drovisio run``): a camera index
+A frame that cannot be decoded (a damaged frame of a video, an unreadable image in a folder)
+is not a loss of the source: the reader returns a :class:`RawFrame` carrying ``error``, the
+batch iteration of the command line (:func:`iter_inputs`) turns it into an ``"error"`` line, and
+:class:`FrameSource` hands it over too (the pipeline reports it). A *finite* source (file,
+folder, recording) that cannot be opened is not retried: it ends in :attr:`SourceState.FAILED`
+with the reason; cameras and stream URLs keep reconnecting and say so in their state.
+
+SOURCE strings (:func:`reader_for`, the ``--source`` of ``drovisio run``): a camera index
 (``0``: V4L2), a video file, a folder of images (name order), a recording folder (made by
 ``--record``; has ``recording.json``), or a stream URL (``rtsp://``, ``http://``, ``udp://``,
 ``tcp://`` …, through FFmpeg).
@@ -25,23 +33,36 @@ SOURCE strings (:func:`open_source`, the ``--source`` of ``drovisio run``): a ca
 
 from __future__ import annotations
 
+import os
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 from typing import Literal, Protocol
 
 import numpy as np
 
+from drovisio.errors import InputError
+from drovisio.images import (
+    IMAGE_SUFFIXES,
+    VIDEO_SUFFIXES,
+    ImageError,
+    is_video_file,
+    read_image,
+    to_bgr8,
+)
+
 __all__ = [
     "CameraReader",
     "EndOfStream",
     "Frame",
+    "FrameItem",
     "FrameSource",
     "ImageFolderReader",
     "Pace",
+    "PlaybackReader",
     "RawFrame",
     "Reader",
     "RecordingReader",
@@ -49,6 +70,8 @@ __all__ = [
     "SourceState",
     "StreamReader",
     "VideoFileReader",
+    "iter_inputs",
+    "list_folder",
     "open_source",
     "reader_for",
 ]
@@ -61,6 +84,7 @@ class SourceState(str, Enum):
     LIVE = "live"
     LOST = "lost"        # retrying
     ENDED = "ended"      # finite source exhausted
+    FAILED = "failed"    # finite source that could not be opened (not retried)
     STOPPED = "stopped"  # closed by us
 
 
@@ -72,20 +96,25 @@ class EndOfStream(Exception):
 class RawFrame:
     """What a reader returns for one frame."""
 
-    image: np.ndarray
+    image: np.ndarray | None
+    """BGR uint8 (H, W, 3); None when ``error`` says why the frame could not be decoded."""
     index: int
     media_time: float | None = None
     """Position in the file/recording (s), used to pace playback; None for live sources."""
     name: str = ""
     t_wall: float | None = None
     """Capture time if the reader knows it better than 'now' (UNIX s)."""
+    error: str | None = None
+    notes: list[str] = field(default_factory=list)
+    """Conversions made (e.g. "16-bit image scaled to 8 bits")."""
 
 
 @dataclass
 class Frame:
     """A timestamped frame handed to the pipeline."""
 
-    image: np.ndarray
+    image: np.ndarray | None
+    """None when ``error`` says why this frame could not be decoded."""
     index: int
     t_mono: float
     t_wall: float
@@ -97,11 +126,20 @@ class Frame:
     media clock (so that tracking sees the video's own timing)."""
     media_time: float | None = None
     name: str = ""
+    error: str | None = None
 
 
 class Reader(Protocol):
-    """One kind of source. ``open`` raises on failure; ``read`` returns a frame, None on a
-    failure (the source is lost), or raises :class:`EndOfStream` when a finite source ends."""
+    """One kind of source. ``open`` raises on failure; ``read`` returns a frame (possibly one
+    carrying ``error``), None on a failure (the source is lost), or raises
+    :class:`EndOfStream` when a finite source ends.
+
+    Attributes:
+        label: What to call the source in messages.
+        finite: True for files, folders and recordings (they end; they are not retried).
+        lossless: True when every frame must reach the consumer (a playback paced by its
+            consumer); :class:`FrameSource` then waits instead of dropping.
+    """
 
     label: str
     finite: bool
@@ -120,6 +158,7 @@ class Reader(Protocol):
 
 class _CaptureReader:
     finite = False
+    lossless = False
 
     def __init__(self, label: str):
         self.label = label
@@ -297,6 +336,7 @@ class CameraReader:
     :class:`SharedCamera` (so that several readers can watch one camera)."""
 
     finite = False
+    lossless = False
 
     def __init__(self, index: int, width: int | None = None, height: int | None = None,
                  fps: float | None = None):
@@ -349,10 +389,23 @@ class StreamReader(_CaptureReader):
             cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.read_timeout_s * 1000)])
 
 
+#: after this many undecodable frames in a row, the rest of a video is taken as missing
+MAX_BAD_FRAMES_IN_A_ROW = 8
+#: at most this many "missing frame" items for the end of a damaged video (a header's frame
+#: count can be anything); beyond it one item covers the rest
+MAX_MISSING_ITEMS = 10000
+
+
 class VideoFileReader:
-    """A video file, frame by frame; ``loop=True`` starts over at the end (demo playback)."""
+    """A video file, frame by frame; ``loop=True`` starts over at the end (demo playback).
+
+    A frame the decoder cannot read (a damaged or cut-short file) becomes a frame carrying
+    ``error``; decoding resumes after it where the file allows, and frames the file's header
+    announces but that cannot be reached are reported missing, one by one.
+    """
 
     finite = True
+    lossless = False
 
     def __init__(self, path: str | Path, loop: bool = False):
         self.path = str(path)
@@ -364,41 +417,94 @@ class VideoFileReader:
         self.index = 0
         self.lap = 0
         self.total = 0
+        self.count = 0
+        """Frames the file's header announces (0: unknown)."""
+        self.bad = 0
+        self._missing_from: int | None = None
 
     def open(self) -> None:
         import cv2
 
         self.close()
-        if not Path(self.path).is_file():
+        p = Path(self.path)
+        if not p.exists():
             raise OSError(f"{self.path}: no such video file")
+        if not p.is_file():
+            raise OSError(f"{self.path}: not a regular file (a folder, a pipe or a device)")
         cap = cv2.VideoCapture(self.path)
         if not cap.isOpened():
             cap.release()
-            raise OSError(f"{self.path}: cannot open the video")
+            raise OSError(f"{self.path}: cannot open the video (unknown format, or a "
+                          "damaged or cut-short file)")
         self.cap = cap
-        self.fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) or 30.0
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        self.fps = fps if 0.1 <= fps <= 1000 else 30.0
+        n = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        self.count = int(n) if 0 < n < 1e9 else 0
         self.index = 0
+        self.bad = 0
+        self._missing_from = None
+
+    def _frame(self, img, i: int, error: str | None = None) -> RawFrame:
+        self.total += 1
+        t = (self.total - 1) / self.fps
+        if error is not None:
+            return RawFrame(None, i, media_time=t, error=error)
+        try:
+            bgr, notes = to_bgr8(img)
+        except ImageError as e:
+            return RawFrame(None, i, media_time=t, error=str(e))
+        return RawFrame(bgr, i, media_time=t, notes=notes)
+
+    def _restart(self) -> bool:
+        import cv2
+
+        if not (self.loop and self.index > 0):
+            return False
+        self.cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+        self.lap += 1
+        self.index = 0
+        self.bad = 0
+        return True
 
     def read(self) -> RawFrame | None:
+        import cv2
+
         if self.cap is None:
             return None
-        ok, img = self.cap.read()
-        if not ok or img is None:
-            if self.loop and self.index > 0:
-                import cv2
-
-                self.cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
-                self.lap += 1
-                self.index = 0
-                ok, img = self.cap.read()
-                if not ok:
-                    raise EndOfStream()
-            else:
+        if self._missing_from is not None:       # the unreachable end of a damaged file
+            i = self.index
+            if i >= self.count or i - self._missing_from >= MAX_MISSING_ITEMS:
+                if i < self.count:
+                    self.index = self.count
+                    return self._frame(None, i, f"frames {i} to {self.count - 1} could not be "
+                                                "decoded (the video is damaged or cut short)")
                 raise EndOfStream()
-        i = self.index
-        self.index += 1
-        self.total += 1
-        return RawFrame(img, i, media_time=(self.total - 1) / self.fps)
+            self.index += 1
+            return self._frame(None, i, "frame could not be decoded (the video is damaged or "
+                                        "cut short)")
+        ok, img = self.cap.read()
+        if ok and img is not None:
+            i = self.index
+            self.index += 1
+            self.bad = 0
+            return self._frame(img, i)
+        if self.count and self.index < self.count:  # announced but not decodable
+            i = self.index
+            self.index += 1
+            self.bad += 1
+            if self.bad >= MAX_BAD_FRAMES_IN_A_ROW:
+                self._missing_from = i
+            else:
+                self.cap.set(cv2.CAP_PROP_POS_FRAMES, i + 1)
+            return self._frame(None, i, "frame could not be decoded (the video is damaged or "
+                                        "cut short)")
+        if self._restart():
+            ok, img = self.cap.read()
+            if ok and img is not None:
+                self.index = 1
+                return self._frame(img, 0)
+        raise EndOfStream()
 
     def close(self) -> None:
         if self.cap is not None:
@@ -406,10 +512,20 @@ class VideoFileReader:
             self.cap = None
 
 
+def list_folder(folder: Path) -> list[Path]:
+    """Images and videos of a folder (not recursive), in name order; hidden files skipped."""
+    items = [p for p in folder.iterdir()
+             if p.is_file() and not p.name.startswith(".")
+             and p.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES]
+    return sorted(items, key=lambda p: p.name)
+
+
 class ImageFolderReader:
-    """The images of a folder in name order, played at ``fps``."""
+    """The images of a folder in name order, played at ``fps``; an unreadable image is a
+    frame carrying ``error`` (the source goes on)."""
 
     finite = True
+    lossless = False
 
     def __init__(self, folder: str | Path, fps: float = 10.0, loop: bool = False):
         self.folder = Path(folder)
@@ -421,30 +537,27 @@ class ImageFolderReader:
         self.i = 0
 
     def open(self) -> None:
-        from drovisio.io_frames import list_folder
-
         if not self.folder.is_dir():
             raise OSError(f"{self.folder}: no such folder")
-        self.files = list_folder(self.folder)
+        self.files = [f for f in list_folder(self.folder) if not is_video_file(f)]
         if not self.files:
-            raise OSError(f"{self.folder}: no images in the folder")
+            raise OSError(f"{self.folder}: no images in the folder (looked for "
+                          f"{', '.join(sorted(IMAGE_SUFFIXES))})")
         self.i = 0
 
     def read(self) -> RawFrame | None:
-        from drovisio.io_frames import read_image
-
-        while True:
-            if self.i >= len(self.files):
-                if not self.loop:
-                    raise EndOfStream()
-                self.i = 0
-            f = self.files[self.i]
-            i = self.i
-            self.i += 1
-            img, err, _notes = read_image(f)
-            if img is not None:
-                return RawFrame(img, i, media_time=i / self.fps, name=f.name)
-            # an unreadable file is skipped, not a loss of the source
+        if self.i >= len(self.files):
+            if not self.loop:
+                raise EndOfStream()
+            self.i = 0
+        f = self.files[self.i]
+        i = self.i
+        self.i += 1
+        try:
+            img, notes = read_image(f)
+        except ImageError as e:
+            return RawFrame(None, i, media_time=i / self.fps, name=f.name, error=str(e))
+        return RawFrame(img, i, media_time=i / self.fps, name=f.name, notes=notes)
 
     def close(self) -> None:
         pass
@@ -454,6 +567,7 @@ class RecordingReader:
     """A folder written by ``drovisio run --record DIR``, played with its recorded timing."""
 
     finite = True
+    lossless = False
 
     def __init__(self, folder: str | Path, loop: bool = False):
         self.folder = Path(folder)
@@ -473,8 +587,6 @@ class RecordingReader:
         self.i = 0
 
     def read(self) -> RawFrame | None:
-        import cv2
-
         if self.i >= len(self.entries):
             if not self.loop:
                 raise EndOfStream()
@@ -482,31 +594,157 @@ class RecordingReader:
             self.lap += 1
         e = self.entries[self.i]
         self.i += 1
-        img = cv2.imread(str(self.folder / e["image"]), cv2.IMREAD_COLOR)
-        if img is None:
-            return self.read() if self.i < len(self.entries) else None
         t0 = self.entries[0]["t"]
         span = self.entries[-1]["t"] - t0 + 0.1
-        return RawFrame(img, int(e["frame"]), media_time=e["t"] - t0 + self.lap * span,
-                        name=e["image"])
+        t = e["t"] - t0 + self.lap * span
+        try:
+            img, notes = read_image(self.folder / e["image"])
+        except ImageError as err:
+            return RawFrame(None, int(e["frame"]), media_time=t, name=e["image"],
+                            error=str(err))
+        return RawFrame(img, int(e["frame"]), media_time=t, name=e["image"], notes=notes)
 
     def close(self) -> None:
         pass
+
+
+class PlaybackReader:
+    """Still images played as if a camera filmed them, looping, at up to ``fps`` frames per
+    second (the calibration page's sample session, or a folder of calibration photos).
+
+    Each image is one board placement, held for ``seconds_per_view``: first the board "moves"
+    there (a quarter of the time: a blurred blend sliding from the previous image), then it is
+    held still (the image itself, shifted by a random sub-pixel jitter, with a little sensor
+    noise), so that the sharpness and stillness gates see what a real camera would give. On a
+    busy machine a placement is held for at least ``min_still_frames`` frames, so that no
+    placement is skipped however slowly frames are processed (``lossless``: the consumer's
+    pace drives it).
+    """
+
+    MOVE_FRACTION = 0.25
+    finite = False
+    lossless = True
+
+    def __init__(self, files: list[Path], seconds_per_view: float = 1.5, fps: float = 12.0,
+                 seed: int = 0, label: str = "sample session", min_still_frames: int = 3
+                 ) -> None:
+        if not files:
+            raise OSError("no images to play")
+        self.files = list(files)
+        spv = max(0.05, float(seconds_per_view))
+        self.move_s = self.MOVE_FRACTION * spv
+        self.still_s = spv - self.move_s
+        self.min_still = max(2, int(min_still_frames))
+        self.period = 1.0 / max(1.0, float(fps))
+        self.label = label
+        self._rng = np.random.default_rng(seed)
+        # a few precomputed noise fields (drawing fresh Gaussian noise costs more than the rest)
+        self._noise: list[np.ndarray] = []
+        self._next = time.monotonic()
+        self._k = 0                # index of the placement shown
+        self._moving = False       # first placement: already there
+        self._since = time.monotonic()
+        self._n = 0                # frames given in the current phase
+        self._count = 0
+        self._cache: dict[int, np.ndarray] = {}
+
+    @classmethod
+    def from_folder(cls, folder: Path, **kw) -> PlaybackReader:
+        files = [f for f in list_folder(Path(folder)) if not is_video_file(f)]
+        return cls(files, label=kw.pop("label", f"images in {folder}"), **kw)
+
+    def open(self) -> None:
+        pass
+
+    def _image(self, k: int) -> np.ndarray:
+        k %= len(self.files)
+        if k not in self._cache:
+            if len(self._cache) >= 2:  # only the current and the previous placement are kept
+                self._cache.pop(next(iter(self._cache)))
+            try:
+                self._cache[k] = read_image(self.files[k])[0]
+            except ImageError as e:
+                raise OSError(f"cannot read {self.files[k]}: {e}") from None
+        return self._cache[k]
+
+    def _advance(self, now: float) -> None:
+        if self._moving:
+            if now - self._since >= self.move_s and self._n >= 1:
+                self._moving, self._since, self._n = False, now, 0
+        elif now - self._since >= self.still_s and self._n >= self.min_still:
+            self._k += 1
+            self._moving, self._since, self._n = True, now, 0
+
+    def _noisy(self, img: np.ndarray) -> np.ndarray:
+        if not self._noise or self._noise[0].shape != img.shape:
+            self._noise = [np.round(self._rng.normal(0.0, 1.5, img.shape)).astype(np.int16)
+                           for _ in range(3)]
+        noise = self._noise[int(self._rng.integers(len(self._noise)))]
+        return np.clip(img.astype(np.int16) + noise, 0, 255).astype(np.uint8)
+
+    def _picture(self, now: float) -> np.ndarray:
+        import cv2
+
+        cur = self._image(self._k)
+        h, w = cur.shape[:2]
+        if self._moving:
+            prev = self._image(self._k - 1)
+            if prev.shape != cur.shape:
+                prev = cv2.resize(prev, (w, h))
+            a = min(1.0, (now - self._since) / self.move_s, 0.5 * self._n)
+            mixed = cv2.addWeighted(prev, 1.0 - a, cur, a, 0.0)
+            dx = 4.0 + (1.0 - a) * 12.0
+            m = np.float32([[1, 0, dx], [0, 1, 0.3 * dx]])
+            mixed = cv2.warpAffine(mixed, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
+            return cv2.blur(mixed, (17, 1))  # horizontal motion blur
+        dx, dy = self._rng.uniform(-0.2, 0.2, 2)
+        m = np.float32([[1, 0, dx], [0, 1, dy]])
+        img = cv2.warpAffine(cur, m, (w, h), flags=cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE)
+        return self._noisy(img)
+
+    def read(self) -> RawFrame | None:
+        now = time.monotonic()
+        if self._next > now:
+            time.sleep(self._next - now)
+        now = time.monotonic()
+        self._next = max(self._next + self.period, now)
+        self._advance(now)
+        self._n += 1
+        try:
+            img = self._picture(now)
+        except OSError:
+            return None
+        self._count += 1
+        return RawFrame(img, self._count - 1, name=self.files[self._k % len(self.files)].name)
+
+    def close(self) -> None:
+        self._cache.clear()
 
 
 def _is_url(s: str) -> bool:
     return "://" in s and not s.startswith("file://")
 
 
-def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Reader:
-    """The reader of a SOURCE string (see the module doc)."""
-    from drovisio.io_frames import VIDEO_EXTS
-
-    s = str(source).strip()
+def _camera_index(s: str) -> int | None:
     if s.isdigit():
-        return CameraReader(int(s))
-    if s.startswith("/dev/video"):
-        return CameraReader(int(s[len("/dev/video"):]))
+        return int(s)
+    if s.startswith("/dev/video") and s[len("/dev/video"):].isdigit():
+        return int(s[len("/dev/video"):])
+    return None
+
+
+def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Reader:
+    """The reader of a SOURCE string (see the module doc).
+
+    Raises:
+        InputError: a file or folder that does not exist, or that is not a video, an image
+            folder or a recording (cameras and URLs are not checked: they may come later).
+    """
+    s = str(source).strip()
+    cam = _camera_index(s)
+    if cam is not None:
+        return CameraReader(cam)
     if _is_url(s):
         return StreamReader(s)
     s = s.removeprefix("file://")
@@ -515,10 +753,117 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
         if (p / "recording.json").is_file():
             return RecordingReader(p, loop=loop)
         return ImageFolderReader(p, fps=folder_fps, loop=loop)
-    if p.suffix.lower() in VIDEO_EXTS or p.is_file():
-        return VideoFileReader(p, loop=loop)
-    # not there (yet): treat as a video file; FrameSource reports it lost and retries
+    if not p.exists():
+        raise InputError(f"{s}: --source: no such file or folder (give a camera index such "
+                         "as 0, a video file, a folder of images or a stream URL)")
+    if not p.is_file():
+        raise InputError(f"{s}: --source: not a regular file (a pipe or a device); give a "
+                         "camera index (0) for a camera")
     return VideoFileReader(p, loop=loop)
+
+
+# ------------------------------------------------------------------------------------------
+# Batch iteration (the command line's inputs)
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass
+class FrameItem:
+    """One frame of the command line's inputs, or the reason it could not be read."""
+
+    file: str
+    """The path as given (a folder's image: the folder as given joined with its name; a
+    video's frame: the video path)."""
+    frame: int
+    """The frame's index in its video; for images, their running index over the run."""
+    image: np.ndarray | None = None
+    """BGR uint8 (H, W, 3), or None when ``error`` is set."""
+    error: str | None = None
+    notes: list[str] = field(default_factory=list)
+    source: str = ""
+    """The input (file, folder or video) this frame came from, as given."""
+    is_video: bool = False
+
+
+def _video_items(path: str, source: str) -> Iterator[FrameItem]:
+    reader = VideoFileReader(path)
+    try:
+        reader.open()
+    except OSError as e:
+        yield FrameItem(path, 0, error=str(e).removeprefix(f"{path}: "), source=source,
+                        is_video=True)
+        return
+    n = 0
+    try:
+        while True:
+            try:
+                raw = reader.read()
+            except EndOfStream:
+                break
+            if raw is None:
+                break
+            n += 1
+            yield FrameItem(path, raw.index, raw.image, raw.error, raw.notes, source=source,
+                            is_video=True)
+    finally:
+        reader.close()
+    if n == 0:
+        yield FrameItem(path, 0, error="video has no readable frame", source=source,
+                        is_video=True)
+
+
+def iter_inputs(inputs: Iterable[str], messages: list[str] | None = None
+                ) -> Iterator[FrameItem]:
+    """The frames of the command line's inputs, in order (a folder's images and videos in
+    name order, a video frame by frame), never raising for a bad input.
+
+    Args:
+        inputs: Image files, folders or videos.
+        messages: Problems that produce no frame at all (an empty folder) are appended here.
+
+    Yields:
+        :class:`FrameItem`; unreadable frames carry ``error`` instead of an image.
+    """
+    image_index = 0
+    for inp in inputs:
+        p = Path(inp)
+        if p.is_dir():
+            files = list_folder(p)
+            if not files:
+                if messages is not None:
+                    messages.append(f"{inp}: folder has no images or videos (looked for "
+                                    f"{', '.join(sorted(IMAGE_SUFFIXES | VIDEO_SUFFIXES))})")
+                continue
+            for f in files:
+                shown = os.path.join(inp, f.name)
+                if is_video_file(f):
+                    yield from _video_items(shown, inp)
+                    continue
+                yield _image_item(f, shown, image_index, inp)
+                image_index += 1
+            continue
+        if p.exists() and p.is_file() and (is_video_file(p) or not _looks_like_image(p)):
+            yield from _video_items(inp, inp)
+            continue
+        yield _image_item(p, inp, image_index, inp)
+        image_index += 1
+
+
+def _looks_like_image(p: Path) -> bool:
+    """An image by its suffix, or (unknown suffix) by a header Pillow or OpenCV knows."""
+    if p.suffix.lower() in IMAGE_SUFFIXES:
+        return True
+    import cv2
+
+    return bool(cv2.haveImageReader(str(p)))
+
+
+def _image_item(path: Path, shown: str, index: int, source: str) -> FrameItem:
+    try:
+        img, notes = read_image(path)
+    except ImageError as e:
+        return FrameItem(shown, index, error=str(e), source=source)
+    return FrameItem(shown, index, img, None, notes, source=source)
 
 
 # ------------------------------------------------------------------------------------------
@@ -537,11 +882,14 @@ class SourceStatus:
     reconnects: int
     error: str | None
     finite: bool
+    frame_errors: int = 0
+    """Frames that could not be decoded (handed over with their ``error``)."""
 
     def to_json(self) -> dict:
         return {"label": self.label, "state": self.state,
                 "for_s": round(time.monotonic() - self.since, 3), "frames": self.frames,
-                "dropped": self.dropped, "reconnects": self.reconnects, "error": self.error}
+                "dropped": self.dropped, "reconnects": self.reconnects, "error": self.error,
+                "frame_errors": self.frame_errors, "finite": self.finite}
 
 
 class FrameSource:
@@ -574,6 +922,7 @@ class FrameSource:
         self.frames = 0
         self.dropped = 0
         self.reconnects = 0
+        self.frame_errors = 0
         self._clock_offset = 0.0
 
     # ------------------------------------------------------------------ state
@@ -595,7 +944,7 @@ class FrameSource:
     def status(self) -> SourceStatus:
         return SourceStatus(self.label, self._state.value, self._since, self.frames,
                             self.dropped, self.reconnects, self._error,
-                            bool(getattr(self.reader, "finite", False)))
+                            bool(getattr(self.reader, "finite", False)), self.frame_errors)
 
     def now(self) -> float:
         """The source's clock now (monotonic; the media clock for ``pace="max"`` files)."""
@@ -603,8 +952,9 @@ class FrameSource:
 
     @property
     def ended(self) -> bool:
-        """True once a finite source is exhausted and its last frame was taken."""
-        return self._state in (SourceState.ENDED, SourceState.STOPPED) and self._slot is None
+        """True once a finite source is exhausted (or could not be opened) and its last frame
+        was taken."""
+        return self._state in _FINAL and self._slot is None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> FrameSource:
@@ -620,7 +970,7 @@ class FrameSource:
             self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout)
-        if self._state != SourceState.ENDED:
+        if self._state not in (SourceState.ENDED, SourceState.FAILED):
             self._set_state(SourceState.STOPPED)
 
     def __enter__(self) -> FrameSource:
@@ -635,7 +985,7 @@ class FrameSource:
         deadline = None if timeout is None else self._mono() + timeout
         with self._cond:
             while self._slot is None:
-                if self._state in (SourceState.ENDED, SourceState.STOPPED) or self._stop.is_set():
+                if self._state in _FINAL or self._stop.is_set():
                     return None
                 remaining = None if deadline is None else deadline - self._mono()
                 if remaining is not None and remaining <= 0:
@@ -662,6 +1012,8 @@ class FrameSource:
     def _run(self) -> None:
         r = self.reader
         pace_max = self.pace == "max"  # applies to frames with a media time (files)
+        lossless = bool(getattr(r, "lossless", False))
+        finite = bool(getattr(r, "finite", False))
         opened = False
         delay = self.backoff[0]
         t_start = m_start = None
@@ -677,7 +1029,11 @@ class FrameSource:
                     ever_opened = True
                     t_start = m_start = None
                 except Exception as e:  # noqa: BLE001 - any failure: retry later
-                    self._set_state(SourceState.LOST, f"{type(e).__name__}: {e}")
+                    why = str(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
+                    if finite and not ever_opened:   # a file that is not there stays so
+                        self._set_state(SourceState.FAILED, why)
+                        break
+                    self._set_state(SourceState.LOST, why)
                     self._sleep(delay)
                     delay = min(delay * 2, self.backoff[1])
                     continue
@@ -720,17 +1076,23 @@ class FrameSource:
                 t_wall = w_start + (raw.media_time - m_start)
             f = Frame(image=raw.image, index=raw.index, t_mono=t_mono, t_wall=t_wall,
                       seq=self.frames, t_read=now_m, media_time=raw.media_time,
-                      name=raw.name)
+                      name=raw.name, error=raw.error)
             self._clock_offset = t_mono - now_m
             self.frames += 1
+            if raw.error is not None:
+                self.frame_errors += 1
             self._set_state(SourceState.LIVE)
-            self._publish(f, wait_for_consumer=pace_max and raw.media_time is not None)
+            self._publish(f, wait_for_consumer=lossless or (pace_max
+                                                            and raw.media_time is not None))
         try:
             r.close()
         except Exception:  # noqa: BLE001
             pass
-        if self._state != SourceState.ENDED:
+        if self._state not in (SourceState.ENDED, SourceState.FAILED):
             self._set_state(SourceState.STOPPED)
+
+
+_FINAL = (SourceState.ENDED, SourceState.FAILED, SourceState.STOPPED)
 
 
 def open_source(source: str, pace: Pace = "realtime", loop: bool = False) -> FrameSource:

@@ -23,12 +23,12 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.geometry import rot_z, rvec_tvec, transform
 
 __all__ = [
     "Board", "BrickInstance", "Effects", "Ground", "Prop", "RenderResult", "Scene",
     "BrickTruth", "look_at", "camera_over", "render", "render_chessboard", "render_charuco",
-    "transform",
-    "rvec_tvec", "rot_z", "ground_texture", "brick_mesh_for", "apply_effects",
+    "ground_texture", "brick_mesh_for", "apply_effects",
 ]
 
 Texture = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray | None]]
@@ -40,28 +40,6 @@ SKY = (235.0, 215.0, 200.0)
 
 
 # =================================================================================== poses
-def transform(R: np.ndarray | None = None, t: Sequence[float] | None = None) -> np.ndarray:
-    """A 4×4 rigid transform from a rotation matrix (or rotation vector) and a translation."""
-    T = np.eye(4)
-    if R is not None:
-        R = np.asarray(R, dtype=np.float64)
-        T[:3, :3] = cv2.Rodrigues(R.reshape(3, 1))[0] if R.size == 3 else R.reshape(3, 3)
-    if t is not None:
-        T[:3, 3] = np.asarray(t, dtype=np.float64)
-    return T
-
-
-def rot_z(angle_rad: float) -> np.ndarray:
-    """3×3 rotation about z."""
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def rvec_tvec(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV's (rvec, tvec) of a 4×4 transform."""
-    return cv2.Rodrigues(np.asarray(T[:3, :3], dtype=np.float64))[0].ravel(), T[:3, 3].copy()
-
-
 def look_at(eye: Sequence[float], target: Sequence[float],
             up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
     """``camera_from_world`` of an OpenCV camera at ``eye`` looking at ``target``.
@@ -668,7 +646,7 @@ def brick_mesh_for(layout) -> object:
         mesh = mesh.copy()
         mesh.apply_scale(scale)
         return mesh
-    dims = np.asarray(layout.dimensions, float) * scale
+    dims = np.asarray(layout.dimensions_m, float)
     box = trimesh.creation.box(extents=dims)
     box.apply_translation([0, 0, -dims[2] / 2])
     return box

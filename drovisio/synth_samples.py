@@ -26,11 +26,22 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera, save_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import save_camera
 from drovisio.layout import load_layout, shipped_layouts_dir
+from drovisio.resources import sample_sessions_dir
 from drovisio.scenes import gravity_in_camera
-from drovisio.synth import (BrickInstance, Effects, Ground, Scene, render,
-                            render_chessboard, rot_z, rvec_tvec, transform)
+from drovisio.synth import (
+    BrickInstance,
+    Effects,
+    Ground,
+    Scene,
+    render,
+    render_chessboard,
+    rot_z,
+    rvec_tvec,
+    transform,
+)
 
 FPS = 15
 SECONDS = 10
@@ -176,8 +187,7 @@ def write_approach_session(out: Path, camera: Camera) -> None:
 
 def main(out_dir: str | Path | None = None) -> int:
     """Write all sample sessions into ``out_dir`` (default: the repo's sample_sessions/)."""
-    out = Path(out_dir) if out_dir is not None else Path(__file__).resolve().parents[1] / \
-        "sample_sessions"
+    out = Path(out_dir) if out_dir is not None else sample_sessions_dir()
     camera = Camera.drone_webcam()
     out.mkdir(parents=True, exist_ok=True)
     save_camera(camera, out / "camera.yaml")

@@ -25,13 +25,6 @@ from pathlib import Path
 
 import pytest
 
-# pytest puts tests/ on sys.path (no __init__.py there), which makes tests/webtool/ look like a
-# namespace package called `webtool` that hides the real one when pytest runs from another
-# folder. The checkout's root goes first so that `import webtool` is always the real package.
-REPO_ROOT = Path(__file__).resolve().parents[1]
-if str(REPO_ROOT) not in sys.path:
-    sys.path.insert(0, str(REPO_ROOT))
-
 # The web tool keeps calibration sessions and the calibration in use under $XDG_DATA_HOME:
 # tests get a folder of their own, so that neither the user's data nor a previous run's
 # changes what a test sees.

@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from drovisio.camera import Camera, CameraFileError, load_camera, save_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import CameraFileError, load_camera, save_camera
 
 OPENCV_SAMPLE_YAML = """%YAML:1.0
 ---
@@ -101,7 +102,11 @@ def test_size_guessed_from_principal_point_when_absent(tmp_path: Path):
                      if not line.startswith("image_"))
     (tmp_path / "c.yaml").write_text(text)
     cam = load_camera(tmp_path / "c.yaml")
-    assert cam.size == (685, 468)  # 2·cx + 1, the guess for a centred lens
+    assert not cam.size_known
+    assert cam.size == (685, 468)  # 2·cx + 1, a guess until an image gives the size
+    sized, note = cam.for_image(640, 480)
+    assert sized.size == (640, 480) and sized.size_known and note is None
+    assert sized.fx == cam.fx and sized.cx == cam.cx
 
 
 def test_project_matches_opencv_and_undistort_inverts_it():
@@ -141,7 +146,7 @@ def test_scaled_keeps_pixel_centre_convention():
      "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\n", "distortion_coefficients"),
     ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 2\n   cols: 2\n   dt: d\n"
      "   data: [ 500., 0., 0., 500. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
-     "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "3×3"),
+     "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "3x3"),
     ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
      "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: "
      "!!opencv-matrix\n   rows: 1\n   cols: 3\n   dt: d\n   data: [ 0., 0., 0. ]\n",
@@ -151,10 +156,10 @@ def test_scaled_keeps_pixel_centre_convention():
     ("{\"camera_matrix\": [1, 2", "invalid JSON"),
     ("hello: [1, 2\n", "not valid YAML"),
     ("just: text\n", "not a camera file"),
-    ("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 2, 3]\n", "rows×cols"),
+    ("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 2, 3]\n", "rows x cols"),
     ("camera_matrix:\n  rows: 3\n  cols: 3\n  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\n"
-     "distortion_model: equidistant\ndistortion_coefficients:\n  rows: 1\n  cols: 4\n"
-     "  data: [0, 0, 0, 0]\n", "distortion_model"),
+     "distortion_model: kannala_brandt_8\ndistortion_coefficients:\n  rows: 1\n  cols: 4\n"
+     "  data: [0, 0, 0, 0]\n", "distortion_model: 'kannala_brandt_8' is not a lens model"),
 ])
 def test_bad_files_name_file_and_field(tmp_path: Path, content, needle):
     path = tmp_path / "bad_camera.yaml"

@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from drovisio.camera import Camera, load_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.synth import rvec_tvec, transform
 from drovisio import synth_samples

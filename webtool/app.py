@@ -8,11 +8,12 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 
+from drovisio.resources import static_dir, templates_dir
 from webtool.access import TokenAccessMiddleware
 from webtool.routes import calibration, designer, health, pages
 from webtool.routes import live as live_routes
 from webtool.routes import replay as replay_routes
-from webtool.settings import STATIC_DIR, TEMPLATES_DIR, Settings
+from webtool.settings import Settings
 
 
 def drovisio_version() -> str:
@@ -38,7 +39,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         openapi_url="/api/openapi.json",
     )
     app.state.settings = settings
-    app.state.templates = Jinja2Templates(directory=str(TEMPLATES_DIR))
+    app.state.templates = Jinja2Templates(directory=str(templates_dir()))
     app.state.templates.env.globals["version"] = app.version
 
     # One router per area. Calibration, designer and live APIs go here as they arrive, e.g.
@@ -50,7 +51,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(designer.viewer_router)  # /designer/3d: the 3D view, proxied
     app.include_router(live_routes.router)  # /api/live/..., /live/3d (issue #7)
     app.include_router(replay_routes.router)  # /api/replay/..., /replay/3d (issue #8)
-    app.mount("/static", StaticFiles(directory=str(STATIC_DIR)), name="static")
+    app.mount("/static", StaticFiles(directory=str(static_dir())), name="static")
 
     app.add_middleware(TokenAccessMiddleware, token=settings.token)
     return app

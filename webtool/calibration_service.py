@@ -3,9 +3,10 @@
 A :class:`CalibrationService` per app (``app.state.calibration``, made on first use by
 ``webtool.routes.calibration``) owns:
 
-* a **frame source**: the server's camera (``--source``: a V4L2 index such as ``0``, a stream URL
-  or a video file, through ``cv2.VideoCapture``), a folder of images, or — with no source — the
-  sample calibration session played *as if live* (:class:`SamplePlayback`);
+* a **frame source** (a :mod:`drovisio.sources` reader): the server's camera (``--source``: a
+  V4L2 index such as ``0``, shared with the live view, a stream URL or a video file, which
+  loops), a folder of images, or — with no source — the sample calibration session played *as
+  if live* (:class:`~drovisio.sources.PlaybackReader`);
 * a **worker thread** that pulls frames, offers each to the
   :class:`~drovisio.calibration.session.CalibrationSession` (auto-capture: sharp + still + novel
   frames are kept) or only detects the board (auto-capture off), draws the detected corners and
@@ -24,8 +25,7 @@ A :class:`CalibrationService` per app (``app.state.calibration``, made on first 
   worker solves; the next-pose hint, the verdict and the report are derived from the latest
   solve and cached, so that requests never wait for a solve.
 
-Frame sources are small classes with ``read() -> BGR image | None`` and ``close()``; tests give
-their own through ``source_factory``.
+Tests give their own readers through ``source_factory``.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Protocol
+from typing import BinaryIO
 
 import cv2
 import numpy as np
@@ -51,19 +51,17 @@ from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, t
 from drovisio.calibration.report import _clean, build_report, uncertainty_image
 from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
 from drovisio.calibration.verdict import Verdict
-from drovisio.camera import Camera, load_camera, save_camera
-from drovisio.commands.calibrate import IMAGE_SUFFIXES
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera, save_camera
 from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
+from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file
+from drovisio.sources import PlaybackReader, Reader, list_folder, reader_for
 
 __all__ = [
     "SESSION_SCHEMA",
     "CalibrationService",
-    "CaptureSource",
-    "FrameSource",
-    "SamplePlayback",
     "ServiceError",
     "atomic_write_bytes",
-    "decode_image",
     "camera_in_use",
     "default_calibration_dir",
 ]
@@ -115,20 +113,12 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     _atomic_write_bytes(path, data, make_parents=True)
 
 
-def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray | None, str | None]:
+def _decode(data: bytes, name: str = "") -> tuple[np.ndarray | None, str | None]:
     """(BGR image, None), or (None, why it cannot be used) in plain words."""
-    if not data:
-        return None, "the file is empty"
-    if (name.lower().endswith((".jpg", ".jpeg")) and data[:2] == b"\xff\xd8"
-            and not data.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9")):
-        return None, "corrupt JPEG: the file is cut short (copy it again from the camera)"
     try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    except cv2.error:
-        img = None
-    if img is None or img.size == 0:
-        return None, "cannot be read as an image (corrupt, or not an image file)"
-    return img, None
+        return decode_image(data, name)[0], None
+    except ImageError as e:
+        return None, str(e)
 
 
 def _safe_name(name: str) -> str:
@@ -157,206 +147,32 @@ def _draw_corners(img: np.ndarray, board: BoardSpec, det, colour=(0, 220, 0)) ->
 
 
 # ============================================================================= frame sources
-class FrameSource(Protocol):
-    label: str
-
-    def read(self) -> np.ndarray | None:
-        """The next frame (BGR), or None when the camera gives nothing (lost, unplugged)."""
-
-    def close(self) -> None: ...
-
-
-class SamplePlayback:
-    """Images played as if a camera filmed them, looping, at up to ``fps`` frames per second.
-
-    Each image is one board placement, held for ``seconds_per_view``: first the board "moves"
-    there (a quarter of the time: a blurred blend sliding from the previous image), then it is
-    held still (the image itself, shifted by a random sub-pixel jitter, with a little sensor
-    noise), so that the sharpness and stillness gates see what a real camera would give. On a
-    busy machine a placement is held for at least ``min_still_frames`` frames, so that no
-    placement is skipped however slowly frames are processed.
-    """
-
-    MOVE_FRACTION = 0.25
-
-    def __init__(self, files: list[Path], seconds_per_view: float = 1.5, fps: float = 12.0,
-                 seed: int = 0, label: str = "sample session", min_still_frames: int = 3
-                 ) -> None:
-        if not files:
-            raise FileNotFoundError("no images to play")
-        self.files = list(files)
-        spv = max(0.05, float(seconds_per_view))
-        self.move_s = self.MOVE_FRACTION * spv
-        self.still_s = spv - self.move_s
-        self.min_still = max(2, int(min_still_frames))
-        self.period = 1.0 / max(1.0, float(fps))
-        self.label = label
-        self._rng = np.random.default_rng(seed)
-        # a few precomputed noise fields (drawing fresh Gaussian noise costs more than the rest)
-        self._noise: list[np.ndarray] = []
-        self._next = time.monotonic()
-        self._k = 0                # index of the placement shown
-        self._moving = False       # first placement: already there
-        self._since = time.monotonic()
-        self._n = 0                # frames given in the current phase
-        self._cache: dict[int, np.ndarray] = {}
-
-    @classmethod
-    def from_folder(cls, folder: Path, **kw) -> SamplePlayback:
-        files = sorted(f for f in Path(folder).iterdir()
-                       if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
-        return cls(files, label=kw.pop("label", f"images in {folder}"), **kw)
-
-    def _image(self, k: int) -> np.ndarray:
-        k %= len(self.files)
-        if k not in self._cache:
-            if len(self._cache) >= 2:  # only the current and the previous placement are kept
-                self._cache.pop(next(iter(self._cache)))
-            img = cv2.imread(str(self.files[k]), cv2.IMREAD_COLOR)
-            if img is None:
-                raise OSError(f"cannot read {self.files[k]}")
-            self._cache[k] = img
-        return self._cache[k]
-
-    def _advance(self, now: float) -> None:
-        if self._moving:
-            if now - self._since >= self.move_s and self._n >= 1:
-                self._moving, self._since, self._n = False, now, 0
-        elif now - self._since >= self.still_s and self._n >= self.min_still:
-            self._k += 1
-            self._moving, self._since, self._n = True, now, 0
-
-    def _noisy(self, img: np.ndarray) -> np.ndarray:
-        if not self._noise or self._noise[0].shape != img.shape:
-            self._noise = [np.round(self._rng.normal(0.0, 1.5, img.shape)).astype(np.int16)
-                           for _ in range(3)]
-        noise = self._noise[int(self._rng.integers(len(self._noise)))]
-        return np.clip(img.astype(np.int16) + noise, 0, 255).astype(np.uint8)
-
-    def read(self) -> np.ndarray | None:
-        now = time.monotonic()
-        if self._next > now:
-            time.sleep(self._next - now)
-        now = time.monotonic()
-        self._next = max(self._next + self.period, now)
-        self._advance(now)
-        self._n += 1
-        try:
-            cur = self._image(self._k)
-            h, w = cur.shape[:2]
-            if self._moving:
-                prev = self._image(self._k - 1)
-                if prev.shape != cur.shape:
-                    prev = cv2.resize(prev, (w, h))
-                a = min(1.0, (now - self._since) / self.move_s, 0.5 * self._n)
-                mixed = cv2.addWeighted(prev, 1.0 - a, cur, a, 0.0)
-                dx = 4.0 + (1.0 - a) * 12.0
-                m = np.float32([[1, 0, dx], [0, 1, 0.3 * dx]])
-                mixed = cv2.warpAffine(mixed, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
-                return cv2.blur(mixed, (17, 1))  # horizontal motion blur
-            dx, dy = self._rng.uniform(-0.2, 0.2, 2)
-            m = np.float32([[1, 0, dx], [0, 1, dy]])
-            img = cv2.warpAffine(cur, m, (w, h), flags=cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE)
-            return self._noisy(img)
-        except OSError:
-            return None
-
-    def close(self) -> None:
-        self._cache.clear()
-
-
-class CaptureSource:
-    """The server's camera through ``cv2.VideoCapture``: a V4L2 index (``"0"``), a stream URL
-    or a video file (which loops). ``read`` returns None while the camera is lost; the next
-    ``read`` tries to open it again."""
-
-    def __init__(self, spec: str) -> None:
-        self.spec = spec
-        self.label = f"camera {spec}"
-        self._cap = None
-        self._is_file = Path(spec).is_file()
-        s = spec.strip()
-        # a V4L2 device is shared with the live view (drovisio.sources.SharedCamera): the
-        # device can be opened once only
-        self._device = int(s) if s.isdigit() else int(s[len("/dev/video"):]) \
-            if s.startswith("/dev/video") and s[len("/dev/video"):].isdigit() else None
-        self._shared = None
-        self._seq = 0
-
-    def _open(self) -> bool:
-        target: int | str = int(self.spec) if self.spec.strip().isdigit() else self.spec
-        cap = cv2.VideoCapture(target)
-        if not cap.isOpened():
-            cap.release()
-            return False
-        try:
-            cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the latest frame, not a queue of old ones
-        except cv2.error:  # pragma: no cover - backend without the property
-            pass
-        self._cap = cap
-        return True
-
-    def read(self) -> np.ndarray | None:
-        if self._device is not None:
-            from drovisio.sources import SharedCamera
-
-            if self._shared is None:
-                self._shared, self._seq = SharedCamera.acquire(self._device), 0
-            got = self._shared.next(self._seq, timeout=2.0)
-            if got is None:
-                self.close()
-                return None
-            img, self._seq, _ = got
-            return img
-        if self._cap is None and not self._open():
-            return None
-        ok, frame = self._cap.read()
-        if not ok and self._is_file:  # end of a video file: start again
-            self.close()
-            if self._open():
-                ok, frame = self._cap.read()
-        if not ok or frame is None or frame.size == 0:
-            self.close()
-            return None
-        return frame
-
-    def close(self) -> None:
-        if self._shared is not None:
-            shared, self._shared = self._shared, None
-            shared.release()
-        if self._cap is not None:
-            self._cap.release()
-            self._cap = None
-
-
 def sample_files(settings) -> list[Path]:
     folder = Path(settings.sample_session)
     for cand in (folder / "calibration", folder):
         if cand.is_dir():
-            files = sorted(f for f in cand.iterdir()
-                           if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+            files = [f for f in list_folder(cand) if is_image_file(f)]
             if files:
                 return files
     return []
 
 
-def default_source_factory(settings) -> Callable[[], FrameSource]:
-    """The frame source ``settings`` ask for (a fresh one per call)."""
+def default_source_factory(settings) -> Callable[[], Reader]:
+    """The frame source ``settings`` ask for (a fresh reader per call): the sample session or
+    a folder of photos played as if live, else the camera, stream or video (which loops)."""
     if settings.source is None:
-        def sample() -> FrameSource:
+        def sample() -> Reader:
             files = sample_files(settings)
             if not files:
                 raise FileNotFoundError(f"no sample calibration images in "
                                         f"{settings.sample_session}")
-            return SamplePlayback(files, settings.sample_seconds_per_view,
+            return PlaybackReader(files, settings.sample_seconds_per_view,
                                   label="sample session (no camera)")
         return sample
     if Path(settings.source).is_dir():
-        return lambda: SamplePlayback.from_folder(Path(settings.source),
-                                                  seconds_per_view=settings
-                                                  .sample_seconds_per_view)
-    return lambda: CaptureSource(settings.source)
+        return lambda: PlaybackReader.from_folder(
+            Path(settings.source), seconds_per_view=settings.sample_seconds_per_view)
+    return lambda: reader_for(settings.source, loop=True)
 
 
 def source_label(settings) -> str:
@@ -424,7 +240,7 @@ class CalibrationService:
         idle_timeout: Seconds without a request after which the camera is released.
     """
 
-    def __init__(self, settings, source_factory: Callable[[], FrameSource] | None = None,
+    def __init__(self, settings, source_factory: Callable[[], Reader] | None = None,
                  idle_timeout: float = 45.0) -> None:
         self.settings = settings
         self.root = Path(settings.calibration_dir) if settings.calibration_dir \
@@ -577,7 +393,7 @@ class CalibrationService:
             if f.name in known or f.name.startswith(".") or \
                     f.suffix.lower() not in IMAGE_SUFFIXES:
                 continue
-            img, why = decode_image(f.read_bytes(), f.name)
+            img, why = _decode(f.read_bytes(), f.name)
             if img is None:
                 self.session.add_rejected(f.name, why)
                 continue
@@ -635,7 +451,9 @@ class CalibrationService:
                 c.message = message
 
     def _run(self) -> None:
-        src: FrameSource | None = None
+        from drovisio.sources import EndOfStream
+
+        src: Reader | None = None
         try:
             while not self._stop.is_set():
                 if time.monotonic() - self._last_request > self.idle_timeout:
@@ -645,14 +463,24 @@ class CalibrationService:
                     try:
                         src = self._factory()
                         self._source_label = getattr(src, "label", "")
+                        src.open()
                     except Exception as e:  # noqa: BLE001 - any failure: retry later
+                        if src is not None:
+                            src.close()
+                        src = None
                         self._lost(f"cannot open the camera ({e})")
                         continue
+                frame = None
                 try:
-                    frame = src.read()
+                    raw = src.read()
+                    frame = None if raw is None else raw.image
+                except EndOfStream:
+                    raw = None
                 except Exception as e:  # noqa: BLE001
-                    frame = None
+                    raw = None
                     self._feedback = {**self._feedback, "detail": str(e)}
+                if raw is not None and frame is None:   # one bad frame: not a lost camera
+                    continue
                 if frame is None:
                     try:
                         src.close()
@@ -886,7 +714,7 @@ class CalibrationService:
             sess = self.session
             name = f"capture-{self._capture_counter:04d}.png"
             fr = sess.evaluate(frame, name)
-            dup = self._duplicate_of(fr.detection) if fr.usable else None
+            dup = sess.duplicate_of(fr.detection) if fr.usable else None
             if dup is not None:
                 raise ServiceError(f"This view is already kept (view #{dup}): move the board "
                                    "first.", 409)
@@ -899,15 +727,6 @@ class CalibrationService:
                 raise ServiceError(self._feedback["message"], 507)
         self._feedback = {**frame_feedback(fr, False), "_at": time.monotonic()}
         return {"view_id": fr.view_id, "message": f"Captured view #{fr.view_id}."}
-
-    def _duplicate_of(self, det) -> int | None:
-        """The id of a kept view with the same corners (within 0.5 px on average), if any."""
-        for v in self.session.views:
-            d = v.detection
-            if d.n == det.n and np.array_equal(d.ids, det.ids) and \
-                    float(np.mean(np.hypot(*(d.corners - det.corners).T))) < 0.5:
-                return v.id
-        return None
 
     # ---------------------------------------------------------------------------- upload
     def upload(self, files: Iterable[tuple[str, BinaryIO]]) -> dict:
@@ -928,7 +747,7 @@ class CalibrationService:
                 results[i] = {"file": label, "ok": False, "message": "too large (over "
                               f"{MAX_UPLOAD_BYTES // (1024 * 1024)} MB): not a camera image?"}
                 continue
-            img, why = decode_image(data, label)
+            img, why = _decode(data, label)
             if img is None:
                 results[i] = {"file": label, "ok": False, "message": why}
                 self.session.add_rejected(label, why)
@@ -956,7 +775,7 @@ class CalibrationService:
                 sess.add_rejected(label, msg)
                 continue
             data = self._read(fh)
-            img, _ = decode_image(data, label)
+            img, _ = _decode(data, label)
             fr = sess.evaluate(img, self._upload_name(label))
             if fr.detection is not None:
                 found_any = True
@@ -967,7 +786,7 @@ class CalibrationService:
                 with self._keep_lock:
                     if sess is not self.session:
                         raise ServiceError("A new session was started during the upload.")
-                    dup = self._duplicate_of(fr.detection)
+                    dup = sess.duplicate_of(fr.detection)
                     if dup is not None:
                         msg = f"already in this session (the same picture as view #{dup})"
                     else:

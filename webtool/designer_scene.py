@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from drovisio.camera import Camera, load_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.designer.checks import Finding, apply_fix, blocking, check_design
 from drovisio.designer.model import (
     MODES,

@@ -25,19 +25,14 @@ from collections import deque
 
 import numpy as np
 
+from drovisio.geometry import quat_wxyz
 from drovisio.mount import Mount, down_camera_mount
 
-__all__ = ["LiveScene", "wxyz"]
+__all__ = ["LiveScene"]
 
 BRICK_RGB = (60, 130, 220)
 DOTS_RGB = (200, 70, 60)
 TARGET_RGB = (250, 200, 20)
-
-
-def wxyz(R: np.ndarray) -> tuple[float, float, float, float]:
-    from drovisio.sinks.mavlink import quat_wxyz
-
-    return tuple(quat_wxyz(R))  # type: ignore[return-value]
 
 
 class LiveScene:
@@ -106,7 +101,7 @@ class LiveScene:
             fov = 2 * math.atan2(self.camera.height / 2, self.camera.fy)
             aspect = self.camera.width / self.camera.height
         sc.add_camera_frustum("/drone/camera", fov=fov, aspect=aspect, scale=0.15,
-                              color=(20, 20, 20), wxyz=wxyz(T[:3, :3]),
+                              color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
                               position=tuple(T[:3, 3]))
         try:
             self.server.initial_camera.position = (-0.9, -0.75, -0.7)
@@ -185,7 +180,7 @@ class LiveScene:
             if nodes is None:
                 nodes = self._bricks[key] = self._brick_nodes(key, b.layout, name)
             nodes["mesh"].position = tuple(float(x) for x in T[:3, 3])
-            nodes["mesh"].wxyz = wxyz(T[:3, :3])
+            nodes["mesh"].wxyz = tuple(quat_wxyz(T[:3, :3]))
             color = TARGET_RGB if key == target_key else (
                 DOTS_RGB if b.method == "dots" else BRICK_RGB)
             if nodes["color"] != color:

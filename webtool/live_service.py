@@ -266,13 +266,13 @@ class LiveService:
 
     def _make_config(self) -> _Config:
         s = self.settings
-        from drovisio.layout import list_shipped_layouts
+        from drovisio.layout import list_shipped_layouts, shipped_layouts_dir
 
         sample_dir = Path(s.sample_session)
         approach = sample_dir / "approach"
         if s.source is None:
             scene = json.loads((approach / "scene.json").read_text())
-            root = Path(__file__).resolve().parents[1] / "marker_layouts"
+            root = shipped_layouts_dir()
             return _Config(str(approach / "approach.mp4"), True,
                            Path(s.camera) if s.camera else sample_dir / "camera.yaml",
                            [root / f"{n}.json" for n in scene["layouts"]],
@@ -283,7 +283,7 @@ class LiveService:
     def _build(self):
         if self.pipeline_factory is not None:
             return self.pipeline_factory(self)
-        from drovisio.camera import load_camera
+        from drovisio.camera_file import load_camera
         from drovisio.layout import load_layouts
         from drovisio.mount import load_mount
         from drovisio.pipeline import Pipeline, detectors_for
@@ -370,7 +370,7 @@ class LiveService:
 
     # ------------------------------------------------------------------ frames
     def _on_frame(self, frame, out) -> None:
-        if frame is None:
+        if frame is None or frame.image is None:
             self._wake()
             return
         self._seq += 1

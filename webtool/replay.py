@@ -23,12 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
 from drovisio.mission.record import SCHEMA_ID, load_recording
+from drovisio.resources import layouts_dir
 
 __all__ = ["Playback", "ReplayError", "ReplayScene", "ReplayService"]
 
 log = logging.getLogger(__name__)
-REPO_ROOT = Path(__file__).resolve().parents[1]
 BRICK_RGB = (60, 130, 220)
 PLACED_RGB = (40, 160, 70)
 HELD_RGB = (250, 200, 20)
@@ -43,10 +44,6 @@ class ReplayError(Exception):
     def __init__(self, message: str, status: int = 400):
         super().__init__(message)
         self.status = status
-
-
-def _yaw_wxyz(yaw: float) -> tuple[float, float, float, float]:
-    return (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
 
 
 def _describe(e: dict) -> str:
@@ -123,7 +120,7 @@ class ReplayScene:
                 from drovisio.layout import load_layout
                 from drovisio.meshes import load_layout_mesh
 
-                f = REPO_ROOT / "marker_layouts" / f"{layout}.json"
+                f = layouts_dir() / f"{layout}.json"
                 if f.is_file():
                     m = load_layout_mesh(load_layout(f))
                     if m is not None:
@@ -171,16 +168,16 @@ class ReplayScene:
                     sc.add_mesh_simple(f"/plan/{b['id']}", mesh[0], mesh[1], color=GHOST_RGB,
                                        wireframe=True, opacity=0.35,
                                        position=tuple(plan["position"]),
-                                       wxyz=_yaw_wxyz(plan["yaw"]))
+                                       wxyz=yaw_quat_wxyz(plan["yaw"]))
                 else:
                     sc.add_box(f"/plan/{b['id']}", color=GHOST_RGB, dimensions=tuple(dims),
-                               wireframe=True, wxyz=_yaw_wxyz(plan["yaw"]),
+                               wireframe=True, wxyz=yaw_quat_wxyz(plan["yaw"]),
                                position=tuple(np.asarray(plan["position"]) -
                                               [0, 0, dims[2] / 2]))
                 pick = b["pick"]
                 node = self._brick_node(f"/bricks/{b['id']}", b["layout"], dims, BRICK_RGB,
                                         position=tuple(pick["position"]),
-                                        wxyz=_yaw_wxyz(pick["yaw"]))
+                                        wxyz=yaw_quat_wxyz(pick["yaw"]))
                 self._bricks[b["id"]] = {"node": node, "color": BRICK_RGB}
             self._drone = sc.add_frame("/drone", axes_length=0.25, axes_radius=0.01)
             sc.add_box("/drone/body", color=(70, 70, 70), dimensions=(0.35, 0.35, 0.06),
@@ -191,7 +188,6 @@ class ReplayScene:
             if cam.get("K") and cam.get("height"):
                 fov = 2 * math.atan2(cam["height"] / 2, cam["K"][1][1])
                 aspect = cam["width"] / cam["height"]
-            from drovisio.mission.record import quat_wxyz
 
             sc.add_camera_frustum("/drone/camera", fov=fov, aspect=aspect, scale=0.15,
                                   color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
@@ -225,7 +221,7 @@ class ReplayScene:
                 if nodes is None:
                     continue
                 nodes["node"].position = tuple(p[:3])
-                nodes["node"].wxyz = _yaw_wxyz(p[3])
+                nodes["node"].wxyz = yaw_quat_wxyz(p[3])
                 color = (HELD_RGB if tick.get("holding") == bid else
                          PLACED_RGB if bid in placed else BRICK_RGB)
                 if color != nodes["color"] and hasattr(nodes["node"], "color"):

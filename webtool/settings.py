@@ -8,10 +8,9 @@ from pathlib import Path
 
 from pydantic import BaseModel, model_validator
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-TEMPLATES_DIR = REPO_ROOT / "templates"
-STATIC_DIR = Path(__file__).resolve().parent / "static"
-DEFAULT_SAMPLE_SESSION = REPO_ROOT / "sample_sessions"
+from drovisio.resources import sample_sessions_dir
+
+DEFAULT_SAMPLE_SESSION = sample_sessions_dir()
 
 
 def is_loopback(host: str | None) -> bool:

@@ -597,7 +597,7 @@ def part_kernels(src, det, args, n, repeats) -> dict:
 
     from drovisio.detect import dots_kernels as K
     from drovisio.detect import dots_pose
-    from drovisio.detect.dots import _STENCIL    # the detector's 5-point stencil
+    from drovisio.detect.dots import _STENCIL  # the detector's 5-point stencil
     from drovisio.detect.dots_blobs import refine_centers
     from drovisio.detect.dots_color import ClaheMap
     from drovisio.detect.dots_match import BlobGeometry, generate_hypotheses

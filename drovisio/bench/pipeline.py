@@ -41,12 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
+from drovisio.resources import layouts_dir, sample_sessions_dir
+
 __all__ = ["main", "rss_mb"]
 
-REPO = Path(__file__).resolve().parents[2]
-SAMPLE = REPO / "sample_sessions"
+SAMPLE = sample_sessions_dir()
 APPROACH = SAMPLE / "approach"
-LAYOUTS = [REPO / "marker_layouts" / f"{n}.json"
+LAYOUTS = [layouts_dir() / f"{n}.json"
            for n in ("drick-aruco-pyramids", "drick-aruco-centre", "drick-dots-2x3")]
 
 

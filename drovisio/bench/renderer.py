@@ -49,8 +49,15 @@ def edge_check(camera: Camera | None = None, ss: int = 4) -> dict:
         ``{"rows", "mean_px", "rms_px", "max_px"}`` of the signed edge error.
     """
     from drovisio.layout import load_layout, shipped_layouts_dir
-    from drovisio.synth import BrickInstance, Ground, Scene, camera_over, render, rot_z
-    from drovisio.synth import transform
+    from drovisio.synth import (
+        BrickInstance,
+        Ground,
+        Scene,
+        camera_over,
+        render,
+        rot_z,
+        transform,
+    )
 
     cam = camera or Camera.drone_webcam()
     lay = load_layout(shipped_layouts_dir() / "drick-aruco-centre.json")

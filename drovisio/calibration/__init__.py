@@ -18,10 +18,26 @@ One stage per module:
 * :mod:`.synthetic` — rendered calibration sessions with known truth.
 """
 
-from drovisio.calibration.board import BoardSpec, BoardSpecError, Detection, detect, parse_board
-from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig, View
-from drovisio.calibration.solve import (CalibrationError, CalibrationResult, SolveOptions,
-                                        ViewInput, solve)
+from drovisio.calibration.board import (
+                                        BoardSpec,
+                                        BoardSpecError,
+                                        Detection,
+                                        detect,
+                                        parse_board,
+)
+from drovisio.calibration.session import (
+                                        CalibrationSession,
+                                        FrameResult,
+                                        SessionConfig,
+                                        View,
+)
+from drovisio.calibration.solve import (
+                                        CalibrationError,
+                                        CalibrationResult,
+                                        SolveOptions,
+                                        ViewInput,
+                                        solve,
+)
 from drovisio.calibration.suggest import Suggestion, suggest_next_pose
 from drovisio.calibration.verdict import Verdict, VerdictRules, judge
 

@@ -22,8 +22,8 @@ import math
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera
 from drovisio.calibration.board import BoardSpec
+from drovisio.camera import Camera
 
 __all__ = ["place_board", "fit_board", "board_outline_px", "board_pose_summary",
            "far_edge_name", "MARGIN_SQUARES"]

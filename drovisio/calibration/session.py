@@ -31,17 +31,31 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera
 from drovisio.calibration.board import BoardSpec, Detection, detect, to_gray
 from drovisio.calibration.coverage import Coverage, compute_coverage
 from drovisio.calibration.gates import (
-    MAX_EDGE_WIDTH_PX, MAX_MOTION_PX, NOVELTY_FRACTION, NOVELTY_TILT_DEG, GateResult,
-    EdgeSharpness, gate_novel, gate_sharpness, gate_size, gate_still)
+    MAX_EDGE_WIDTH_PX,
+    MAX_MOTION_PX,
+    NOVELTY_FRACTION,
+    NOVELTY_TILT_DEG,
+    EdgeSharpness,
+    GateResult,
+    gate_novel,
+    gate_sharpness,
+    gate_size,
+    gate_still,
+)
 from drovisio.calibration.geometry import board_pose_summary
-from drovisio.calibration.solve import (CalibrationError, CalibrationResult, SolveOptions,
-                                        ViewInput, solve)
+from drovisio.calibration.solve import (
+    CalibrationError,
+    CalibrationResult,
+    SolveOptions,
+    ViewInput,
+    solve,
+)
 from drovisio.calibration.suggest import Suggestion, suggest_next_pose
 from drovisio.calibration.verdict import Verdict, VerdictRules, judge
+from drovisio.camera import Camera
 
 __all__ = ["CalibrationSession", "SessionConfig", "View", "FrameResult"]
 
@@ -240,6 +254,19 @@ class CalibrationSession:
         return gate_novel(det, kept, None if tilt is None else tilt[1],
                           [None if t is None else t[1] for t in kept_tilts],
                           self.config.novelty_fraction, self.config.novelty_tilt_deg)
+
+    def duplicate_of(self, det: Detection, tol_px: float = 0.5) -> int | None:
+        """The id of a kept view showing the board where ``det`` does (the same corners
+        within ``tol_px`` on average): the same picture twice adds no information but makes
+        the solve look certain."""
+        with self._lock:
+            views = list(self._views)
+        for v in views:
+            d = v.detection
+            if d.n == det.n and np.array_equal(d.ids, det.ids) and \
+                    float(np.mean(np.hypot(*(d.corners - det.corners).T))) < tol_px:
+                return v.id
+        return None
 
     def keep(self, fr: FrameResult) -> FrameResult:
         """Keep an evaluated frame as a view (also used for a manual capture)."""

@@ -29,10 +29,18 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera
 from drovisio.calibration.uncertainty import (
-    PARAM_NAMES, UncertaintyMap, covariance_from_information, grid_jacobians,
-    model_difference_px, projection_uncertainty, schur_information, sigma_max, view_jacobian)
+    PARAM_NAMES,
+    UncertaintyMap,
+    covariance_from_information,
+    grid_jacobians,
+    model_difference_px,
+    projection_uncertainty,
+    schur_information,
+    sigma_max,
+    view_jacobian,
+)
+from drovisio.camera import Camera
 
 __all__ = ["CalibrationError", "SolveOptions", "ViewInput", "ViewFit", "CalibrationResult",
            "solve", "fit_model", "RMS_DEFINITION"]

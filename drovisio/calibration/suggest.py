@@ -24,13 +24,22 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera
 from drovisio.calibration.board import BoardSpec
 from drovisio.calibration.coverage import Coverage
-from drovisio.calibration.geometry import (board_outline_px, board_pose_summary, far_edge_name,
-                                           fit_board)
-from drovisio.calibration.uncertainty import (grid_jacobians, image_grid, schur_information,
-                                              sigma_max, view_jacobian)
+from drovisio.calibration.geometry import (
+    board_outline_px,
+    board_pose_summary,
+    far_edge_name,
+    fit_board,
+)
+from drovisio.calibration.uncertainty import (
+    grid_jacobians,
+    image_grid,
+    schur_information,
+    sigma_max,
+    view_jacobian,
+)
+from drovisio.camera import Camera
 
 __all__ = ["Suggestion", "suggest_next_pose", "BOARD_WIDTH_FRACTIONS", "TILT_DEG"]
 

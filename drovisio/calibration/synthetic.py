@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drovisio.camera import Camera
 from drovisio.calibration.board import BoardSpec
 from drovisio.calibration.geometry import board_pose_summary, fit_board
+from drovisio.camera import Camera
 
 __all__ = ["SyntheticView", "render_calibration_views", "calibration_poses", "DEFAULT_BOARD"]
 

@@ -11,27 +11,27 @@ JSON of :mod:`drovisio.calibration.report`. Progress goes to stderr, one line pe
 
 Exit codes: 0 calibrated (even when the verdict is "not ok": the verdict is in the report and
 on stderr); 1 nothing could be calibrated (no board found, too few usable views, degenerate
-views); 2 bad arguments (board spec, missing path, no images, unwritable output).
+views); 2 bad arguments (board spec, missing path, no images, an output that is an input or
+another output, a full disk: nothing already saved is replaced).
+
+The same picture given twice (the board within 0.5 px of a kept view) is refused, as on the
+calibration page: it adds no information and makes the intrinsics look certain.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections import Counter
 from pathlib import Path
 
-__all__ = ["run", "collect_images", "IMAGE_SUFFIXES"]
+from drovisio.errors import InputError
+from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm",
-                  ".pbm", ".jp2"}
+__all__ = ["run", "collect_images"]
+
 PROG = "drovisio calibrate"
-
-
-class _UsageError(Exception):
-    pass
 
 
 def _err(msg: str) -> None:
@@ -42,19 +42,19 @@ def collect_images(inputs: list[str]) -> list[Path]:
     """Image files from the arguments (folders: their image files in name order).
 
     Raises:
-        _UsageError: a path is missing, or no image at all.
+        InputError: a path is missing, or no image at all.
     """
     files: list[Path] = []
     for raw in inputs:
         p = Path(raw)
         if not p.exists():
-            raise _UsageError(f"{raw}: no such file or folder")
+            raise InputError(f"{raw}: no such file or folder")
         if p.is_dir():
             found = sorted(f for f in p.iterdir()
                            if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
             if not found:
-                raise _UsageError(f"{raw}: folder contains no images ("
-                                  + ", ".join(sorted(IMAGE_SUFFIXES)) + ")")
+                raise InputError(f"{raw}: folder contains no images ("
+                                 + ", ".join(sorted(IMAGE_SUFFIXES)) + ")")
             files.extend(found)
         else:
             files.append(p)
@@ -65,7 +65,7 @@ def collect_images(inputs: list[str]) -> list[Path]:
             seen.add(key)
             unique.append(f)
     if not unique:
-        raise _UsageError("no images given")
+        raise InputError("no images given")
     return unique
 
 
@@ -74,21 +74,11 @@ def _ros_path(out: Path) -> Path:
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
-    from drovisio.fileio import atomic_write_bytes
+    from drovisio.fileio import atomic_write_text
 
-    atomic_write_bytes(path, (json.dumps(data, indent=1) + "\n").encode("utf-8"),
-                       make_parents=True)
-
-
-def _check_output(path: Path, what: str) -> None:
-    if path.exists() and path.is_dir():
-        raise _UsageError(f"{what} {path} is a folder; give a file name")
-    parent = path.parent if str(path.parent) else Path(".")
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise _UsageError(f"{what} {path}: cannot write in {probe}")
+    text = json.dumps(data, indent=1, allow_nan=False) + "\n"
+    atomic_write_text(path, text, make_parents=True, verify=lambda tmp: json.loads(
+        tmp.read_text(encoding="utf-8")))
 
 
 def _probe_board_size(images: list[Path], board) -> str | None:
@@ -132,53 +122,28 @@ def _probe_board_size(images: list[Path], board) -> str | None:
     return None
 
 
-def _read_image(path: Path):
-    """(BGR image, None) or (None, why it cannot be used)."""
-    import cv2
-    import numpy as np
-
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        return None, f"cannot be read ({e.strerror or e})"
-    if path.suffix.lower() in (".jpg", ".jpeg") and data[:2] == b"\xff\xd8":
-        if not data.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9"):
-            return None, "corrupt JPEG: truncated (no end-of-image marker)"
-    try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    except cv2.error:
-        img = None
-    if img is None or img.size == 0:
-        return None, "cannot be read as an image (corrupt or not an image file)"
-    return img, None
-
-
 def run(args: argparse.Namespace) -> int:
-    try:
-        return _run(args)
-    except _UsageError as e:
-        _err(str(e))
-        return 2
-
-
-def _run(args: argparse.Namespace) -> int:
-
-    from drovisio.camera import save_camera
     from drovisio.calibration.board import BoardSpecError, parse_board
     from drovisio.calibration.report import build_report, format_summary
     from drovisio.calibration.session import CalibrationSession, SessionConfig
     from drovisio.calibration.solve import CalibrationError
+    from drovisio.camera_file import save_camera
+    from drovisio.fileio import check_output_path
 
     try:
         board = parse_board(args.board, args.square)
     except BoardSpecError as e:
-        raise _UsageError(str(e)) from None
-    out = Path(args.out)
-    report_path = Path(args.report) if getattr(args, "report", None) else None
-    _check_output(out, "--out")
-    if report_path is not None:
-        _check_output(report_path, "--report")
+        raise InputError(str(e)) from None
     images = collect_images(list(args.images))
+    inputs = {f"input {p}": p for p in images}
+    out = check_output_path(args.out, "--out", inputs)
+    ros = _ros_path(out)
+    check_output_path(ros, "the ROS camera file written beside --out", inputs)
+    report_path = None
+    if getattr(args, "report", None):
+        report_path = check_output_path(args.report, "--report",
+                                        {**inputs, "--out": out, "the ROS camera file "
+                                         "written beside --out": ros})
     n = len(images)
     width = len(str(n))
 
@@ -188,10 +153,11 @@ def _run(args: argparse.Namespace) -> int:
     for i, path in enumerate(images, 1):
         name = str(path)
         tag = f"[{i:>{width}}/{n}] {path.name}"
-        img, reason = _read_image(path)
-        if img is None:
-            session.add_rejected(name, reason)
-            print(f"{tag}: rejected: {reason}", file=sys.stderr, flush=True)
+        try:
+            img, _notes = read_image(path)
+        except ImageError as e:
+            session.add_rejected(name, str(e))
+            print(f"{tag}: rejected: {e}", file=sys.stderr, flush=True)
             continue
         n_read += 1
         fr = session.evaluate(img, name)
@@ -222,7 +188,16 @@ def _run(args: argparse.Namespace) -> int:
             session.add_rejected(fr.name, f"image size {fr.image_size[0]}x{fr.image_size[1]} "
                                           f"differs from the {size[0]}x{size[1]} of the others")
         elif fr.usable:
-            session.keep(fr)
+            dup = session.duplicate_of(fr.detection)
+            if dup is None:
+                session.keep(fr)
+            else:
+                twin = next(v.name for v in session.views if v.id == dup)
+                why = (f"the same picture as {Path(twin).name} (the board at the same place "
+                       "within 0.5 px): it adds nothing and would make the result look "
+                       "more certain than it is")
+                session.add_rejected(fr.name, why)
+                print(f"{Path(fr.name).name}: rejected: {why}", file=sys.stderr, flush=True)
         else:
             session.add_rejected(fr.name, "; ".join(fr.reasons) or "not usable")
 
@@ -249,10 +224,9 @@ def _run(args: argparse.Namespace) -> int:
         _maybe_report(report_path, session, build_report)
         return 1
     cam = result.camera
-    save_camera(cam, out)
-    ros = _ros_path(out)
-    save_camera(cam, ros, fmt="ros")
     report = build_report(session)
+    save_camera(cam, out)
+    save_camera(cam, ros, fmt="ros")
     if report_path is not None:
         _write_json_atomic(report_path, report)
     print(format_summary(report), file=sys.stderr)
@@ -267,5 +241,5 @@ def _maybe_report(path: Path | None, session, build_report) -> None:
     try:
         _write_json_atomic(path, build_report(session))
         print(f"report written to {path}", file=sys.stderr)
-    except OSError as e:
-        _err(f"could not write the report {path}: {e}")
+    except OSError as e:   # the calibration failed already: say both
+        _err(str(e))

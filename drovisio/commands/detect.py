@@ -2,13 +2,16 @@
 
 Contract (DESIGN.md): one JSON object per frame on stdout (or ``--out``), in input order;
 timings and summaries on stderr; a frame that cannot be read gives a line with ``"error"``
-and the run goes on. Bad set-up (camera file, layouts, gravity file, output file) is reported
-in one clear line on stderr with exit status 2, never a traceback. The exit status is 1 when
-some input could not be read (its lines say which), else 0.
+and the run goes on. Bad set-up (camera file, layouts, gravity file, output file) ends the
+command with one line naming the file and the field, exit status 2. The exit status is 1
+when some frame could not be read (its line says why), else 0.
 
-``--method``: ``aruco`` (codes), ``dots`` (colour dots: ``drovisio.detect.dots``, when that
-module exists), ``auto`` (codes for layouts with codes, dots for layouts with dots only, when
-the dots detector exists).
+``--method``: ``aruco`` (codes), ``dots`` (colour dots), ``auto`` (codes for layouts with
+codes, dots for layouts with dots only).
+
+``--out`` is written through a temporary file and renamed when the run ends (a run that
+fails half-way leaves the previous file as it was); it may not be one of the inputs, the
+camera file, a layout or the gravity file.
 
 ``--gravity-file``: JSON Lines ``{"file": ..., "gravity": [gx, gy, gz]}`` (unit vector
 pointing down in the camera frame), optionally with ``"frame"`` for a video's frames. A line
@@ -22,25 +25,27 @@ import argparse
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
+
+from drovisio.errors import InputError, WriteError
 
 PROG = "drovisio detect"
 
 
-class _SetupError(Exception):
-    pass
-
-
 def _err(msg: str) -> None:
-    print(f"{PROG}: {msg}", file=sys.stderr)
+    print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
 
 
 # ----------------------------------------------------------------------------- gravity
 class GravityTable:
     """Gravity per frame from a ``--gravity-file``."""
+
+    MAX_LINES = 1_000_000
 
     def __init__(self) -> None:
         self.exact: dict[tuple[str, int | None], np.ndarray] = {}
@@ -49,44 +54,37 @@ class GravityTable:
 
     @classmethod
     def load(cls, path: str) -> GravityTable:
-        p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise _SetupError(f"{path}: gravity file not found") from None
-        except IsADirectoryError:
-            raise _SetupError(f"{path}: is a folder; give the gravity JSON Lines file") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise _SetupError(f"{path}: cannot read the gravity file ({e})") from None
+        from drovisio.textfile import parse_json, read_text
+
+        text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
         t = cls()
         for ln, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
+            if ln > cls.MAX_LINES:
+                raise InputError(f"{path}: more than {cls.MAX_LINES} lines; split the run")
             where = f"{path}, line {ln}"
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError as e:
-                raise _SetupError(f"{where}: not valid JSON ({e.msg}); expected "
-                                  '{"file": ..., "gravity": [gx, gy, gz]}') from None
+            rec = parse_json(line, where)
             if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
-                raise _SetupError(f'{where}: expected an object with "file" and "gravity"')
+                raise InputError(f'{where}: expected an object with "file" and "gravity"')
             f = rec["file"]
             if not isinstance(f, str) or not f:
-                raise _SetupError(f'{where}: "file" must be a non-empty string')
+                raise InputError(f'{where}: file: must be a non-empty string')
             g = rec["gravity"]
-            try:
-                gv = np.asarray(g, np.float64).reshape(3)
-            except (TypeError, ValueError):
-                raise _SetupError(f'{where}: "gravity" must be 3 numbers [gx, gy, gz]') from None
+            if not (isinstance(g, list) and len(g) == 3 and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
+                raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
+            gv = np.asarray(g, np.float64)
             n = float(np.linalg.norm(gv))
             if not np.all(np.isfinite(gv)) or n < 1e-9:
-                raise _SetupError(f'{where}: "gravity" must be a finite, non-zero vector')
+                raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
             if abs(n - 1.0) > 0.05:
-                raise _SetupError(f'{where}: "gravity" has length {n:.3g}; give a unit vector '
-                                  "(pointing down, camera frame)")
+                raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
+                                 "(pointing down, camera frame)")
             frame = rec.get("frame")
-            if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)):
-                raise _SetupError(f'{where}: "frame" must be an integer')
+            if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)
+                                      or frame < 0):
+                raise InputError(f'{where}: frame: must be a whole number >= 0')
             t.add(f, frame, gv / n)
         return t
 
@@ -109,148 +107,142 @@ class GravityTable:
         return None
 
 
-# ----------------------------------------------------------------------------- detectors
-def _load_dots():
-    try:
-        from drovisio.detect import dots
-    except ModuleNotFoundError as e:
-        if e.name in ("drovisio.detect.dots",):
-            return None
-        raise
-    return getattr(dots, "detect_dots", None)
+# ----------------------------------------------------------------------------- set-up
+def _layouts_for(args: argparse.Namespace):
+    """(camera, code layouts, dot layouts) the arguments ask for."""
+    from drovisio.camera_file import load_camera
+    from drovisio.layout import load_layouts
 
-
-def _setup(args: argparse.Namespace):
-    import cv2
-
-    from drovisio.camera import CameraFileError, load_camera
-    from drovisio.layout import LayoutError, load_layouts
-
-    try:
-        camera = load_camera(args.camera)
-    except CameraFileError as e:
-        raise _SetupError(str(e)) from None
-    except cv2.error as e:  # a malformed matrix OpenCV's reader chokes on
-        last = str(e).strip().splitlines()[-1] if str(e).strip() else "unreadable"
-        raise _SetupError(f"{args.camera}: malformed camera file: OpenCV cannot read a "
-                          f"matrix in it ({last}); check rows, cols and the number of values "
-                          "in data") from None
-    try:
-        layouts = load_layouts(args.layout)
-    except LayoutError as e:
-        raise _SetupError(str(e)) from None
+    camera = load_camera(args.camera)
+    layouts = load_layouts(args.layout)
     coded = [lay for lay in layouts if lay.has_codes]
     dotted = [lay for lay in layouts if lay.has_dots]
-    method = args.method
-    aruco_layouts: list = []
-    dots_layouts: list = []
-    notes: list[str] = []
-    if method in ("aruco", "auto"):
-        aruco_layouts = coded
-    if method == "aruco" and not coded:
-        raise _SetupError("--method aruco: none of the layouts has ArUco codes (" +
-                          ", ".join(lay.name for lay in layouts) + ")")
-    detect_dots = None
-    if method == "dots" or (method == "auto" and any(not lay.has_codes for lay in dotted)):
-        detect_dots = _load_dots()
-        if detect_dots is None:
-            if method == "dots":
-                raise _SetupError("the dots detector is not available yet (drovisio.detect.dots,"
-                                  " issue #4); use --method aruco for layouts with codes")
-            notes.append("the dots detector is not available yet; layouts with dots only (" +
-                          ", ".join(lay.name for lay in dotted if not lay.has_codes) +
-                          ") are skipped")
-        else:
-            dots_layouts = dotted if method == "dots" else [lay for lay in dotted
-                                                              if not lay.has_codes]
-    if method == "dots" and not dotted:
-        raise _SetupError("--method dots: none of the layouts has colour dots")
-    if not aruco_layouts and not dots_layouts:
-        raise _SetupError("nothing to detect: no layout with codes, and the dots detector is "
-                          "not available yet")
-    return camera, aruco_layouts, dots_layouts, detect_dots, notes
+    names = ", ".join(lay.name for lay in layouts)
+    if args.method == "aruco" and not coded:
+        raise InputError(f"--method aruco: none of the layouts has ArUco codes ({names})")
+    if args.method == "dots" and not dotted:
+        raise InputError(f"--method dots: none of the layouts has colour dots ({names})")
+    if args.method == "aruco":
+        return camera, coded, []
+    if args.method == "dots":
+        return camera, [], dotted
+    return camera, coded, [lay for lay in dotted if not lay.has_codes]
+
+
+def _output(args: argparse.Namespace) -> tuple[TextIO, Path | None, Path | None]:
+    """(stream to write, temporary file, final path) for ``--out`` (stdout without it)."""
+    if not args.out:
+        return sys.stdout, None, None
+    from drovisio.fileio import check_output_path
+
+    others: dict[str, str] = {"the camera file": args.camera}
+    others.update({f"layout {lay}": lay for lay in args.layout})
+    if args.gravity_file:
+        others["the gravity file"] = args.gravity_file
+    others.update({f"input {inp}": inp for inp in args.inputs})
+    out = check_output_path(args.out, "--out", others)
+    folder = out.parent if str(out.parent) else Path(".")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}-", suffix=".tmp", dir=folder)
+    except OSError as e:
+        raise WriteError(f"{out}: --out: cannot write in {folder} ({e.strerror or e})") \
+            from None
+    return os.fdopen(fd, "w", encoding="utf-8"), Path(tmp), out
+
+
+def _finish_output(stream: TextIO, tmp: Path, out: Path) -> None:
+    from drovisio.fileio import atomic_write
+
+    try:
+        stream.flush()
+        os.fsync(stream.fileno())
+        stream.close()
+
+        def move(dest_tmp: Path) -> None:
+            os.replace(tmp, dest_tmp)
+
+        atomic_write(out, move, allow_empty=True)
+    except OSError as e:
+        raise WriteError(f"{out}: --out: not written ({e}); any previous file is kept") \
+            from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+class _Streams:
+    """Detectors per input: a video or a folder is a stream (pose history, dot state), single
+    images are not; a camera file without an image size takes each source's first image."""
+
+    def __init__(self, camera_file: str, camera, aruco_layouts, dots_layouts) -> None:
+        self.camera_file = camera_file
+        self.camera = camera
+        self.aruco_layouts = aruco_layouts
+        self.dots_layouts = dots_layouts
+        self._by_source: dict[tuple[str, bool], tuple[object, list]] = {}
+        self.noted: set[str] = set()
+
+    def detectors(self, source: str, stream: bool, size: tuple[int, int]):
+        from drovisio.pipeline import ArucoDetectorAdapter, DotsDetectorAdapter
+
+        key = (source if stream else "", stream)
+        got = self._by_source.get(key)
+        camera = got[0] if got is not None else None
+        if camera is None or getattr(camera, "size", None) != size:
+            camera, note = self.camera.for_image(*size)   # ValueError: another size
+            if note and note not in self.noted:
+                self.noted.add(note)
+                _err(f"{self.camera_file}: {note}")
+            dets: list = []
+            if self.aruco_layouts:
+                dets.append(ArucoDetectorAdapter(camera, self.aruco_layouts, stream=stream))
+            if self.dots_layouts:
+                dets.append(DotsDetectorAdapter(camera, self.dots_layouts, stream=stream))
+            if len(self._by_source) > 8:
+                self._by_source.pop(next(iter(self._by_source)))
+            got = self._by_source[key] = (camera, dets)
+        return got[1]
 
 
 def run(args: argparse.Namespace) -> int:
+    camera, aruco_layouts, dots_layouts = _layouts_for(args)
+    gravity = GravityTable.load(args.gravity_file) if args.gravity_file else None
+    stream, tmp, out = _output(args)
     try:
-        camera, aruco_layouts, dots_layouts, detect_dots, notes = _setup(args)
-        gravity = GravityTable.load(args.gravity_file) if args.gravity_file else None
-        out = sys.stdout
-        close = False
-        if args.out:
-            try:
-                out = open(args.out, "w", encoding="utf-8")  # noqa: SIM115
-                close = True
-            except OSError as e:
-                raise _SetupError(f"{args.out}: cannot write the output ({e.strerror or e})"
-                                  ) from None
-    except _SetupError as e:
-        _err(str(e))
-        return 2
-    for n in notes:
-        _err(n)
-    try:
-        return _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity, out)
-    finally:
-        if close:
-            out.close()
+        code = _run_frames(args, _Streams(args.camera, camera, aruco_layouts, dots_layouts), gravity, stream)
+    except BaseException:
+        if tmp is not None:
+            stream.close()
+            tmp.unlink(missing_ok=True)
+        raise
+    if tmp is not None and out is not None:
+        _finish_output(stream, tmp, out)
+    return code
 
 
-def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity, out) -> int:
-    from drovisio.detect.aruco import ArucoBrickDetector
+def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: TextIO) -> int:
     from drovisio.detect.result import FrameResult
-    from drovisio.io_frames import VIDEO_EXTS, iter_frames
-    from drovisio.pose import PoseHistory
+    from drovisio.sources import iter_inputs
 
-    detectors: dict[str, ArucoBrickDetector] = {}  # one per source (a stream's history)
-    if aruco_layouts:  # the per-camera undistortion table, once, outside the frames' time
+    if streams.aruco_layouts:  # the per-camera undistortion table, once, outside the timing
         from drovisio.detect.corners import normalized_grid
 
-        normalized_grid(camera)
-
-    def aruco_for(source: str, stream: bool) -> ArucoBrickDetector | None:
-        if not aruco_layouts:
-            return None
-        key = source if stream else ""
-        det = detectors.get(key)
-        if det is None:
-            det = ArucoBrickDetector(camera, aruco_layouts,
-                                     history=PoseHistory() if stream else None)
-            if len(detectors) > 8:
-                detectors.pop(next(iter(detectors)))
-            detectors[key] = det
-        return det
-
-    dots_states: dict[str, object] = {}  # one per stream, if the dots detector keeps state
-
-    def dots_state_for(source: str):
-        if source not in dots_states:
-            try:
-                from drovisio.detect.dots import DotsState
-            except ImportError:
-                return None
-            if len(dots_states) > 8:
-                dots_states.pop(next(iter(dots_states)))
-            dots_states[source] = DotsState()
-        return dots_states[source]
+        if streams.camera.size_known:
+            normalized_grid(streams.camera)
 
     messages: list[str] = []
     n_frames = n_bricks = n_errors = n_gravity = 0
     times: list[float] = []   # detection + pose time of each frame
     noted: set[str] = set()
-    for item in iter_frames(args.inputs, messages):
+    for item in iter_inputs(args.inputs, messages):
         for m in messages:
             _err(m)
         n_errors += len(messages)
         messages.clear()
         n_frames += 1
         res = FrameResult(file=item.file, frame=item.frame)
+        where = f"{item.file}" + (f" frame {item.frame}" if item.is_video else "")
         if item.error is not None:
             res.error = item.error
-            n_errors += 1
-            _err(f"{item.file}" + (f" frame {item.frame}" if item.source != item.file or
-                                   Path(item.file).suffix.lower() in VIDEO_EXTS else "") +
-                 f": {item.error}")
         else:
             for note in item.notes:
                 key = f"{item.source}: {note}"
@@ -258,32 +250,28 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
                     noted.add(key)
                     _err(f"{item.file}: {note}")
             img = item.image
-            if img.shape[:2] != (camera.height, camera.width):
-                res.error = (f"image is {img.shape[1]}x{img.shape[0]} but the camera file is "
-                             f"for {camera.width}x{camera.height}")
-                n_errors += 1
-                _err(f"{item.file}: {res.error}")
-            else:
-                is_video = Path(item.file).suffix.lower() in VIDEO_EXTS
-                g = gravity.lookup(item.file, item.frame, is_video) if gravity else None
-                n_gravity += g is not None
-                stream = is_video or item.source != item.file  # a video or a folder
-                t0 = time.perf_counter()
+            assert img is not None
+            stream = item.is_video or item.source != item.file   # a video or a folder
+            try:
+                dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
+            except ValueError as e:
+                res.error = str(e)
+                dets = []
+            g = gravity.lookup(item.file, item.frame, item.is_video) if gravity else None
+            n_gravity += g is not None
+            t0 = time.perf_counter()
+            for det in dets:
                 try:
-                    det = aruco_for(item.source, stream)
-                    if det is not None:
-                        res.bricks.extend(det.detect(img, gravity=g))
-                    if detect_dots is not None and dots_layouts:
-                        state = dots_state_for(item.source) if stream else None
-                        kw = {"state": state} if state is not None else {}
-                        res.bricks.extend(detect_dots(img, camera, dots_layouts, gravity=g,
-                                                      **kw))
+                    res.bricks.extend(det.detect(img, 0.0, gravity=g))
                 except Exception as e:  # noqa: BLE001 - a frame must never stop the run
                     res.bricks = []
                     res.error = f"detection failed: {type(e).__name__}: {e}"
-                    n_errors += 1
-                    _err(f"{item.file}: {res.error}")
+                    break
+            if dets:
                 times.append(time.perf_counter() - t0)
+        if res.error is not None:
+            n_errors += 1
+            _err(f"{where}: {res.error}")
         n_bricks += len(res.bricks)
         out.write(json.dumps(res.to_json(), allow_nan=False) + "\n")
         out.flush()
@@ -293,7 +281,16 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
     if n_frames == 0:
         _err("no frames to process")
         return 1
-    ms = 1000.0 * sum(times) / max(1, n_frames)
+    _summary(n_frames, n_bricks, n_errors, gravity, n_gravity, times)
+    return 1 if n_errors else 0
+
+
+def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: int,
+             times: list[float]) -> None:
+    def plural(n: int, word: str) -> str:
+        return f"{n} {word}{'s' if n != 1 else ''}"
+
+    ms = 1000.0 * sum(times) / max(1, len(times))
     grav = f", gravity for {n_gravity}" if gravity is not None else ""
     # the first frame also loads the detectors (compiled kernels, dictionaries): the median
     # is what a stream costs per frame
@@ -301,10 +298,11 @@ def _run_frames(args, camera, aruco_layouts, dots_layouts, detect_dots, gravity,
     timing = f"{ms:.1f} ms per frame (detection and pose)" if len(times) < 3 else \
         f"median {med:.1f} ms per frame (detection and pose; mean {ms:.1f} ms, the first " \
         f"frame {1000.0 * times[0]:.0f} ms with the detectors' set-up)"
-    _err(f"{n_frames} frame{'s' if n_frames != 1 else ''}, {n_bricks} brick"
-         f"{'s' if n_bricks != 1 else ''}, {n_errors} error{'s' if n_errors != 1 else ''}"
-         f"{grav}; {timing}")
+    _err(f"{plural(n_frames, 'frame')}, {plural(n_bricks, 'brick')}, "
+         f"{plural(n_errors, 'error')}{grav}; {timing}")
     if gravity is not None and n_gravity == 0:
         _err("warning: no frame matched a line of the gravity file (match is by the file "
              "name as given)")
-    return 1 if n_errors else 0
+
+
+__all__ = ["GravityTable", "run"]

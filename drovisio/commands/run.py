@@ -3,8 +3,14 @@
 Reads frames from --source, detects the bricks of the --layout files, fuses and tracks them,
 and sends one JSON object per frame / one LANDING_TARGET per frame to each --sink. Prints a
 status line per second on stderr (fps, detection time, latency capture → sent, bricks,
-source state, target). A finite source ends the run when it is exhausted; Ctrl+C or SIGTERM
-ends it cleanly (sinks closed, recording flushed).
+source state, target, sink failures). Ctrl+C or SIGTERM ends it cleanly (sinks closed,
+recording flushed).
+
+Finite means finite: a file, folder or recording that cannot be opened ends the run at once
+with one line and exit status 2; one that ends ends the run, with exit status 1 when nothing
+could be read from it. Cameras and stream URLs keep reconnecting (the status line says so).
+A sink that fails (a full disk, a closed pipe, an unreachable link) is counted and shown in
+the status line, and makes the exit status 1 at the end.
 """
 
 from __future__ import annotations
@@ -14,17 +20,34 @@ import signal
 import sys
 import time
 
-__all__ = ["build_pipeline", "run", "status_line"]
+from drovisio.errors import InputError
+
+__all__ = ["build_pipeline", "run", "sink_failures", "status_line"]
 
 
 def _err(msg: str) -> None:
-    print(f"drovisio run: {msg}", file=sys.stderr, flush=True)
+    try:
+        print(f"drovisio run: {msg}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def sink_failures(st: dict) -> list[tuple[str, int, str | None]]:
+    """(sink, failures, last error) for every sink that failed at least once."""
+    out = []
+    for s in st.get("sinks", []):
+        n = int(s.get("errors") or 0)
+        if n:
+            out.append((s.get("sink", "?"), n, s.get("last_error")))
+    return out
 
 
 def status_line(st: dict, elapsed: float) -> str:
     src = st["source"]
-    state = src["state"] + (f" ({src['error']})" if src["state"] == "lost" and src["error"]
-                            else "")
+    state = src["state"] + (f" ({src['error']})" if src["state"] in ("lost", "failed")
+                            and src["error"] else "")
+    if src.get("frame_errors"):
+        state += f", {src['frame_errors']} undecodable frames"
     tb = st.get("target_brick")
     if tb:
         name = tb["layout"] + (f":{tb['instance']}" if tb["instance"] is not None
@@ -33,6 +56,10 @@ def status_line(st: dict, elapsed: float) -> str:
     else:
         target = f"target ({st['target']['spec']}) none"
     extra = f" | {st['detector_errors']} detector errors" if st["detector_errors"] else ""
+    for name, n, last in sink_failures(st):
+        extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
+    if st.get("sink_errors"):
+        extra += f" | {st['sink_errors']} sink exceptions"
     return (f"{elapsed:7.1f} s | {st['fps']:5.1f} fps | detect {st['detect_ms']:6.1f} ms | "
             f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks | source {state} | "
             f"{target}{extra}")
@@ -40,7 +67,7 @@ def status_line(st: dict, elapsed: float) -> str:
 
 def build_pipeline(args: argparse.Namespace, out=None):
     """The pipeline a ``drovisio run`` namespace describes (also used by the benchmark)."""
-    from drovisio.camera import load_camera
+    from drovisio.camera_file import load_camera
     from drovisio.layout import load_layouts
     from drovisio.mount import load_mount
     from drovisio.pipeline import Pipeline, detectors_for
@@ -52,8 +79,14 @@ def build_pipeline(args: argparse.Namespace, out=None):
 
     camera = load_camera(args.camera)
     layouts = load_layouts(args.layout)
+    if not any(lay.has_codes or lay.has_dots for lay in layouts):
+        raise InputError("the layouts have neither codes nor dots: nothing to detect")
     mount = load_mount(args.mount) if getattr(args, "mount", None) else None
-    target = TargetSelector(getattr(args, "target", None) or "nearest")
+    reader = reader_for(args.source, loop=False)
+    try:
+        target = TargetSelector(getattr(args, "target", None) or "nearest")
+    except ValueError as e:
+        raise InputError(f"--target: {e}") from None
     sinks = []
     try:
         for spec in (args.sink or ["jsonl:-"]):
@@ -78,34 +111,33 @@ def build_pipeline(args: argparse.Namespace, out=None):
     level = mount.gravity_in_camera() if mount is not None else None
     gravity = attitude_gravity if mount is not None else None
 
-    source = FrameSource(reader_for(args.source), pace=getattr(args, "pace", "realtime"))
+    source = FrameSource(reader, pace=getattr(args, "pace", "realtime"))
     recorder = None
     if getattr(args, "record", None):
         recorder = Recorder(args.record, source=args.source, camera_file=args.camera,
                             mount_file=getattr(args, "mount", None))
-    pipeline = Pipeline(source, detectors_for(camera, layouts), sinks=sinks, mount=mount,
-                        target=target, gravity=gravity, recorder=recorder,
-                        max_age=getattr(args, "max_age", 0.5), layouts=layouts)
-    pipeline.camera = camera
-    pipeline.warm_up(camera.width, camera.height)
+
+    def make_detectors(cam):
+        return detectors_for(cam, layouts)
+
+    pipeline = Pipeline(source, make_detectors(camera) if camera.size_known else [],
+                        sinks=sinks, mount=mount, target=target, gravity=gravity,
+                        recorder=recorder, max_age=getattr(args, "max_age", 0.5),
+                        layouts=layouts, camera=camera, detector_factory=make_detectors)
+    if camera.size_known:
+        pipeline.warm_up(camera.width, camera.height)
     return pipeline
 
 
 def run(args: argparse.Namespace) -> int:
-    from drovisio.camera import CameraFileError
-    from drovisio.layout import LayoutError
-    from drovisio.mount import MountError
     from drovisio.sinks.base import SinkError
 
     try:
         pipeline = build_pipeline(args)
-    except (CameraFileError, LayoutError, MountError, SinkError, OSError, ValueError) as e:
-        _err(str(e))
-        return 2
-    if not pipeline.detectors:
-        _err("the layouts have neither codes nor dots: nothing to detect")
-        pipeline.close()
-        return 2
+    except SinkError as e:
+        raise InputError(str(e)) from None
+    except OSError as e:   # a recording folder that cannot be made
+        raise InputError(f"--record: {e}") from None
 
     def _terminate(signum, _frame) -> None:
         pipeline.stop()
@@ -118,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         if not quiet:
             print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
 
-    names = ", ".join(d.name for d in pipeline.detectors)
+    names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
     _err(f"source {args.source}; detectors {names}; sinks "
          f"{', '.join(s.name for s in pipeline.sinks)}; target {pipeline.target.spec}"
          + ("" if pipeline.mount is not None else "; no --mount: poses in the camera frame "
@@ -135,6 +167,22 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, old)
     if not quiet:
         print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
-    _err(f"done: {n} frames, source {st['source']['state']}, "
-         f"{st['source']['dropped']} frames dropped (newest-frame policy)")
-    return 0
+    for note in pipeline.notes:
+        _err(f"{args.camera}: {note}")
+    src = st["source"]
+    if src["state"] == "failed":
+        raise InputError(f"{args.source}: --source: {src['error']}")
+    _err(f"done: {n} frames, source {src['state']}, {src['dropped']} frames dropped "
+         "(newest-frame policy)"
+         + (f", {src['frame_errors']} frames could not be decoded" if src.get("frame_errors")
+            else ""))
+    code = 0
+    if src.get("finite") and src["frames"] == 0:
+        _err(f"{args.source}: nothing could be read from the source")
+        code = 1
+    failures = sink_failures(st)
+    for name, count, last in failures:
+        _err(f"sink {name}: {count} sends failed" + (f" (last: {last})" if last else ""))
+    if failures or st.get("sink_errors"):
+        code = 1
+    return code

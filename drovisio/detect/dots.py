@@ -69,10 +69,9 @@ from drovisio.detect.dots_pose import (
     pose_covariance_from_normal,
     project_normalized,
     refine_poses,
-    so3_exp,
-    so3_log,
 )
 from drovisio.detect.result import BrickPose
+from drovisio.geometry import so3_exp, so3_log
 from drovisio.layout import MarkerLayout
 
 __all__ = [

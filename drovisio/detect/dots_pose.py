@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from drovisio.detect import dots_kernels as _k
+from drovisio.geometry import skew, so3_exp, so3_log
 
 __all__ = [
     "conic_center_offsets",
@@ -44,62 +45,7 @@ __all__ = [
     "pose_from_homography",
     "project_normalized",
     "refine_poses",
-    "so3_exp",
-    "so3_log",
 ]
-
-
-_SKEW_IDX = (np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1]))
-_SKEW_SRC = np.array([2, 1, 2, 0, 1, 0])
-_SKEW_SGN = np.array([-1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    S = np.zeros(w.shape[:-1] + (3, 3))
-    S[..., _SKEW_IDX[0], _SKEW_IDX[1]] = w[..., _SKEW_SRC] * _SKEW_SGN
-    return S
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) (Rodrigues, batched)."""
-    w = np.asarray(w, np.float64)
-    th = np.sqrt(np.einsum("...i,...i->...", w, w))
-    ths = np.maximum(th, 1e-12)
-    a = (np.sin(th) / ths)[..., None, None]
-    b = (2 * np.sin(th / 2) ** 2 / ths ** 2)[..., None, None]
-    S = _skew(w)
-    return np.eye(3) + a * S + b * np.matmul(S, S)
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3) (batched)."""
-    R = np.asarray(R, np.float64)
-    cos = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)
-    th = np.arccos(cos)
-    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                  R[..., 1, 0] - R[..., 0, 1]], axis=-1)
-    s = np.sin(th)
-    out = np.where((s > 1e-7)[..., None], v * (th / (2 * np.where(s > 1e-7, s, 1.0)))[..., None],
-                   v / 2)
-    near_pi = np.atleast_1d(th > np.pi - 1e-4)
-    if np.any(near_pi):  # axis from the largest diagonal entry of R + I
-        R = R.reshape((-1, 3, 3))
-        out = out.reshape((-1, 3))
-        v = v.reshape((-1, 3))
-        th = th.reshape(-1)
-        for idx in np.nonzero(near_pi.reshape(-1))[0]:
-            Ri = R[idx]
-            B = (Ri + np.eye(3)) / 2
-            k = int(np.argmax(np.diag(B)))
-            axis = B[:, k] / np.sqrt(max(B[k, k], 1e-12))
-            axis /= np.linalg.norm(axis)
-            # sign: consistent with the (small) antisymmetric part
-            vv = v[idx]
-            if np.dot(axis, vv) < 0:
-                axis = -axis
-            out[idx] = axis * th[idx]
-        out = out.reshape(near_pi.shape + (3,)) if np.ndim(cos) else out.reshape(3)
-    return out
 
 
 def project_normalized(X: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray,
@@ -226,7 +172,7 @@ def _residual_jacobian(X, q, w, R, t):
     Jp[..., 0, 0] = iz
     Jp[..., 1, 1] = iz
     Jp[..., :, 2] = -xy * iz[..., None]
-    J = np.concatenate([Jp @ _skew(RX), Jp], axis=3).reshape(B, 2 * N, 6)
+    J = np.concatenate([Jp @ skew(RX), Jp], axis=3).reshape(B, 2 * N, 6)
     J[..., :3] *= -1.0
     cost = (res * res).sum(axis=1) + 1e6 * bad.sum(axis=1)
     return res, J, cost
@@ -350,7 +296,7 @@ def conic_center_offsets(X: np.ndarray, normals: np.ndarray, radii: np.ndarray,
 def _jl_inv(phi: np.ndarray) -> np.ndarray:
     """Inverse left Jacobian of SO(3) at rotation vectors (B, 3)."""
     th = np.linalg.norm(phi, axis=1)[:, None, None]
-    S = _skew(phi)
+    S = skew(phi)
     small = th < 1e-6
     ths = np.where(small, 1.0, th)
     sn = np.sin(ths)

@@ -16,8 +16,14 @@ import html
 import math
 from dataclasses import dataclass
 
-from drovisio.mission.machine import (DROP_STATES, FLYING_STATES, PICK_STATES, TRANSITIONS,
-                                      State, Transition)
+from drovisio.mission.machine import (
+    DROP_STATES,
+    FLYING_STATES,
+    PICK_STATES,
+    TRANSITIONS,
+    State,
+    Transition,
+)
 
 __all__ = ["mermaid", "dot", "svg", "grouped_edges", "GROUPS"]
 

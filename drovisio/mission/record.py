@@ -48,28 +48,14 @@ from typing import Any
 
 import numpy as np
 
+from drovisio.geometry import quat_wxyz
 from drovisio.mission.frames import site_from_body
 from drovisio.mission.machine import TRANSITIONS, State
 from drovisio.mission.sim import Trace, body_from_camera_for, camera_for
 
-__all__ = ["SCHEMA_ID", "write_recording", "load_recording", "quat_wxyz"]
+__all__ = ["SCHEMA_ID", "write_recording", "load_recording"]
 
 SCHEMA_ID = "drovisio/mission-recording@1"
-
-
-def quat_wxyz(R: np.ndarray) -> list[float]:
-    """Unit quaternion (w, x, y, z) of a rotation matrix, w ≥ 0."""
-    R = np.asarray(R, float)
-    w = math.sqrt(max(0.0, 1.0 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = math.sqrt(max(0.0, 1.0 + R[0, 0] - R[1, 1] - R[2, 2])) / 2
-    y = math.sqrt(max(0.0, 1.0 - R[0, 0] + R[1, 1] - R[2, 2])) / 2
-    z = math.sqrt(max(0.0, 1.0 - R[0, 0] - R[1, 1] + R[2, 2])) / 2
-    x = math.copysign(x, R[2, 1] - R[1, 2])
-    y = math.copysign(y, R[0, 2] - R[2, 0])
-    z = math.copysign(z, R[1, 0] - R[0, 1])
-    q = np.array([w, x, y, z])
-    q /= np.linalg.norm(q)
-    return [round(float(v), 6) for v in q]
 
 
 def _r(v, nd=4):
@@ -82,7 +68,7 @@ def _pose(position, yaw: float, body: bool = False) -> dict:
     else:
         c, s = math.cos(yaw), math.sin(yaw)
         R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    return {"position": _r(position), "yaw": round(float(yaw), 5), "quat_wxyz": quat_wxyz(R)}
+    return {"position": _r(position), "yaw": round(float(yaw), 5), "quat_wxyz": [round(q, 6) for q in quat_wxyz(R)]}
 
 
 def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,

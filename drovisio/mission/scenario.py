@@ -32,16 +32,22 @@ import math
 import os
 from dataclasses import dataclass
 from functools import cached_property
-from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
-                      model_validator)
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    model_validator,
+)
 
 from drovisio.mission.frames import rot2, wrap_half
+from drovisio.resources import scenarios_dir
 
 __all__ = ["SCHEMA_ID", "Scenario", "ScenarioError", "Pose4", "load_scenario", "parse_scenario",
            "shipped_scenarios_dir", "shipped_scenario"]
@@ -523,7 +529,7 @@ def _format_loc(loc: tuple) -> str:
 
 def shipped_scenarios_dir() -> Path:
     """``drovisio/mission/scenarios/`` (package data)."""
-    return Path(str(resources.files("drovisio.mission") / "scenarios"))
+    return scenarios_dir()
 
 
 def shipped_scenario(name: str = "wall-2-courses") -> Path:
@@ -531,7 +537,12 @@ def shipped_scenario(name: str = "wall-2-courses") -> Path:
 
 
 def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, Any]:
-    from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layouts_dir
+    from drovisio.layout import (
+        LayoutError,
+        check_layout_set,
+        load_layout,
+        shipped_layouts_dir,
+    )
 
     out: dict[str, Any] = {}
     problems = []

@@ -32,14 +32,32 @@ from typing import Callable
 
 import numpy as np
 
-from drovisio.camera import Camera, load_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.mission.faults import Fault
-from drovisio.mission.frames import (site_from_body, site_from_brick, wrap_half, wrap_pi,
-                                     yaw_of)
-from drovisio.mission.machine import (Machine, Output, Readings, Sighting, State,
-                                      TERMINAL_STATES, VISION_STATES)
+from drovisio.mission.frames import (
+    site_from_body,
+    site_from_brick,
+    wrap_half,
+    wrap_pi,
+    yaw_of,
+)
+from drovisio.mission.machine import (
+    TERMINAL_STATES,
+    VISION_STATES,
+    Machine,
+    Output,
+    Readings,
+    Sighting,
+    State,
+)
 from drovisio.mission.scenario import Scenario
-from drovisio.mission.vision import DetectorModel, DetectorModelParams, RenderVision, WorldBrick
+from drovisio.mission.vision import (
+    DetectorModel,
+    DetectorModelParams,
+    RenderVision,
+    WorldBrick,
+)
 
 __all__ = ["SimParams", "Tick", "Trace", "Simulator", "simulate", "camera_for",
            "body_from_camera_for"]

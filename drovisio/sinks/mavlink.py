@@ -40,7 +40,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drovisio.mount import Mount, down_camera_mount, ned_from_body
+from drovisio.geometry import ned_from_body, quat_wxyz
+from drovisio.mount import Mount, down_camera_mount
 from drovisio.sinks.base import SinkError
 from drovisio.sinks.target import TargetSelector
 
@@ -51,7 +52,6 @@ __all__ = [
     "VehicleState",
     "landing_target_fields",
     "mavutil2",
-    "quat_wxyz",
 ]
 
 MAV_FRAME_LOCAL_NED = 1
@@ -69,29 +69,6 @@ def mavutil2():
     if str(mavutil.mavlink.WIRE_PROTOCOL_VERSION) != "2.0":
         mavutil.set_dialect(mavutil.current_dialect or "common")
     return mavutil
-
-
-def quat_wxyz(R: np.ndarray) -> list[float]:
-    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix."""
-    R = np.asarray(R, np.float64)
-    t = np.trace(R)
-    if t > 0:
-        s = math.sqrt(t + 1.0) * 2
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = math.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2]) * 2
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = math.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2]) * 2
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = math.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1]) * 2
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    if q[0] < 0:
-        q = -q
-    return [float(x) for x in q]
 
 
 @dataclass
@@ -194,6 +171,23 @@ def landing_target_fields(brick, t_wall: float, mount: Mount | None, autopilot: 
     return fields
 
 
+def _check_host(name: str, dev: str) -> None:
+    """An unknown host name fails loudly here: pymavlink's UDP writer would drop every
+    message silently."""
+    import socket
+
+    kind, _, rest = dev.partition(":")
+    if kind not in ("udp", "udpin", "udpout", "udpbcast", "tcp", "tcpin") or not rest:
+        return
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SinkError(f"{name}: expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
+    try:
+        socket.getaddrinfo(host, int(port))
+    except (socket.gaierror, UnicodeError) as e:
+        raise SinkError(f"{name}: unknown host {host!r} ({e}); check the address") from None
+
+
 def _split_connection(conn: str) -> tuple[str, int | None]:
     """``/dev/ttyAMA0,921600`` → (device, baud)."""
     dev, sep, baud = conn.rpartition(",")
@@ -241,6 +235,7 @@ class MavlinkSink:
         mavutil = mavutil2()
         self._mavutil = mavutil
         dev, baud = _split_connection(connection)
+        _check_host(self.name, dev)
         try:
             kw = {"baud": baud} if baud else {}
             self.conn = mavutil.mavlink_connection(dev, source_system=source_system,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from drovisio.camera import load_camera
+from drovisio.camera_file import load_camera
 from webtool.app import create_app
 from webtool.calibration_service import CalibrationService
 from webtool.settings import Settings
@@ -73,6 +73,7 @@ class _Unplugged:
     """Two still frames of a sample view, then nothing: the camera was pulled out."""
 
     label = "test camera"
+    finite = False
 
     def __init__(self) -> None:
         import cv2
@@ -80,9 +81,14 @@ class _Unplugged:
         img = cv2.imread(str(REPO / "sample_sessions" / "calibration" / "view_00.jpg"))
         self.frames = [img, img, img]
 
+    def open(self) -> None:
+        pass
+
     def read(self):
+        from drovisio.sources import RawFrame
+
         time.sleep(0.02)
-        return self.frames.pop() if self.frames else None
+        return RawFrame(self.frames.pop(), 0) if self.frames else None
 
     def close(self) -> None:
         pass

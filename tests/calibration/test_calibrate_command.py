@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drovisio import cli
-from drovisio.camera import load_camera
+from drovisio.camera_file import load_camera
 
 BOARD = ["--board", "chessboard:9x6", "--square", "0.03"]
 
@@ -62,7 +62,7 @@ def test_rendered_folder_and_corrupt_jpeg_among_good_ones(render_dir, tmp_path, 
     assert rc == 0 and out.exists() and (tmp_path / "c.ros.yaml").exists()
     r = json.loads(rep.read_text())
     rejected = {x["file"].split("/")[-1]: x["reason"] for x in r["rejected"]}
-    assert "truncated" in rejected["broken.jpg"] and "cannot be read" in rejected["fake.png"]
+    assert "cut short" in rejected["broken.jpg"] and "cannot be read" in rejected["fake.png"]
     assert len(r["per_view"]) == 10
 
 

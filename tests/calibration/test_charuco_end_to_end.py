@@ -11,7 +11,8 @@ import numpy as np
 
 from drovisio import cli
 from drovisio.calibration.board import detect, parse_board
-from drovisio.camera import Camera, load_camera
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.synth import Effects, render_charuco, transform
 from drovisio.synth_samples import calibration_poses
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from drovisio.camera import Camera
+from drovisio.camera_file import save_camera
 from drovisio.cli import main
 from drovisio.layout import shipped_layouts_dir
 from drovisio.scenes import gravity_in_camera
@@ -36,7 +37,7 @@ def scene_files(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("detect")
     cam = Camera.drone_webcam()
-    cam.save(d / "camera.yaml")
+    save_camera(cam, d / "camera.yaml")
     centre, pyr = load_layouts([CENTRE, PYRAMIDS])
     scene = Scene(camera=cam, camera_from_world=camera_over([0, 0, 0], 1.1, 20, 10),
                   ground=Ground("gravel", 3),
@@ -119,7 +120,7 @@ def test_unreadable_image_gives_an_error_line_and_the_run_goes_on(scene_files, t
     assert "error" in lines[0] and lines[0]["bricks"] == []
     assert "error" in lines[1]
     assert "error" not in lines[2] and len(lines[2]["bricks"]) == 2
-    assert "broken.png" in err and "cannot decode" in err
+    assert "broken.png" in err and "cannot be read as an image" in err
 
 
 def test_greyscale_and_16_bit_images(scene_files, tmp_path, capsys):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drovisio.camera import load_camera
+from drovisio.camera_file import load_camera
 from drovisio.fusion import dots_half_turn_symmetric, so3_exp, so3_log
 from drovisio.layout import parse_layout
 from drovisio.pipeline import Pipeline, detectors_for

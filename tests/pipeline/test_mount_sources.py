@@ -120,16 +120,21 @@ def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch
     page's source): the device is opened once, both get fresh frames, an unplug reaches both
     and they recover; the device closes when the last user goes."""
     from drovisio.sources import SharedCamera
-    from webtool.calibration_service import CaptureSource
 
     monkeypatch.setattr(SharedCamera, "opener", staticmethod(_FakeV4L2))
     monkeypatch.setattr(_FakeV4L2, "open_now", 0)
     monkeypatch.setattr(_FakeV4L2, "opened", 0)
     monkeypatch.setattr(_FakeV4L2, "unplugged", False)
     live = FrameSource(reader_for("/dev/video0"), backoff=(0.02, 0.05)).start()
-    calib = CaptureSource("0")
+    calib = reader_for("0")   # the calibration page pulls frames from the same reader kind
+    calib.open()
+
+    def pull():
+        raw = calib.read()
+        return None if raw is None else raw.image
+
     try:
-        seen = [calib.read() for _ in range(5)]
+        seen = [pull() for _ in range(5)]
         assert all(f is not None and f.shape == (48, 64, 3) for f in seen)
         assert len({int(f[0, 0, 0]) for f in seen}) == 5           # a new frame each read
         fr = live.get(timeout=2.0)
@@ -140,13 +145,13 @@ def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch
         deadline = time.monotonic() + 3
         while live.status().state != "lost" and time.monotonic() < deadline:
             time.sleep(0.02)
-        assert live.status().state == "lost" and calib.read() is None
+        assert live.status().state == "lost" and pull() is None
         _FakeV4L2.unplugged = False
         deadline = time.monotonic() + 5
         while live.status().state != "live" and time.monotonic() < deadline:
             time.sleep(0.02)
         assert live.status().state == "live"
-        assert calib.read() is not None and _FakeV4L2.open_now == 1
+        assert pull() is not None and _FakeV4L2.open_now == 1
     finally:
         live.stop()
         calib.close()

@@ -18,9 +18,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from drovisio.camera import load_camera
+from drovisio.camera_file import load_camera
 from webtool.app import create_app
-from webtool.calibration_service import CalibrationService, SamplePlayback
+from drovisio.sources import PlaybackReader, RawFrame
+from webtool.calibration_service import CalibrationService
 from webtool.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,18 +48,22 @@ class ScriptedSource:
     (a lost camera) — or the last frame forever with ``hold=True``."""
 
     label = "scripted test camera"
+    finite = False
 
     def __init__(self, frames: list[np.ndarray], hold: bool = False) -> None:
         self.frames = list(frames)
         self.hold = hold
         self.i = 0
 
+    def open(self) -> None:
+        pass
+
     def read(self):
         time.sleep(0.01)
         if self.i < len(self.frames):
             self.i += 1
-            return self.frames[self.i - 1]
-        return self.frames[-1] if (self.hold and self.frames) else None
+            return RawFrame(self.frames[self.i - 1], self.i - 1)
+        return RawFrame(self.frames[-1], self.i) if (self.hold and self.frames) else None
 
     def close(self) -> None:
         pass
@@ -160,8 +165,8 @@ def test_sample_playback_auto_captures(make_client):
 
 def test_sample_playback_still_and_moving_frames():
     files = sorted(SAMPLE.glob("view_*.jpg"))[:2]
-    src = SamplePlayback(files, seconds_per_view=0.4, fps=40)
-    frames = [src.read() for _ in range(24)]  # ~0.6 s: view 0 still, then the move to view 1
+    src = PlaybackReader(files, seconds_per_view=0.4, fps=40)
+    frames = [src.read().image for _ in range(24)]  # ~0.6 s: view 0 still, then the move to view 1
     from drovisio.calibration import parse_board
     from drovisio.calibration.board import detect
     board = parse_board("chessboard:9x6", 0.025)
@@ -206,10 +211,14 @@ def test_manual_capture_with_auto_off(make_client):
 
     class Live:
         label = "test"
+        finite = False
+
+        def open(self):
+            pass
 
         def read(self):
             time.sleep(0.01)
-            return frames["f"]
+            return RawFrame(frames["f"], 0)
 
         def close(self):
             pass

@@ -37,8 +37,8 @@ from fastapi import (
 from fastapi.responses import JSONResponse, Response
 
 from webtool.access import access_level
-from webtool.viser_proxy import client_response, proxy_socket
 from webtool.live_service import LEVELS, LiveService
+from webtool.viser_proxy import client_response, proxy_socket
 
 _create_lock = threading.Lock()
 

@@ -1,0 +1,181 @@
+"""Decoding the images users give (files, uploads): bounded, and converted to 8-bit BGR.
+
+One place decides what an image is for the whole project: which file suffixes are images or
+videos, how a file is decoded (OpenCV), how any pixel type becomes 8-bit BGR, and what is
+refused and why. An image header is read before any pixel is decoded: one whose size exceeds
+:attr:`drovisio.errors.Limits.max_image_pixels` (50 Mpx; ``DROVISIO_MAX_IMAGE_MPX``) is
+refused without allocating it (a 65000×65000 JPEG of a few kilobytes would otherwise take
+tens of gigabytes).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import stat
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from drovisio.errors import LIMITS, InputError
+
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "ImageError",
+    "VIDEO_SUFFIXES",
+    "decode_image",
+    "header_size",
+    "is_image_file",
+    "is_video_file",
+    "read_image",
+    "to_bgr8",
+]
+
+IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm",
+                            ".ppm", ".pnm", ".pbm", ".jp2", ".exr", ".hdr"})
+VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg",
+                            ".wmv", ".mjpeg", ".mjpg", ".h264", ".ts"})
+
+
+class ImageError(InputError):
+    """An image that cannot be used; the message says why in plain words (callers add the
+    file name)."""
+
+
+def is_image_file(path: str | os.PathLike) -> bool:
+    return Path(path).suffix.lower() in IMAGE_SUFFIXES
+
+
+def is_video_file(path: str | os.PathLike) -> bool:
+    return Path(path).suffix.lower() in VIDEO_SUFFIXES
+
+
+def header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from an image header without decoding it (Pillow reads the header
+    only); None when the format is not one Pillow knows."""
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - pillow is a dependency
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(io.BytesIO(data)) as im:
+                return int(im.size[0]), int(im.size[1])
+    except Image.DecompressionBombError as e:
+        # Pillow's own guard fired on the header: the size is in its message; say "huge"
+        raise ImageError(f"the image header claims a huge picture ({e}); refused") from None
+    except Exception:  # noqa: BLE001 - unknown or broken header: OpenCV decides
+        return None
+
+
+def to_bgr8(img: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Any image OpenCV reads (grey, BGRA, 16-bit, float) as BGR uint8, and notes on what was
+    converted.
+
+    16-bit images are scaled by the bit depth they actually use (a 12-bit camera's 0..4095 maps
+    to 0..255, not to 0..15); float images in [0, 1] are multiplied by 255.
+
+    Raises:
+        ImageError: a pixel type or shape that is not an image.
+    """
+    notes: list[str] = []
+    a = np.asarray(img)
+    if a.size == 0:
+        raise ImageError("the image has no pixels")
+    if a.dtype == np.uint8:
+        pass
+    elif a.dtype in (np.uint16, np.int16, np.uint32, np.int32):
+        top = int(a.max())
+        bits = max(8, int(top).bit_length())
+        full = (1 << bits) - 1
+        notes.append(f"{a.dtype.itemsize * 8}-bit image ({bits} bits used) scaled to 8 bits")
+        a = np.clip(np.rint(a.astype(np.float64) * (255.0 / full)), 0, 255).astype(np.uint8)
+    elif np.issubdtype(a.dtype, np.floating):
+        finite = a[np.isfinite(a)]
+        top = float(finite.max()) if finite.size else 1.0
+        scale = 255.0 if top <= 1.0 else 255.0 / top
+        notes.append(f"floating-point image scaled to 8 bits (x{scale:.4g})")
+        a = np.clip(np.rint(np.nan_to_num(a) * scale), 0, 255).astype(np.uint8)
+    else:
+        raise ImageError(f"unsupported pixel type {a.dtype}")
+    import cv2
+
+    if a.ndim == 2:
+        notes.append("greyscale image converted to BGR")
+        a = cv2.cvtColor(a, cv2.COLOR_GRAY2BGR)
+    elif a.ndim == 3 and a.shape[2] == 1:
+        notes.append("greyscale image converted to BGR")
+        a = cv2.cvtColor(a[:, :, 0], cv2.COLOR_GRAY2BGR)
+    elif a.ndim == 3 and a.shape[2] == 4:
+        a = cv2.cvtColor(a, cv2.COLOR_BGRA2BGR)
+    elif a.ndim == 3 and a.shape[2] == 2:
+        notes.append("grey+alpha image converted to BGR")
+        a = cv2.cvtColor(a[:, :, 0], cv2.COLOR_GRAY2BGR)
+    elif not (a.ndim == 3 and a.shape[2] == 3):
+        raise ImageError(f"unsupported image shape {a.shape}")
+    return np.ascontiguousarray(a), notes
+
+
+def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray, list[str]]:
+    """Decode an image file's bytes to BGR uint8.
+
+    Args:
+        data: The file's content.
+        name: Its name (only its suffix is used, to recognise a truncated JPEG).
+
+    Returns:
+        (image, notes on conversions).
+
+    Raises:
+        ImageError: empty, truncated, too large, or not an image (the message says which).
+    """
+    import cv2
+
+    if not data:
+        raise ImageError("the file is empty")
+    if data[:2] == b"\xff\xd8" and not data.rstrip(b"\x00\r\n\t ").endswith(b"\xff\xd9"):
+        raise ImageError("corrupt JPEG: the file is cut short (copy it again from the camera)")
+    size = header_size(data)
+    if size is not None:
+        w, h = size
+        if w <= 0 or h <= 0:
+            raise ImageError(f"the image header gives an empty size {w}x{h}")
+        if w * h > LIMITS.max_image_pixels or max(w, h) > LIMITS.max_image_side:
+            raise ImageError(f"the image is {w}x{h} ({w * h / 1e6:.0f} Mpx), more than the "
+                             f"{LIMITS.max_image_pixels / 1e6:.0f} Mpx Drovisio decodes; "
+                             "resize it (or set DROVISIO_MAX_IMAGE_MPX)")
+    try:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
+    if img is None or img.size == 0:
+        raise ImageError("cannot be read as an image (corrupt, truncated or not an image)")
+    return to_bgr8(img)
+
+
+def read_image(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
+    """Read one image file as BGR uint8: (image, notes).
+
+    Raises:
+        ImageError: missing, a folder or a pipe (never read: it could block), unreadable, or
+            not a usable image.
+    """
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise ImageError("no such file") from None
+    except OSError as e:
+        raise ImageError(f"cannot read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ImageError("is a folder")
+    if not stat.S_ISREG(st.st_mode):
+        raise ImageError("not a regular file (a pipe or a device)")
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise ImageError(f"cannot read: {e.strerror or e}") from None
+    return decode_image(data, p.name)

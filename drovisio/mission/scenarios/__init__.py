@@ -1,0 +1,1 @@
+"""Shipped mission scenarios (data package: see drovisio.resources)."""

@@ -1,0 +1,136 @@
+"""Reading the small text files users give (camera, layout, mount, scenario, gravity, protocol):
+bounded in size, nesting and YAML aliases, and never blocking on something that is not a file.
+
+Every function raises :class:`~drovisio.errors.InputError` with a one-line message that names
+the file; the callers add the field.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from drovisio.errors import LIMITS, InputError, one_line
+
+__all__ = ["check_regular_file", "parse_json", "parse_yaml", "read_text"]
+
+
+def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` if it is a regular file; a clear error for a missing path, a folder, or a FIFO,
+    socket or device (reading those can block forever)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise InputError(f"{p}: {what} not found") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read the {what} ({e.strerror or e})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: is a folder; give the {what} itself")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: not a regular file (a pipe or device); give the {what} itself")
+    return p
+
+
+def read_text(path: str | os.PathLike, what: str = "file",
+              max_bytes: int | None = None) -> str:
+    """The UTF-8 text of a small file (at most ``max_bytes``, default
+    :attr:`~drovisio.errors.Limits.max_file_bytes`)."""
+    p = check_regular_file(path, what)
+    limit = LIMITS.max_file_bytes if max_bytes is None else max_bytes
+    try:
+        with open(p, "rb") as f:
+            data = f.read(limit + 1)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read the {what} ({e.strerror or e})") from None
+    if len(data) > limit:
+        raise InputError(f"{p}: the {what} is larger than {limit // 1024} KiB; is it the "
+                         "right file?")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text (byte {e.start}); the {what} must be a text "
+                         "file") from None
+
+
+def _depth(obj: Any, limit: int) -> int:
+    """Nesting depth of lists and dicts (iterative: hostile input must not exhaust the
+    stack); stops counting once past ``limit``."""
+    deepest = 0
+    stack = [(obj, 1)]
+    seen: set[int] = set()
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, (dict, list)):
+            if id(o) in seen:  # YAML aliases share objects; count each once
+                continue
+            seen.add(id(o))
+            deepest = max(deepest, d)
+            if deepest > limit:
+                return deepest
+            items = o.values() if isinstance(o, dict) else o
+            stack.extend((v, d + 1) for v in items)
+    return deepest
+
+
+def _check_depth(obj: Any, source: str) -> Any:
+    limit = LIMITS.max_json_depth
+    if _depth(obj, limit) > limit:
+        raise InputError(f"{source}: nested more than {limit} levels deep; this is not a file "
+                         "Drovisio writes or reads")
+    return obj
+
+
+def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
+    """JSON with its nesting bounded; finite numbers only (NaN and Infinity are refused)."""
+    def no_constant(name: str) -> Any:
+        raise InputError(f"{source}: {name} is not a number JSON allows; give a finite number")
+
+    try:
+        data = json.loads(text, parse_constant=no_constant, **kw)
+    except RecursionError:
+        raise InputError(f"{source}: nested too deeply to be a Drovisio file") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{source}: invalid JSON at line {e.lineno}, column {e.colno}: "
+                         f"{e.msg}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{source}: not UTF-8 text (byte {e.start})") from None
+    return _check_depth(data, source)
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with a cap on alias references (a "billion laughs" document
+    makes every later step, down to the error message, explode)."""
+
+    max_aliases = 100
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__(stream)
+        self._aliases = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:  # type: ignore[override]
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > self.max_aliases:
+                raise yaml.YAMLError(f"more than {self.max_aliases} YAML aliases")
+        return super().compose_node(parent, index)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """YAML (safe subset) with aliases and nesting bounded."""
+    _BoundedLoader.max_aliases = LIMITS.max_yaml_aliases
+    try:
+        data = yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - a SafeLoader subclass
+    except RecursionError:
+        raise InputError(f"{source}: nested too deeply to be a Drovisio file") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise InputError(f"{source}: not valid YAML{where}: {one_line(problem, 160)}") from None
+    return _check_depth(data, source)

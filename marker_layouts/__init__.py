@@ -1,0 +1,1 @@
+"""Marker layouts shipped with Drovisio (data package: see drovisio.resources)."""

@@ -1,0 +1,1 @@
+"""Sample sessions made by drovisio's renderer (data package: see drovisio.resources)."""
