@@ -20,7 +20,6 @@ import numpy as np
 
 from drovisio.errors import LIMITS, InputError
 
-
 __all__ = [
     "IMAGE_SUFFIXES",
     "ImageError",

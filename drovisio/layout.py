@@ -295,6 +295,11 @@ class ColorSpec(BaseModel):
         b, g, r = cv2.cvtColor(px, cv2.COLOR_HSV2BGR)[0, 0]
         return int(b), int(g), int(r)
 
+    def display_rgb(self) -> tuple[int, int, int]:
+        """:meth:`display_bgr` in RGB order (viser, PDF, glTF, the web pages)."""
+        b, g, r = self.display_bgr()
+        return r, g, b
+
 
 #: The default dot colours (OpenCV HSV units). Layouts may override or add colours.
 #: Each paint ``bgr`` falls inside its own range and outside the others (tested).

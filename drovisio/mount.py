@@ -3,6 +3,7 @@
 Mount file (JSON or YAML), schema ``drovisio/mount@1``::
 
     {"schema": "drovisio/mount@1", "body_frame": "FRD",
+     "camera": {"tilt_deg": 20, "pan_deg": 0, "roll_deg": 0, "offset_m": [0.08, 0, 0.05]},
      "body_from_camera": [[...4 numbers...], [...], [...], [0, 0, 0, 1]],
      "note": "camera 20° tilted forward, 8 cm ahead and 5 cm below the body origin"}
 
@@ -10,6 +11,19 @@ Mount file (JSON or YAML), schema ``drovisio/mount@1``::
   ``MAV_FRAME_BODY_FRD``.
 * ``body_from_camera``: 4×4 rigid transform, ``p_body = body_from_camera @ p_cam`` with the
   camera frame OpenCV's (x right, y down, z forward); metres. Tilt included.
+* ``camera`` (the human form, what people measure on the drone; written beside the matrix,
+  either is enough, both must agree):
+
+  - ``tilt_deg``: angle of the optical axis away from straight down, toward the nose
+    (0: looking straight down; 90: looking forward at the horizon);
+  - ``pan_deg``: turn of the camera about the body's down axis, positive to the right
+    (clockwise seen from above); 0: the image top points toward the nose;
+  - ``roll_deg``: turn of the camera about its own optical axis, positive clockwise as the
+    image is seen;
+  - ``offset_m``: the camera's centre from the body origin, [forward, right, down], metres.
+
+  ``body_from_camera = Rz(pan) · Ry(tilt) · R_down · Rz(roll)``, with ``R_down`` the camera
+  looking straight down, image top forward (x_cam → right, y_cam → back, z_cam → down).
 
 :class:`Mount` turns poses ``camera_from_brick`` into ``body_from_brick`` and gives the
 direction of gravity in the camera frame from the vehicle's roll and pitch.
@@ -17,20 +31,30 @@ direction of gravity in the camera frame from the vehicle's roll and pitch.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
-from drovisio.geometry import ned_from_body
+from drovisio.errors import InputError
+from drovisio.geometry import ned_from_body, rot_y, rot_z, transform
+from drovisio.textfile import parse_json, parse_yaml, read_text
 
 __all__ = [
     "MOUNT_SCHEMA",
     "Mount",
+    "MountAngles",
+    "angles_of",
+    "body_from_camera_angles",
     "MountError",
     "MountFile",
     "down_camera_mount",
@@ -41,21 +65,63 @@ __all__ = [
 MOUNT_SCHEMA = "drovisio/mount@1"
 
 
-class MountError(ValueError):
+class MountError(InputError):
     """A mount file that cannot be used; the message names the file and the field."""
 
 
+class MountAngles(BaseModel):
+    """The mount as people measure it (see the module doc for the conventions)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    tilt_deg: float = Field(ge=0, le=180, description="Optical axis from straight down toward "
+                            "the nose, degrees.")
+    pan_deg: float = Field(default=0.0, ge=-180, le=180, description="Turn about the body's "
+                           "down axis, positive to the right, degrees.")
+    roll_deg: float = Field(default=0.0, ge=-180, le=180, description="Turn about the optical "
+                            "axis, clockwise in the image, degrees.")
+    offset_m: tuple[float, float, float] = Field(
+        default=(0.0, 0.0, 0.0), description="Camera centre from the body origin [forward, "
+        "right, down], metres.")
+
+    @field_validator("offset_m")
+    @classmethod
+    def _near(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if max(abs(x) for x in v) > 10:
+            raise ValueError("offset larger than 10 m: give it in metres")
+        return v
+
+
 class MountFile(BaseModel):
-    """The mount file's content (pydantic schema)."""
+    """The mount file's content (pydantic schema): the matrix, the angles, or both."""
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
 
     schema_id: Literal["drovisio/mount@1"] = Field(alias="schema")
     body_frame: Literal["FRD"] = Field(
         default="FRD", description="Drone body frame: FRD (x forward, y right, z down).")
-    body_from_camera: list[list[float]] = Field(
+    camera: MountAngles | None = Field(
+        default=None, description="Tilt, pan, roll (degrees) and offset (metres).")
+    body_from_camera: list[list[float]] | None = Field(
+        default=None,
         description="4×4 rigid transform p_body = body_from_camera · p_cam (metres).")
-    note: str | None = None
+    note: str | None = Field(default=None, max_length=2000)
+
+    @model_validator(mode="after")
+    def _one_form(self) -> MountFile:
+        if self.camera is None and self.body_from_camera is None:
+            raise ValueError("give 'camera' (tilt_deg, pan_deg, roll_deg, offset_m) or "
+                             "'body_from_camera' (4x4)")
+        if self.camera is not None and self.body_from_camera is not None:
+            a = body_from_camera_angles(**self.camera.model_dump())
+            b = np.asarray(self.body_from_camera)
+            angle = np.degrees(np.arccos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2,
+                                                 -1, 1)))
+            shift = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+            if angle > 0.01 or shift > 1e-4:
+                raise ValueError(f"'camera' and 'body_from_camera' disagree by {angle:.2f}° and "
+                                 f"{shift * 1000:.1f} mm; keep one of them")
+        return self
 
     @field_validator("body_from_camera")
     @classmethod
@@ -76,6 +142,39 @@ class MountFile(BaseModel):
         if np.abs(T[:3, 3]).max() > 10:
             raise ValueError("translation larger than 10 m: units must be metres")
         return T.tolist()
+
+
+#: the camera looking straight down, image top toward the nose (x_cam → right, y_cam → back)
+BODY_FROM_DOWN_CAMERA = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def body_from_camera_angles(tilt_deg: float, pan_deg: float = 0.0, roll_deg: float = 0.0,
+                            offset_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """``body_from_camera`` (4×4) of the human form (module doc)."""
+    R = (rot_z(np.radians(pan_deg)) @ rot_y(np.radians(tilt_deg)) @ BODY_FROM_DOWN_CAMERA
+         @ rot_z(np.radians(roll_deg)))
+    return transform(R, offset_m)
+
+
+def angles_of(body_from_camera: np.ndarray) -> dict:
+    """The human form (tilt, pan, roll in degrees, offset in metres) of a mount matrix.
+
+    ``R · R_downᵀ = Rz(pan) · Ry(tilt) · Rz(roll)`` (the down camera's roll is a turn about
+    the body's z): z-y-z Euler angles, tilt in [0°, 180°]. Looking straight down, pan and roll
+    turn the same way; the turn is then reported as roll, pan 0.
+    """
+    T = np.asarray(body_from_camera, np.float64)
+    M = T[:3, :3] @ BODY_FROM_DOWN_CAMERA.T
+    tilt = float(np.degrees(np.arccos(np.clip(M[2, 2], -1.0, 1.0))))
+    if np.hypot(M[0, 2], M[1, 2]) < 1e-9:
+        pan = 0.0
+        roll = float(np.degrees(np.arctan2(M[1, 0], M[0, 0])))
+    else:
+        pan = float(np.degrees(np.arctan2(M[1, 2], M[0, 2])))
+        roll = float(np.degrees(np.arctan2(M[2, 1], -M[2, 0])))
+    return {"tilt_deg": round(tilt, 6) + 0.0, "pan_deg": round(pan, 6) + 0.0,
+            "roll_deg": round(roll, 6) + 0.0,
+            "offset_m": [round(float(x), 6) + 0.0 for x in T[:3, 3]]}
 
 
 class Mount:
@@ -111,38 +210,46 @@ class Mount:
         g = self.camera_from_body[:3, :3] @ g_body
         return g / np.linalg.norm(g)
 
+    @classmethod
+    def from_angles(cls, tilt_deg: float, pan_deg: float = 0.0, roll_deg: float = 0.0,
+                    offset_m=(0.0, 0.0, 0.0), note: str | None = None) -> Mount:
+        """The mount of the human form (module doc)."""
+        return cls(body_from_camera_angles(tilt_deg, pan_deg, roll_deg, offset_m), note=note)
+
+    def angles(self) -> dict:
+        """The human form: ``{"tilt_deg", "pan_deg", "roll_deg", "offset_m"}``."""
+        return angles_of(self.body_from_camera)
+
     def to_file(self) -> dict:
-        return {"schema": MOUNT_SCHEMA, "body_frame": "FRD",
+        """The mount file's content: both forms (people read the angles, programs the
+        matrix)."""
+        return {"schema": MOUNT_SCHEMA, "body_frame": "FRD", "camera": self.angles(),
                 "body_from_camera": self.body_from_camera.tolist(),
                 **({"note": self.note} if self.note else {})}
 
 
 def down_camera_mount() -> Mount:
     """Camera looking straight down, image top toward the drone's front, at the body origin."""
-    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    T = np.eye(4)
-    T[:3, :3] = R
-    return Mount(T, note="camera looking down, image top forward")
+    return Mount.from_angles(0.0, note="camera looking down, image top forward")
 
 
 def load_mount(path: str | os.PathLike) -> Mount:
     """Read a mount file (JSON or YAML)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as e:
-        raise MountError(f"{p}: cannot read the mount file ({e.strerror or e})") from e
-    try:
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
-        raise MountError(f"{p}: not valid {'JSON' if p.suffix.lower() == '.json' else 'YAML'}"
-                         f": {e}") from e
+        text = read_text(p, "mount file")
+        data = parse_json(text, str(p)) if p.suffix.lower() == ".json" else \
+            parse_yaml(text, str(p))
+    except InputError as e:
+        raise MountError(str(e)) from None
     if not isinstance(data, dict):
         raise MountError(f"{p}: expected a mapping with 'schema' and 'body_from_camera'")
     try:
         mf = MountFile.model_validate(data)
     except ValidationError as e:
         errs = "; ".join(f"{'.'.join(str(x) for x in err['loc']) or '(file)'}: {err['msg']}"
-                         for err in e.errors())
-        raise MountError(f"{p}: {errs}") from e
-    return Mount(np.asarray(mf.body_from_camera), note=mf.note, source=str(p))
+                         for err in e.errors()[:5])
+        raise MountError(f"{p}: {errs}") from None
+    T = (np.asarray(mf.body_from_camera) if mf.body_from_camera is not None
+         else body_from_camera_angles(**mf.camera.model_dump()))  # type: ignore[union-attr]
+    return Mount(T, note=mf.note, source=str(p))

@@ -1,36 +1,57 @@
-"""Token access for a web tool that listens beyond this machine.
+"""Who may use the web tool: the page's own origin, the hosts it was started for, and tokens.
 
-With ``token=None`` this middleware lets everything through (the default: bound to 127.0.0.1).
-With a token, a request from a loopback client (127.0.0.0/8, ::1, "localhost") still passes;
-any other client must present the token, in one of three ways:
+One ASGI middleware (:class:`AccessMiddleware`) checks every HTTP request and WebSocket, in
+this order:
 
-* ``?token=...`` in the URL (what `drovisio serve` prints); a valid one also sets a cookie so that
-  links and API calls from that page work without repeating it,
-* the ``drovisio_token`` cookie,
-* an ``Authorization: Bearer ...`` header (scripts).
+1. **Host.** The ``Host`` header must be a name this server answers to: an IP address
+   literal, ``localhost``, the ``--host`` given, or this machine's own names. Any other name
+   is what a DNS-rebinding page sends (its own domain, now pointing at 127.0.0.1): refused
+   with 403, unless the request carries a valid token.
+2. **Origin.** Every write (POST, PUT, PATCH, DELETE) and every WebSocket from a browser
+   carries ``Origin``; it must be the tool's own (scheme-less comparison of the ``Origin``
+   host:port with ``Host``). A page on any other origin gets 403, **even on loopback** and
+   even with a token in a cookie (CSRF). ``Sec-Fetch-Site: cross-site`` is refused too.
+   Programs that send no ``Origin`` (scripts, curl) are judged by host and token alone.
+3. **Token.** With ``token=None`` (the default, bound to 127.0.0.1) nothing more is asked.
+   Otherwise a loopback client still passes; any other client must present the token: as
+   ``?token=...`` (what ``drovisio serve`` prints; a valid one sets an HttpOnly cookie), the
+   ``drovisio_token`` cookie, or ``Authorization: Bearer ...``. Without it: 401 with a short
+   explanation; a WebSocket is closed before it is accepted.
 
-Otherwise: 401 with a short explanation (JSON for /api/ and clients that ask for JSON, HTML
-otherwise); a WebSocket is closed before it is accepted.
+A second, **read-only viewer token** (``Settings.viewer_token``) lets a person watch — every
+page, GET/HEAD request and WebSocket — but not change anything: writes answer 403. Routes see
+the access level as ``request.state.drovisio_access`` (:func:`access_level`) and must not take
+changes over a WebSocket from a viewer. Tokens never reach the server log
+(:func:`redact_tokens` filters uvicorn's access log).
 
-A second, **read-only viewer token** (``Settings.viewer_token``; presented the same three
-ways) lets a person watch — every page, GET/HEAD request and WebSocket — but not change
-anything: writes (POST, PUT, PATCH, DELETE) answer 403. Routes see the access level as
-``request.state.drovisio_access`` (``"full"`` or ``"viewer"``; :func:`access_level`) and must
-not accept changes over a WebSocket from a viewer. :func:`terminal_qr` and
-:func:`access_lines` give what `drovisio serve` prints for phones (the links and QR codes).
+:func:`terminal_qr` and :func:`access_lines` give what ``drovisio serve`` prints for phones.
 """
 
 from __future__ import annotations
 
 import html
+import ipaddress
 import json
+import logging
+import re
 import secrets
+import socket
 from http.cookies import SimpleCookie
-from urllib.parse import parse_qs
+from urllib.parse import parse_qs, urlsplit
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from webtool.settings import is_loopback
+
+__all__ = [
+    "AccessMiddleware",
+    "COOKIE_NAME",
+    "access_level",
+    "access_lines",
+    "install_log_redaction",
+    "redact_tokens",
+    "terminal_qr",
+]
 
 COOKIE_NAME = "drovisio_token"
 QUERY_PARAM = "token"
@@ -54,91 +75,173 @@ def _set_access(scope: Scope, level: str) -> None:
 
 
 def access_level(request_or_scope) -> str:  # noqa: ANN001 - Request, WebSocket or scope
-    """``"full"`` or ``"viewer"`` for a request that passed the middleware (``"full"`` when
-    token access is off)."""
+    """``"full"`` or ``"viewer"`` for a request that passed the middleware."""
     scope = getattr(request_or_scope, "scope", request_or_scope)
     return (scope.get("state") or {}).get(STATE_KEY, FULL)
 
 
-class TokenAccessMiddleware:
-    def __init__(self, app: ASGIApp, token: str | None, viewer_token: str | None = None) -> None:
+def _split_host(value: str) -> tuple[str, str]:
+    """(host, port) of a ``Host`` header or an origin's netloc, lowercased, brackets off."""
+    v = value.strip().lower()
+    if v.startswith("["):
+        host, _, rest = v[1:].partition("]")
+        return host, rest.removeprefix(":")
+    host, _, port = v.rpartition(":") if v.count(":") == 1 else (v, "", "")
+    return host, port
+
+
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+def machine_names() -> set[str]:
+    """This machine's own names (a phone on the site's Wi-Fi may use them)."""
+    names = {"localhost"}
+    try:
+        hn = socket.gethostname().lower()
+        names |= {hn, f"{hn}.local", socket.getfqdn().lower()}
+    except OSError:
+        pass
+    return {n for n in names if n}
+
+
+class AccessMiddleware:
+    """See the module doc.
+
+    Args:
+        app: The ASGI app.
+        token: Full-access token (None: token access off).
+        viewer_token: Read-only token.
+        bind_host: The ``--host`` the server listens on (allowed as a ``Host`` name).
+        extra_hosts: More host names to accept (a reverse proxy's name, say).
+    """
+
+    def __init__(self, app: ASGIApp, token: str | None, viewer_token: str | None = None,
+                 bind_host: str = "127.0.0.1", extra_hosts: tuple[str, ...] = ()) -> None:
         self.app = app
         self.token = token
         self.viewer_token = viewer_token
+        self.names = machine_names() | {h.lower().strip("[]") for h in (bind_host, *extra_hosts)
+                                        if h}
 
-    def _matches(self, candidate: str | None, token: str | None = None) -> bool:
-        token = self.token if token is None else token
-        return bool(candidate) and bool(token) and secrets.compare_digest(candidate.encode(),
-                                                                          token.encode())
+    # ---------------------------------------------------------------- checks
+    def _matches(self, candidate: str | None, token: str | None) -> bool:
+        return bool(candidate) and bool(token) and secrets.compare_digest(
+            candidate.encode(), token.encode())  # type: ignore[union-attr]
 
-    def _viewer_token(self, scope: Scope) -> str | None:
-        if self.viewer_token is not None:
-            return self.viewer_token
-        app = scope.get("app")  # Starlette puts itself here before the middleware stack
-        settings = getattr(getattr(app, "state", None), "settings", None)
-        return getattr(settings, "viewer_token", None)
+    def _host_ok(self, host_header: str | None) -> bool:
+        if not host_header:
+            return False
+        host, _ = _split_host(host_header)
+        return _is_ip(host) or host in self.names
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] not in ("http", "websocket") or self.token is None:
-            if scope["type"] in ("http", "websocket"):
-                _set_access(scope, FULL)
-            await self.app(scope, receive, send)
-            return
-        client = scope.get("client")
-        if client and is_loopback(client[0]):
-            _set_access(scope, FULL)
-            await self.app(scope, receive, send)
-            return
+    @staticmethod
+    def _same_origin(origin: str, host_header: str | None) -> bool:
+        if not host_header or origin in ("", "null"):
+            return False
+        netloc = urlsplit(origin).netloc
+        if not netloc:
+            return False
+        o_host, o_port = _split_host(netloc)
+        h_host, h_port = _split_host(host_header)
+        default = "443" if origin.lower().startswith("https:") else "80"
+        return o_host == h_host and (o_port or default) == (h_port or default)
 
-        headers = _headers(scope)
+    def _token_level(self, scope: Scope, headers: dict[str, str]) -> tuple[str | None, bool]:
+        """(access level the request's token gives or None, the token came in the URL)."""
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
         from_query = (query.get(QUERY_PARAM) or [None])[0]
         cookie = SimpleCookie()
         try:
             cookie.load(headers.get("cookie", ""))
-        except Exception:  # a malformed cookie header is just "no cookie"
+        except Exception:  # noqa: BLE001 - a malformed cookie header is just "no cookie"
             pass
         from_cookie = cookie[COOKIE_NAME].value if COOKIE_NAME in cookie else None
         auth = headers.get("authorization", "")
         from_bearer = auth[7:].strip() if auth.lower().startswith("bearer ") else None
+        for cand in (from_query, from_cookie, from_bearer):
+            if self._matches(cand, self.token):
+                return FULL, cand is from_query
+        for cand in (from_query, from_cookie, from_bearer):
+            if self._matches(cand, self.viewer_token):
+                return VIEWER, cand is from_query
+        return None, False
 
-        if self._matches(from_query):
-            _set_access(scope, FULL)
-            await self.app(scope, receive, self._with_cookie(send, scope))
-            return
-        if self._matches(from_cookie) or self._matches(from_bearer):
-            _set_access(scope, FULL)
+    # ---------------------------------------------------------------- ASGI
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
             return
-        viewer = self._viewer_token(scope)
-        if viewer and any(self._matches(c, viewer)
-                          for c in (from_query, from_cookie, from_bearer)):
-            if scope["type"] == "http" and scope.get("method", "GET").upper() in WRITE_METHODS:
-                await self._read_only(send)
+        headers = _headers(scope)
+        is_socket = scope["type"] == "websocket"
+        method = scope.get("method", "GET").upper()
+        writes = is_socket or method in WRITE_METHODS
+        level, in_query = self._token_level(scope, headers)
+
+        host = headers.get("host")
+        if not self._host_ok(host) and level is None:
+            await self._forbidden(scope, send, f"unknown Host {host!r}: this tool answers to "
+                                  "its own address only (open the address `drovisio serve` "
+                                  "printed)")
+            return
+        if writes:
+            origin = headers.get("origin")
+            if origin is not None and not self._same_origin(origin, host):
+                await self._forbidden(scope, send, f"request from another site ({origin}) "
+                                      "refused: only the tool's own pages may change it")
                 return
-            _set_access(scope, VIEWER)
-            if self._matches(from_query, viewer):
-                send = self._with_cookie(send, scope, viewer)
+            if headers.get("sec-fetch-site", "") == "cross-site":
+                await self._forbidden(scope, send, "cross-site request refused")
+                return
+
+        client = scope.get("client")
+        if self.token is None or (client and is_loopback(client[0]) and level is None):
+            _set_access(scope, FULL)
             await self.app(scope, receive, send)
             return
-        await self._refuse(scope, send, headers)
+        if level is None:
+            await self._refuse(scope, send, headers)
+            return
+        if level == VIEWER and not is_socket and method in WRITE_METHODS:
+            await self._read_only(send)
+            return
+        _set_access(scope, level)
+        if in_query:
+            send = self._with_cookie(send, scope, self.token if level == FULL
+                                     else self.viewer_token)
+        await self.app(scope, receive, send)
 
-    async def _read_only(self, send: Send) -> None:
-        body = json.dumps({"detail": "read-only access",
-                           "help": "This link is a viewer link: it can watch, not change. "
-                                   "Ask for the full access link printed by `drovisio serve`."
-                           }).encode()
-        await send({"type": "http.response.start", "status": 403,
+    # ---------------------------------------------------------------- answers
+    @staticmethod
+    async def _json(send: Send, status: int, data: dict, extra: list | None = None) -> None:
+        body = json.dumps(data).encode()
+        await send({"type": "http.response.start", "status": status,
                     "headers": [(b"content-type", b"application/json"),
                                 (b"content-length", str(len(body)).encode()),
-                                (b"cache-control", b"no-store")]})
+                                (b"cache-control", b"no-store"), *(extra or [])]})
         await send({"type": "http.response.body", "body": body})
 
-    def _with_cookie(self, send: Send, scope: Scope, token: str | None = None) -> Send:
-        if scope["type"] != "http":
+    async def _forbidden(self, scope: Scope, send: Send, why: str) -> None:
+        if scope["type"] == "websocket":
+            await send({"type": "websocket.close", "code": 1008, "reason": why[:120]})
+            return
+        await self._json(send, 403, {"detail": why})
+
+    async def _read_only(self, send: Send) -> None:
+        await self._json(send, 403, {
+            "detail": "read-only access",
+            "help": "This link is a viewer link: it can watch, not change. Ask for the full "
+                    "access link printed by `drovisio serve`."})
+
+    def _with_cookie(self, send: Send, scope: Scope, token: str | None) -> Send:
+        if scope["type"] != "http" or not token:
             return send
         secure = "; Secure" if scope.get("scheme") == "https" else ""
-        value = f"{COOKIE_NAME}={token or self.token}; Path=/; HttpOnly; SameSite=Lax{secure}"
+        value = f"{COOKIE_NAME}={token}; Path=/; HttpOnly; SameSite=Lax{secure}"
 
         async def send_with_cookie(message: Message) -> None:
             if message["type"] == "http.response.start":
@@ -151,36 +254,61 @@ class TokenAccessMiddleware:
 
     async def _refuse(self, scope: Scope, send: Send, headers: dict[str, str]) -> None:
         if scope["type"] == "websocket":
-            await send({"type": "websocket.close", "code": 1008, "reason": "access token required"})
+            await send({"type": "websocket.close", "code": 1008,
+                        "reason": "access token required"})
             return
         wants_json = scope.get("path", "").startswith("/api/") or (
             "application/json" in headers.get("accept", "")
-            and "text/html" not in headers.get("accept", "")
-        )
+            and "text/html" not in headers.get("accept", ""))
+        auth = [(b"www-authenticate", b'Bearer realm="drovisio"')]
         if wants_json:
-            body = json.dumps({"detail": "access token required", "help": _EXPLANATION}).encode()
-            ctype = b"application/json"
-        else:
-            body = (
-                "<!doctype html><html lang=en><meta charset=utf-8>"
-                "<meta name=viewport content='width=device-width, initial-scale=1'>"
-                "<title>Access token required - Drovisio</title>"
-                "<body style='font:20px/1.5 system-ui,sans-serif;max-width:40em;margin:2em auto;"
-                "padding:0 1em'><h1>Access token required</h1>"
-                f"<p>{html.escape(_EXPLANATION)}</p></body></html>"
-            ).encode()
-            ctype = b"text/html; charset=utf-8"
-        await send({
-            "type": "http.response.start",
-            "status": 401,
-            "headers": [
-                (b"content-type", ctype),
-                (b"content-length", str(len(body)).encode()),
-                (b"www-authenticate", b'Bearer realm="drovisio"'),
-                (b"cache-control", b"no-store"),
-            ],
-        })
+            await self._json(send, 401, {"detail": "access token required",
+                                         "help": _EXPLANATION}, auth)
+            return
+        body = (
+            "<!doctype html><html lang=en><meta charset=utf-8>"
+            "<meta name=viewport content='width=device-width, initial-scale=1'>"
+            "<title>Access token required - Drovisio</title>"
+            "<body style='font:20px/1.5 system-ui,sans-serif;max-width:40em;margin:2em auto;"
+            "padding:0 1em'><h1>Access token required</h1>"
+            f"<p>{html.escape(_EXPLANATION)}</p></body></html>"
+        ).encode()
+        await send({"type": "http.response.start", "status": 401,
+                    "headers": [(b"content-type", b"text/html; charset=utf-8"),
+                                (b"content-length", str(len(body)).encode()),
+                                (b"cache-control", b"no-store"), *auth]})
         await send({"type": "http.response.body", "body": body})
+
+
+# --------------------------------------------------------------------------------------------
+# Tokens stay out of the logs
+# --------------------------------------------------------------------------------------------
+
+_TOKEN_RE = re.compile(r"(token=)[^&\s\"']+", re.IGNORECASE)
+
+
+def redact_tokens(text: str) -> str:
+    """``...?token=SECRET&x=1`` → ``...?token=***&x=1``."""
+    return _TOKEN_RE.sub(r"\1***", text)
+
+
+class _RedactFilter(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.args:
+            record.args = tuple(redact_tokens(a) if isinstance(a, str) else a
+                                for a in (record.args if isinstance(record.args, tuple)
+                                          else (record.args,)))
+        if isinstance(record.msg, str):
+            record.msg = redact_tokens(record.msg)
+        return True
+
+
+def install_log_redaction() -> None:
+    """Filter uvicorn's access and error logs (request lines carry the query string)."""
+    for name in ("uvicorn.access", "uvicorn.error", "uvicorn"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _RedactFilter) for f in logger.filters):
+            logger.addFilter(_RedactFilter())
 
 
 # --------------------------------------------------------------------------------------------

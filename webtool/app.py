@@ -1,4 +1,11 @@
-"""The web tool's FastAPI application factory."""
+"""The web tool's FastAPI application factory.
+
+``create_app(settings)`` assembles: the access middleware (Host, Origin, tokens:
+:mod:`webtool.access`), a body-size limit, the one error handler (:mod:`webtool.errors`), the
+services made on first use and closed in the lifespan (:mod:`webtool.services`), one router per
+area (``webtool/routes/``), the Jinja2 pages and the static files (found with
+:mod:`importlib.resources`, so a wheel works like a checkout).
+"""
 
 from __future__ import annotations
 
@@ -7,13 +14,18 @@ from importlib.metadata import PackageNotFoundError, version
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
+from starlette.types import ASGIApp, Receive, Scope, Send
 
+from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
-from webtool.access import TokenAccessMiddleware
-from webtool.routes import calibration, designer, health, pages
-from webtool.routes import live as live_routes
-from webtool.routes import replay as replay_routes
+from webtool.access import AccessMiddleware
+from webtool.errors import install_error_handlers
+from webtool.routes import calibration, designer, health, live, pages, replay
+from webtool.services import lifespan
 from webtool.settings import Settings
+
+#: routes whose body is a file (their own limits apply)
+_UPLOADS = ("/api/designer/mesh", "/api/calibration/upload")
 
 
 def drovisio_version() -> str:
@@ -21,6 +33,52 @@ def drovisio_version() -> str:
         return version("drovisio")
     except PackageNotFoundError:  # pragma: no cover - bare checkout without install
         return "0+unknown"
+
+
+class BodyLimitMiddleware:
+    """Refuse a JSON body larger than :attr:`drovisio.errors.Limits.max_body_bytes` (413)
+    before it is read; uploads have their own limits."""
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope.get("path", "").startswith(_UPLOADS):
+            await self.app(scope, receive, send)
+            return
+        length = dict(scope.get("headers", [])).get(b"content-length")
+        too_big = length is not None and (not length.isdigit() or int(length) > self.limit)
+        if not too_big:
+            received = 0
+            inner = receive
+
+            async def counting() -> dict:
+                nonlocal received
+                message = await inner()
+                received += len(message.get("body", b""))
+                if received > self.limit:
+                    raise _TooBig()
+                return message
+
+            try:
+                await self.app(scope, counting, send)
+            except _TooBig:
+                await _answer_413(send, self.limit)
+            return
+        await _answer_413(send, self.limit)
+
+
+class _TooBig(Exception):
+    pass
+
+
+async def _answer_413(send: Send, limit: int) -> None:
+    body = (b'{"detail": "request body too large (over %d KiB)"}' % (limit // 1024))
+    await send({"type": "http.response.start", "status": 413,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode())]})
+    await send({"type": "http.response.body", "body": body})
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -37,21 +95,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         docs_url="/api/docs",
         redoc_url=None,
         openapi_url="/api/openapi.json",
+        lifespan=lifespan,
     )
     app.state.settings = settings
     app.state.templates = Jinja2Templates(directory=str(templates_dir()))
     app.state.templates.env.globals["version"] = app.version
+    install_error_handlers(app)
 
-    # One router per area. Calibration, designer and live APIs go here as they arrive, e.g.
-    # app.include_router(calibration.router, prefix="/api/calibration").
     app.include_router(pages.router)
-    app.include_router(health.router, prefix="/api")
-    app.include_router(calibration.router, prefix="/api/calibration")
-    app.include_router(designer.router, prefix="/api/designer")
-    app.include_router(designer.viewer_router)  # /designer/3d: the 3D view, proxied
-    app.include_router(live_routes.router)  # /api/live/..., /live/3d (issue #7)
-    app.include_router(replay_routes.router)  # /api/replay/..., /replay/3d (issue #8)
+    app.include_router(health.router)
+    for area in (calibration, designer, live, replay):
+        app.include_router(area.router)
+        if hasattr(area, "viewer_router"):
+            app.include_router(area.viewer_router)
     app.mount("/static", StaticFiles(directory=str(static_dir())), name="static")
 
-    app.add_middleware(TokenAccessMiddleware, token=settings.token)
+    app.add_middleware(BodyLimitMiddleware, limit=LIMITS.max_body_bytes)
+    app.add_middleware(AccessMiddleware, token=settings.token,
+                       viewer_token=settings.viewer_token, bind_host=settings.host)
     return app

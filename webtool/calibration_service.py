@@ -56,11 +56,12 @@ from drovisio.camera_file import load_camera, save_camera
 from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
 from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file
 from drovisio.sources import PlaybackReader, Reader, list_folder, reader_for
+from drovisio.textfile import parse_json, read_text
+from webtool.errors import ServiceError
 
 __all__ = [
     "SESSION_SCHEMA",
     "CalibrationService",
-    "ServiceError",
     "atomic_write_bytes",
     "camera_in_use",
     "default_calibration_dir",
@@ -71,15 +72,6 @@ log = logging.getLogger(__name__)
 SESSION_SCHEMA = "drovisio/calibration-web-session@1"
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024  # per file
 THUMB_WIDTH = 200
-
-
-class ServiceError(Exception):
-    """A request that cannot be done now; ``status`` is the HTTP status to answer with and the
-    message is meant for the person at the page."""
-
-    def __init__(self, message: str, status: int = 409) -> None:
-        super().__init__(message)
-        self.status = status
 
 
 # ==================================================================================== helpers
@@ -324,7 +316,9 @@ class CalibrationService:
         if not path.is_file():
             return False
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            data = parse_json(read_text(path, "calibration session"), str(path))
+            if not isinstance(data, dict):
+                raise ValueError("not a session")
             if data.get("schema") != SESSION_SCHEMA or data.get("source") != self.source_key:
                 return False
             sess = CalibrationSession.from_state(data["session"], self._config(sid),

@@ -1,17 +1,15 @@
-"""The marker designer's session (one design per web tool) and its 3D view in viser.
+"""The marker designer's 3D view (viser): the brick's mesh, its axes and the markers.
 
-:class:`DesignerSession` owns the :class:`drovisio.designer.model.DesignDocument`, a lock, the
-change notifications the page long-polls, and, once the page asks for it, a
-:class:`DesignerViewer`: a viser server of its own (own port on 127.0.0.1, started lazily,
-stopped with the app; browsers reach it through the app at ``/designer/3d/``, under the
-access token) that shows the mesh, the brick axes and the markers (codes with their real pattern as a
-texture, dots in their colour) and carries a small panel (what a click does, undo/redo, the
-selected marker, the checks).
+:class:`DesignerScene` is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port,
+started when the page asks for it, stopped with the app; browsers reach it through the app at
+``/designer/3d/``, under the access token) that shows the mesh, the brick axes and the markers
+(codes with their real pattern as a texture, dots in their colour) and carries a small panel
+(what a click does, undo/redo, the selected marker, the checks).
 
 Clicks: viser reports a click on the mesh as a world-frame ray. The world frame of the scene
 is the brick frame; the mesh is drawn under a frame node posed ``brick_from_mesh``, so the
 click handler casts the ray with that pose undone (:meth:`DesignDocument.click`). The JSON
-endpoint ``POST /api/designer/click`` calls the very same :meth:`DesignerSession.click`.
+endpoint ``POST /api/designer/click`` calls the very same :meth:`DesignerService.click`.
 Markers can be dragged over the model (the drag ray goes from the viewer's camera through
 the pointer) and clicked to select them.
 """
@@ -19,373 +17,46 @@ the pointer) and clicked to select them.
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Callable
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drovisio.camera import Camera
-from drovisio.camera_file import load_camera
-from drovisio.designer.checks import Finding, apply_fix, blocking, check_design
 from drovisio.designer.model import (
     MODES,
-    ClickResult,
     DesignDocument,
     DesignError,
-    code_families,
 )
-from drovisio.layout import (
-    LayoutError,
-    MarkerLayout,
-    list_shipped_layouts,
-    load_layout,
-    shipped_layouts_dir,
-)
+from webtool.designer_service import MODE_LABELS
+from webtool.viser_base import ViserScene
 
-__all__ = ["DesignerSession", "DesignerViewer", "viewer_url"]
+if TYPE_CHECKING:
+    from webtool.designer_service import DesignerService
 
-MODE_LABELS = {"code": "Add codes", "dot": "Add dots", "select": "Select / move",
-               "origin": "Set origin"}
+__all__ = ["DesignerScene"]
+
 _LABEL_MODES = {v: k for k, v in MODE_LABELS.items()}
 
 
-def viewer_url(request_host: str | None, port: int, scheme: str = "http") -> str:
-    """The URL of the viser viewer as seen by the browser that asked: the host the page was
-    reached at (never 127.0.0.1 unless the page was), on the viewer's port."""
-    host = request_host or "127.0.0.1"
-    if ":" in host and not host.startswith("["):
-        host = f"[{host}]"
-    return f"{scheme}://{host}:{port}/"
-
-
-def _rgb(palette, color: str) -> tuple[int, int, int]:
-    b, g, r = palette[color].display_bgr()
-    return int(r), int(g), int(b)
-
-
-class DesignerSession:
-    """The one design edited in this web tool, thread-safe.
-
-    Args:
-        layouts_dir: where designs are saved and existing layouts are offered.
-        camera: the drone camera used for the detection-distance estimate.
-        viewer_host: the interface the viser viewer listens on.
-    """
-
-    def __init__(self, layouts_dir: Path | None = None, camera: Camera | None = None,
-                 viewer_host: str = "127.0.0.1", max_upload_bytes: int = 50 << 20):
-        self.layouts_dir = Path(layouts_dir) if layouts_dir else shipped_layouts_dir()
-        self.camera = camera or Camera.drone_webcam()
-        self.viewer_host = viewer_host
-        self.max_upload_bytes = max_upload_bytes
-        self.lock = threading.RLock()
-        self.changed = threading.Condition(self.lock)
-        self.message = "Start by uploading the brick's 3D model, or open an example."
-        self.notes: list[str] = []
-        self.doc = DesignDocument(others=self._other_layouts())
-        self._viewer: DesignerViewer | None = None
-        self._viewer_lock = threading.Lock()
-        self._findings: tuple[int, list[Finding]] | None = None
-        self._closed = False
-
-    @classmethod
-    def from_settings(cls, settings) -> DesignerSession:
-        camera = None
-        cam_path = getattr(settings, "camera", None)
-        if cam_path:
-            try:
-                camera = load_camera(cam_path)
-            except Exception:  # the page says which camera is used
-                camera = None
-        mb = float(getattr(settings, "designer_max_upload_mb", 50.0))
-        return cls(layouts_dir=getattr(settings, "designer_layouts_dir", None), camera=camera,
-                   # the app proxies the viewer (/designer/3d), so that the token covers it
-                   viewer_host="127.0.0.1",
-                   max_upload_bytes=int(mb * 1024 * 1024))
-
-    # ---------------------------------------------------------------- layouts
-
-    def _layout_files(self) -> list[Path]:
-        files = {p.resolve(): p for p in list_shipped_layouts()}
-        if self.layouts_dir.is_dir():
-            for p in sorted(self.layouts_dir.glob("*.json")):
-                files.setdefault(p.resolve(), p)
-        return sorted(files.values(), key=lambda p: p.name)
-
-    def _other_layouts(self) -> list[MarkerLayout]:
-        out, notes = [], []
-        for p in self._layout_files():
-            try:
-                out.append(load_layout(p))
-            except LayoutError as e:
-                notes.append(f"{p.name} was skipped (not a valid layout): "
-                             f"{str(e).splitlines()[0]}")
-        self.notes = notes
-        return out
-
-    def examples(self) -> list[dict[str, str]]:
-        out = [{"id": "mesh:drick.stl", "label": "Drick brick - 3D model only (no markers)"},
-               {"id": "mesh:landing-pad.stl", "label": "Landing pad - 3D model only"}]
-        for p in self._layout_files():
-            out.append({"id": f"layout:{p.name}", "label": f"Edit the layout '{p.stem}'"})
-        return out
-
-    # ---------------------------------------------------------------- changes
-
-    def _after_change(self) -> None:
-        self._findings = None
-        self.changed.notify_all()
-        viewer = self._viewer
-        if viewer is not None:
-            try:
-                viewer.sync(self)
-            except Exception as e:  # the 3D view must never break an edit
-                self.message = f"(3D view not updated: {e})"
-
-    def edit(self, fn: Callable[[DesignDocument], Any], message: str | None = None) -> Any:
-        """Run ``fn(doc)`` under the lock, then notify the page and the 3D view."""
-        with self.lock:
-            try:
-                result = fn(self.doc)
-            finally:
-                self._after_change()
-            if message is not None:
-                self.message = message
-            return result
-
-    def replace_doc(self, doc: DesignDocument, message: str) -> None:
-        with self.lock:
-            doc.version = self.doc.version + 1
-            doc.mesh_version = self.doc.mesh_version + 1
-            self.doc = doc
-            self.message = message
-            self._after_change()
-
-    def wait_for_change(self, after_version: int, timeout: float) -> None:
-        """Block until the document's version differs from ``after_version`` (or timeout)."""
-        with self.changed:
-            self.changed.wait_for(lambda: self.doc.version != after_version or self._closed,
-                                  timeout=max(0.0, timeout))
-
-    def findings(self) -> list[Finding]:
-        with self.lock:
-            if self._findings is None or self._findings[0] != self.doc.version:
-                self._findings = (self.doc.version, check_design(self.doc, self.camera))
-            return self._findings[1]
-
-    # ---------------------------------------------------------------- actions
-
-    def load_mesh(self, data: bytes, filename: str, units: str = "auto") -> None:
-        doc = DesignDocument.from_mesh_bytes(data, filename, units, others=self._other_layouts())
-        self.replace_doc(doc, f"Loaded {doc.mesh_name}. Now click on the model to add markers.")
-
-    def open_example(self, example: str) -> None:
-        kind, _, name = example.partition(":")
-        if kind == "mesh":
-            from drovisio.meshes import shipped_mesh
-
-            mesh = shipped_mesh(name)
-            if mesh is None:
-                raise DesignError(f"no example model called {name!r}")
-            doc = DesignDocument.from_mesh(mesh, name, "m", others=self._other_layouts())
-            self.replace_doc(doc, f"Opened the example model {name}. Click on it to add "
-                                  "markers.")
-        elif kind == "layout":
-            path = next((p for p in self._layout_files() if p.name == name), None)
-            if path is None:
-                raise DesignError(f"no layout file called {name!r}")
-            try:
-                layout = load_layout(path)
-            except LayoutError as e:
-                raise DesignError(str(e)) from None
-            doc = DesignDocument.from_layout(layout, others=self._other_layouts())
-            doc.mode = "select"
-            self.replace_doc(doc, f"Opened the layout {path.name}. Saving it under the same "
-                                  "name needs 'Replace existing files'.")
-        else:
-            raise DesignError(f"unknown example {example!r}")
-
-    def click(self, origin, direction) -> ClickResult:
-        """A click ray from the 3D view (world = brick frame): the viser callback and
-        ``POST /api/designer/click`` both come here."""
-        o = np.asarray(origin, np.float64).reshape(-1)
-        d = np.asarray(direction, np.float64).reshape(-1)
-        if o.shape != (3,) or d.shape != (3,) or not (np.all(np.isfinite(o))
-                                                      and np.all(np.isfinite(d))):
-            raise DesignError("a click needs an origin and a direction of 3 numbers each")
-        with self.lock:
-            res = self.doc.click(o, d)
-            self.message = res.message
-            self._after_change()
-            return res
-
-    def marker_clicked(self, index: int, origin, direction) -> None:
-        """A click on a marker node: select it in 'select' mode, else a click on the model."""
-        with self.lock:
-            if self.doc.mode == "select" and 0 <= index < len(self.doc.markers):
-                self.doc.select(index)
-                self.message = f"Selected {self.doc.marker_label(index)}."
-                self._after_change()
-                return
-        self.click(origin, direction)
-
-    def drag_marker(self, index: int, phase: str, origin, direction) -> None:
-        with self.lock:
-            doc = self.doc
-            if not 0 <= index < len(doc.markers):
-                return
-            if phase == "start":
-                doc.checkpoint()
-                doc.select(index)
-            moved = doc.move_marker(index, origin, direction, record=False)
-            if phase == "end":
-                self.message = (f"Moved {doc.marker_label(index)}." if moved else
-                                "Drop markers on the model.")
-            self._after_change()
-
-    def apply_fix(self, action: dict) -> None:
-        self.edit(lambda doc: apply_fix(doc, action), "Fixed.")
-
-    def save(self, overwrite: bool = False):
-        from drovisio.designer.export import save_design
-
-        with self.lock:
-            if not self.layouts_dir.is_dir():
-                raise DesignError(f"the layouts folder {self.layouts_dir} does not exist: "
-                                  "create it or start the tool with another folder")
-            saved = save_design(self.doc, self.layouts_dir, overwrite=overwrite)
-            self.doc.others = [o for o in self._other_layouts()]
-            self.doc.source_layout = saved.layout_path
-            self.message = (f"Saved {saved.layout_path.name} and meshes/{saved.mesh_path.name} "
-                            f"in {self.layouts_dir}.")
-            self.doc.version += 1
-            self._after_change()
-            return saved
-
-    # ---------------------------------------------------------------- state
-
-    def state(self) -> dict:
-        """Everything the page shows, as JSON-ready data (lengths in mm for people)."""
-        with self.lock:
-            doc = self.doc
-            findings = self.findings()
-            out: dict[str, Any] = {
-                "version": doc.version,
-                "message": self.message,
-                "notes": list(self.notes),
-                "mode": doc.mode,
-                "modes": [{"id": m, "label": MODE_LABELS[m]} for m in MODES],
-                "can_undo": doc.can_undo,
-                "can_redo": doc.can_redo,
-                "layouts_dir": str(self.layouts_dir),
-                "max_upload_mb": round(self.max_upload_bytes / (1024 * 1024), 1),
-                "camera": f"{self.camera.name} ({self.camera.width}x{self.camera.height}, "
-                          f"fx {self.camera.fx:.0f} px)",
-                "examples": self.examples(),
-                "families": [{"id": f, "label": lab} for f, lab in code_families()],
-                "palette": [{"name": n, "rgb": list(_rgb(doc.palette(), n))}
-                            for n in doc.palette()],
-                "defaults": {"code_size_mm": round(doc.code_size * 1000, 3),
-                             "dot_diameter_mm": round(doc.dot_diameter * 1000, 3),
-                             "dot_color": doc.dot_color,
-                             "grid_mm": round(doc.grid * 1000, 3),
-                             "snap_mm": round(doc.snap_radius * 1000, 3)},
-                "checks": [f.to_json() for f in findings],
-                "can_export": doc.has_mesh and not blocking(findings),
-                "viewer_port": self._viewer.port if self._viewer is not None else None,
-                "mesh": None,
-                "markers": [],
-                "selected": doc.selected,
-            }
-            if not doc.has_mesh:
-                return out
-            dims = doc.dimensions()
-            B = doc.brick_from_mesh
-            out["mesh"] = {
-                "name": doc.mesh_name, "units": doc.units, "units_guessed": doc.units_guessed,
-                "size_mm": [round(float(d) * 1000, 1) for d in dims],
-                "triangles": int(len(doc.mesh.faces)), "flat_faces": len(doc.faces),
-                "brick_from_mesh": [[round(float(v), 9) for v in row] for row in B],
-                "frame_is_file_frame": bool(np.allclose(B, np.eye(4))),
-                "source_layout": str(doc.source_layout) if doc.source_layout else None,
-            }
-            block = doc.id_block()
-            out["ids"] = {
-                "first_id": doc.effective_first_id() if doc.codes() else doc.first_id,
-                "first_id_auto": doc.first_id is None,
-                "ids_per_instance": doc.effective_ids_per_instance(),
-                "ipi_auto": doc.ids_per_instance is None,
-                "instances": doc.instances, "family": doc.code_family,
-                "dictionary": doc.dictionary(),
-                "block": [block.start, block.stop - 1] if block else None,
-            }
-            out["layout"] = {"name": doc.name, "description": doc.description or "",
-                             "symmetry": doc.symmetry}
-            first = doc.effective_first_id() if doc.codes() else 0
-            for i, m in enumerate(doc.brick_markers()):
-                item = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
-                        "size_mm": round(m.size * 1000, 3),
-                        "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
-                        "normal": [round(v, 4) + 0.0 for v in m.normal],
-                        "on_face": doc.markers[i].face is not None}
-                if m.kind == "aruco":
-                    item["slot"] = m.slot
-                    item["id"] = first + m.slot
-                else:
-                    item["color"] = m.color
-                    item["rgb"] = list(_rgb(doc.palette(), m.color))
-                out["markers"].append(item)
-            return out
-
-    # ---------------------------------------------------------------- viewer
-
-    def viewer(self) -> DesignerViewer:
-        """The 3D viewer, started on first use."""
-        with self._viewer_lock:
-            if self._closed:
-                raise DesignError("the designer is shutting down")
-            if self._viewer is None:
-                v = DesignerViewer(self, self.viewer_host)
-                with self.lock:
-                    self._viewer = v
-                    v.sync(self)
-            return self._viewer
-
-    def close(self) -> None:
-        """Stop the viewer and wake long-polls (app shutdown)."""
-        with self._viewer_lock:
-            self._closed = True
-            v, self._viewer = self._viewer, None
-        with self.changed:
-            self.changed.notify_all()
-        if v is not None:
-            v.close()
-
-
-class DesignerViewer:
+class DesignerScene(ViserScene):
     """The viser server and scene of the designer (see the module docstring)."""
 
-    def __init__(self, session: DesignerSession, host: str):
-        import viser
+    label = "Drovisio marker designer"
+    up = "+z"
 
+    def __init__(self, session: DesignerService):
+        super().__init__()
         self.session = session
-        self.server = viser.ViserServer(host=host or "127.0.0.1", port=0,
-                                        label="Drovisio marker designer",
-                                        verbose=False)
-        self.port = int(self.server.get_port())
         self._mesh_version = -1
         self._marker_handles: list = []
         self._marker_keys: list = []
         self._extra_handles: list = []
         self._syncing = False
-        self.server.scene.set_up_direction("+z")
-        self.server.gui.configure_theme(control_width="small", show_share_button=False,
-                                        brand_color=(11, 79, 168))
-        self.model = self.server.scene.add_frame("/model", show_axes=False)
         self.mesh_handle = None
         self.axes = None
+
+    def setup(self) -> None:
+        self.model = self.server.scene.add_frame("/model", show_axes=False)
         self._build_gui()
 
     # ---- gui
@@ -456,7 +127,7 @@ class DesignerViewer:
 
     # ---- scene
 
-    def sync(self, session: DesignerSession) -> None:
+    def sync(self, session: DesignerService) -> None:
         """Bring the scene and the panel in line with the document (called under the
         session lock after every change)."""
         doc = session.doc
@@ -594,7 +265,7 @@ class DesignerViewer:
             ring = np.outer(np.cos(ang), m.r) * rad + np.outer(np.sin(ang), m.u) * rad
             V = np.vstack([[0, 0, 0], ring]) + m.c + m.n * lift
             F = np.array([[0, 1 + j, 1 + (j + 1) % seg] for j in range(seg)])
-            color = _rgb(pal, m.color) if m.color in pal else (200, 40, 40)
+            color = pal[m.color].display_rgb() if m.color in pal else (200, 40, 40)
             h = scene.add_mesh_simple(name, V.astype(np.float32), F.astype(np.uint32),
                                       color=color, side="double")
             if selected:
@@ -625,8 +296,5 @@ class DesignerViewer:
             self.session.drag_marker(index, event.phase, cam, target - cam)
 
     def close(self) -> None:
-        try:
-            self.server.stop()
-        except Exception:  # pragma: no cover - already stopped
-            pass
+        self.stop()
 

@@ -10,10 +10,10 @@ viewer's "up" is set to −z. Nodes:
   label; the target brick is drawn in yellow, predicted (unmeasured) ones half transparent;
 * ``/trails/<track>`` — the brick's last positions (body frame) as line segments.
 
-viser runs its own server (own port, bound to 127.0.0.1: the web tool serves it through
-its token-checked proxy at ``/live/3d/``). :class:`LiveScene` is started lazily, updated at
-most ``max_hz`` times a second from the pipeline's outputs (in its own thread, so the
-pipeline never waits for it) and stopped with the app. Quaternions are viser's (w, x, y, z).
+The server is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port, reached through
+the app at ``/live/3d/``). :class:`LiveScene` is started lazily, updated at most ``max_hz``
+times a second from the pipeline's outputs (in its own thread, so the pipeline never waits
+for it) and stopped with the app. Quaternions are viser's (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import numpy as np
 
 from drovisio.geometry import quat_wxyz
 from drovisio.mount import Mount, down_camera_mount
+from webtool.viser_base import ViserScene
 
 __all__ = ["LiveScene"]
 
@@ -35,17 +36,28 @@ DOTS_RGB = (200, 70, 60)
 TARGET_RGB = (250, 200, 20)
 
 
-class LiveScene:
+class LiveScene(ViserScene):
+    """The drone, its camera and the tracked bricks in the drone's body frame.
+
+    Args:
+        mount: The camera mount (a camera looking straight down without one).
+        camera: The camera (its field of view draws the frustum).
+        layouts: The layouts (their meshes draw the bricks).
+        max_hz: Most scene updates per second.
+        trail: Positions kept per brick for its trail.
+    """
+
+    label = "Drovisio live"
+    up = "-z"
+
     def __init__(self, mount: Mount | None = None, camera=None, layouts=(),
-                 host: str = "127.0.0.1", max_hz: float = 10.0, trail: int = 40):
+                 max_hz: float = 10.0, trail: int = 40):
+        super().__init__()
         self.mount = mount or down_camera_mount()
         self.camera = camera
         self.layouts = {lay.name: lay for lay in layouts}
-        self.host = host
         self.period = 1.0 / max_hz
         self.trail_len = trail
-        self.server = None
-        self._lock = threading.Lock()
         self._latest = None
         self._event = threading.Event()
         self._stop = threading.Event()
@@ -56,39 +68,16 @@ class LiveScene:
         self.updates = 0
 
     # ------------------------------------------------------------------ lifecycle
-    @property
-    def port(self) -> int | None:
-        return None if self.server is None else int(self.server.get_port())
-
-    def start(self) -> LiveScene:
-        with self._lock:
-            if self.server is not None:
-                return self
-            import viser
-
-            self.server = viser.ViserServer(host=self.host, port=0, verbose=False,
-                                            label="Drovisio live")
-            self._setup()
-            self._thread = threading.Thread(target=self._run, daemon=True, name="live-scene")
-            self._thread.start()
-        return self
-
     def stop(self) -> None:
         self._stop.set()
         self._event.set()
         if self._thread is not None:
             self._thread.join(3)
-        with self._lock:
-            if self.server is not None:
-                try:
-                    self.server.stop()
-                finally:
-                    self.server = None
+        super().stop()
 
     # ------------------------------------------------------------------ content
-    def _setup(self) -> None:
+    def setup(self) -> None:
         sc = self.server.scene
-        sc.set_up_direction("-z")
         self._ground = sc.add_grid("/ground", width=6.0, height=6.0, plane="xy", cell_size=0.25,
                                    section_size=1.0, position=(0.0, 0.0, 1.5))
         self._ground_z = 1.5
@@ -109,6 +98,8 @@ class LiveScene:
             self.server.initial_camera.up = (0.0, 0.0, -1.0)
         except Exception:  # noqa: BLE001 - cosmetic
             pass
+        self._thread = threading.Thread(target=self._run, daemon=True, name="live-scene")
+        self._thread.start()
 
     def _mesh(self, layout: str) -> tuple[np.ndarray, np.ndarray] | None:
         if layout not in self._meshes:
@@ -223,6 +214,3 @@ class LiveScene:
     # ------------------------------------------------------------------ inspection (tests)
     def brick_names(self) -> list[str]:
         return sorted(n["text"] for n in self._bricks.values() if n.get("text"))
-
-    def clients(self) -> int:
-        return 0 if self.server is None else len(self.server.get_clients())

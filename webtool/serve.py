@@ -69,11 +69,29 @@ def _warm_up_in_background() -> None:
     threading.Thread(target=work, name="detector-warm-up", daemon=True).start()
 
 
+def _check_inputs(args: argparse.Namespace) -> None:
+    """Bad set-up is said before the server starts (one line, exit 2), not on a page later."""
+    if args.camera:
+        from drovisio.camera_file import load_camera
+
+        load_camera(args.camera)
+    if args.source:
+        from drovisio.sources import reader_for
+
+        reader_for(args.source)
+    if getattr(args, "replay_dir", None) and not Path(args.replay_dir).is_dir():
+        from drovisio.errors import InputError
+
+        raise InputError(f"{args.replay_dir}: --replay-dir: no such folder")
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from webtool.access import install_log_redaction
     from webtool.app import create_app
 
+    _check_inputs(args)
     settings = Settings(
         host=args.host,
         port=args.port,
@@ -86,9 +104,30 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(open_lines(settings)), flush=True)
     print(f"  source: {src}" + ("" if settings.source else "  (no --source given)"), flush=True)
     print("  stop with Ctrl+C", flush=True)
+    _check_port(settings.host, settings.port)
     _warm_up_in_background()
+    install_log_redaction()
     uvicorn.run(app, host=settings.host, port=settings.port, log_level="info")
     return 0
+
+
+def _check_port(host: str, port: int) -> None:
+    """Say in one line that the port is taken (uvicorn would log and exit)."""
+    from drovisio.errors import InputError
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as e:
+        raise InputError(f"--host {host}: not an address of this machine ({e})") from None
+    family, kind, proto, _, addr = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as e:
+            raise InputError(f"--host {host} --port {port}: cannot listen ({e.strerror or e});"
+                             " is another drovisio serve running? choose another --port") \
+                from None
 
 
 if __name__ == "__main__":  # pragma: no cover

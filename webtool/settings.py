@@ -51,7 +51,7 @@ class Settings(BaseModel):
     # repository's marker_layouts/); mesh uploads larger than this are refused before reading.
     designer_layouts_dir: Path | None = None
     designer_max_upload_mb: float = 50.0
-    # Replay panel of the live page (webtool.replay): the folder of simulated mission
+    # Replay panel of the live page (webtool.replay_service): the folder of simulated mission
     # recordings (`drovisio mission simulate ... --record DIR`) it lists; None: no replay.
     replay_dir: Path | None = None
     # Access token. None means "no token needed", which is only allowed on a loopback host:

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from drovisio.errors import InputError
+
 __all__ = [
     "BoardSpec", "BoardSpecError", "Detection", "parse_board", "detect", "refine_window",
     "to_gray", "min_square_px",
@@ -43,7 +45,7 @@ _CB_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CA
 _KINDS = ("chessboard", "charuco")
 
 
-class BoardSpecError(ValueError):
+class BoardSpecError(InputError):
     """A board spec or square size that cannot be used; the message says what is expected."""
 
 
@@ -155,6 +157,9 @@ def parse_board(spec: str, square: float) -> BoardSpec:
     if not np.isfinite(sq) or sq <= 0:
         raise BoardSpecError(f"square size {square!r} must be a positive length in metres, "
                              "e.g. 0.025")
+    if sq < 0.001:
+        raise BoardSpecError(f"square size {sq:g} m is smaller than a millimetre: give it in "
+                             "metres, e.g. 0.025 for 25 mm")
     if sq > 1.0:
         raise BoardSpecError(f"square size {sq:g} m is implausible: give it in metres "
                              f"(did you mean {sq / 1000:g} m, i.e. {sq:g} mm?)")

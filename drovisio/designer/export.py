@@ -161,11 +161,6 @@ def code_image_rgb(dictionary: str, marker_id: int, px_per_cell: int = 16,
     return np.repeat(img[:, :, None], 3, axis=2)
 
 
-def _rgb(doc_palette, color: str) -> tuple[int, int, int]:
-    b, g, r = doc_palette[color].display_bgr()
-    return int(r), int(g), int(b)
-
-
 # ------------------------------------------------------------------------------ GLB
 
 
@@ -237,7 +232,7 @@ def export_glb(doc: DesignDocument, instance: int = 0) -> bytes:
                 continue
             g = marker_geometry(m, dictionary, first + instance * ipi + m.slot, None)
         else:
-            g = marker_geometry(m, None, None, _rgb(pal, m.color))
+            g = marker_geometry(m, None, None, pal[m.color].display_rgb())
         scene.add_geometry(g, geom_name=f"marker-{i}-{doc.marker_label(i).replace(' ', '-')}")
     return scene.export(file_type="glb")
 
@@ -313,7 +308,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
             pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
             items.append(SheetItem("dot", m.size, f"dot {k} {m.color}",
                                    f"Ø {m.size * 1000:g} mm · at ({pos}) mm",
-                                   rgb=_rgb(pal, m.color)))
+                                   rgb=pal[m.color].display_rgb()))
     return items
 
 

@@ -36,7 +36,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -46,8 +45,10 @@ from pydantic import (
     model_validator,
 )
 
+from drovisio.errors import InputError, one_line
 from drovisio.mission.frames import rot2, wrap_half
 from drovisio.resources import scenarios_dir
+from drovisio.textfile import parse_yaml, read_text
 
 __all__ = ["SCHEMA_ID", "Scenario", "ScenarioError", "Pose4", "load_scenario", "parse_scenario",
            "shipped_scenarios_dir", "shipped_scenario"]
@@ -60,7 +61,7 @@ PosFloat = Annotated[float, Field(gt=0)]
 NonNeg = Annotated[float, Field(ge=0)]
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario that cannot be flown; the message names the file, the field and the fix."""
 
 
@@ -583,9 +584,12 @@ def parse_scenario(data: dict | str | bytes, source: str | os.PathLike[str] = "<
     src = os.fspath(source)
     if isinstance(data, (str, bytes)):
         try:
-            data = yaml.safe_load(data)
-        except yaml.YAMLError as e:
-            raise ScenarioError(f"{src}: not valid YAML/JSON: {e}") from None
+            text = data.decode("utf-8") if isinstance(data, bytes) else data
+            data = parse_yaml(text, src)
+        except UnicodeDecodeError as e:
+            raise ScenarioError(f"{src}: not UTF-8 text (byte {e.start})") from None
+        except InputError as e:
+            raise ScenarioError(str(e)) from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{src}: a scenario file must hold one mapping, not "
                             f"{type(data).__name__}")
@@ -600,9 +604,9 @@ def parse_scenario(data: dict | str | bytes, source: str | os.PathLike[str] = "<
         scn = Scenario.model_validate(data)
     except ValidationError as e:
         lines = [f"{src}: {_format_loc(err['loc'])}: {err['msg']}"
-                 + (f" (got {err['input']!r})" if err["type"] not in ("missing",)
-                    and not isinstance(err.get("input"), (dict, list)) else "")
-                 for err in e.errors()]
+                 + (f" (got {one_line(repr(err['input']), 60)})" if err["type"] not in
+                    ("missing",) and not isinstance(err.get("input"), (dict, list)) else "")
+                 for err in e.errors()[:20]]
         raise ScenarioError("\n".join(lines)) from None
     base = Path(src).parent if not src.startswith("<") else None
     scn._source = Path(src) if base is not None else None
@@ -621,11 +625,9 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
     """
     src = os.fspath(path)
     try:
-        raw = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{src}: no such scenario file") from None
-    except OSError as e:
-        raise ScenarioError(f"{src}: cannot read: {e.strerror}") from None
+        raw = read_text(path, "scenario file")
+    except InputError as e:
+        raise ScenarioError(str(e)) from None
     return parse_scenario(raw, src)
 
 

@@ -1,11 +1,16 @@
 """``ws://HOST:PORT``: a WebSocket server pushing each frame's JSON object to every client.
 
-For other programs on the drone or the ground (a mission script, a logger, a dashboard).
-Each client gets the newest objects; one that reads too slowly loses the oldest ones (at
-most ``queue`` objects wait per client), never slowing the pipeline. A client may send
+For other programs on the drone or the ground (a mission script, a logger). Each client gets
+the newest objects; one that reads too slowly loses the oldest ones (at most ``queue``
+objects wait per client), never slowing the pipeline. A client may send
 ``{"set_target": "LAYOUT:INSTANCE" | "nearest" | ...}`` to change the target at run time;
-the server answers ``{"target": {...}}`` (or ``{"error": "..."}``). Bind it to 127.0.0.1
-(the default in examples) unless the network is trusted: it has no access control.
+the server answers ``{"target": {...}}`` (or ``{"error": "..."}``).
+
+Web pages are refused: a browser always sends ``Origin`` with a WebSocket, and any page the
+laptop or the drone's tablet has open could otherwise change the flight controller's target
+(a WebSocket is not bound by the same-origin policy). Programs send no ``Origin`` and are
+accepted. Bind it to 127.0.0.1 (the default in examples) unless the network is trusted: it has
+no token (the web tool, ``drovisio serve``, is the way to watch and steer from a browser).
 """
 
 from __future__ import annotations
@@ -64,7 +69,8 @@ class WebSocketSink:
     async def _start(self) -> None:
         from websockets.asyncio.server import serve
 
-        self._server = await serve(self._handler, self.host, self.port)
+        # origins=[None]: only clients without an Origin header (programs, not web pages)
+        self._server = await serve(self._handler, self.host, self.port, origins=[None])
         self.port = self._server.sockets[0].getsockname()[1]
 
     async def _handler(self, ws) -> None:

@@ -10,6 +10,8 @@ from webtool.app import create_app
 from webtool.serve import open_lines
 from webtool.settings import Settings, is_loopback
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+
 TOKEN = "s3cret-token"
 
 
@@ -36,7 +38,7 @@ def test_token_only_when_exposed():
 
 def test_loopback_binding_needs_no_token_even_for_remote_client():
     # Token mode off (default host): everything passes, whatever the client.
-    client = TestClient(create_app(Settings()))  # client host is "testclient"
+    client = TestClient(create_app(Settings()), base_url=LOCAL)  # client host is "testclient"
     assert client.get("/").status_code == 200
     assert client.get("/api/health").status_code == 200
 
@@ -47,13 +49,13 @@ def exposed_app():
 
 
 def test_loopback_client_passes_in_token_mode(exposed_app):
-    client = TestClient(exposed_app, client=("127.0.0.1", 50000))
+    client = TestClient(exposed_app, base_url=LOCAL, client=("127.0.0.1", 50000))
     assert client.get("/").status_code == 200
-    assert TestClient(exposed_app, client=("::1", 50000)).get("/api/health").status_code == 200
+    assert TestClient(exposed_app, base_url=LOCAL, client=("::1", 50000)).get("/api/health").status_code == 200
 
 
 def test_remote_client_without_token_is_refused(exposed_app):
-    client = TestClient(exposed_app)  # client host "testclient": not loopback
+    client = TestClient(exposed_app, base_url=LOCAL)  # client host "testclient": not loopback
     r = client.get("/api/health")
     assert r.status_code == 401
     assert r.json()["detail"] == "access token required"
@@ -66,7 +68,7 @@ def test_remote_client_without_token_is_refused(exposed_app):
 
 
 def test_remote_client_with_wrong_token_is_refused(exposed_app):
-    client = TestClient(exposed_app)
+    client = TestClient(exposed_app, base_url=LOCAL)
     assert client.get("/?token=wrong").status_code == 401
     assert client.get("/", headers={"authorization": "Bearer wrong"}).status_code == 401
     client.cookies.set(COOKIE_NAME, "wrong")
@@ -74,7 +76,7 @@ def test_remote_client_with_wrong_token_is_refused(exposed_app):
 
 
 def test_token_in_query_is_accepted_and_sets_cookie(exposed_app):
-    client = TestClient(exposed_app)
+    client = TestClient(exposed_app, base_url=LOCAL)
     r = client.get(f"/?token={TOKEN}")
     assert r.status_code == 200
     assert COOKIE_NAME in r.headers["set-cookie"] and "HttpOnly" in r.headers["set-cookie"]
@@ -84,7 +86,7 @@ def test_token_in_query_is_accepted_and_sets_cookie(exposed_app):
 
 
 def test_bearer_token_is_accepted(exposed_app):
-    client = TestClient(exposed_app)
+    client = TestClient(exposed_app, base_url=LOCAL)
     r = client.get("/api/health", headers={"authorization": f"Bearer {TOKEN}"})
     assert r.status_code == 200 and r.json()["status"] == "ok"
 

@@ -24,6 +24,8 @@ from drovisio.sources import PlaybackReader, RawFrame
 from webtool.calibration_service import CalibrationService
 from webtool.settings import Settings
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_sessions" / "calibration"
 TRUE_CAMERA = REPO / "sample_sessions" / "camera.yaml"
@@ -83,7 +85,7 @@ def make_client(tmp_path):
         if factory is not None:
             app.state.calibration = CalibrationService(settings, source_factory=factory)
             made.append(app.state.calibration)
-        client = TestClient(app)
+        client = TestClient(app, base_url=LOCAL)
         if factory is None:
             client.get(f"{API}/state")  # creates the service from the settings
             made.append(app.state.calibration)

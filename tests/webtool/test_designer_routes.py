@@ -17,6 +17,9 @@ from drovisio.meshes import drick_mesh
 from webtool.app import create_app
 from webtool.settings import Settings
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+LOCAL_WS = "ws://127.0.0.1:8080"
+
 DRICK = (shipped_layouts_dir() / "meshes" / "drick.stl").read_bytes()
 API = "/api/designer"
 CODE_RAYS = [([-0.076, 0.003, 1.0], [0.0, 0.0, -1.0]), ([0.074, -0.002, 1.0], [0.0, 0.0, -1.0])]
@@ -28,14 +31,14 @@ DOT_RAYS = [([x + 0.0012, y - 0.0014, 1.0], [0.0, 0.0, -1.0])
 def app(tmp_path):
     a = create_app(Settings(designer_layouts_dir=tmp_path))
     yield a
-    from webtool.routes.designer import close_session
+    from webtool.services import close_services
 
-    close_session(a)  # stops a viewer started without the lifespan
+    close_services(a)  # stops a viewer started without the lifespan
 
 
 @pytest.fixture
 def client(app):
-    return TestClient(app)
+    return TestClient(app, base_url=LOCAL)
 
 
 def upload(client, data=DRICK, name="drick.stl", units="auto"):
@@ -146,7 +149,7 @@ def test_200_mb_upload_refused_by_live_server(live_server_factory, tmp_path):
 
 def test_streamed_upload_without_length_is_cut_at_the_limit(tmp_path):
     app = create_app(Settings(designer_layouts_dir=tmp_path, designer_max_upload_mb=0.001))
-    c = TestClient(app)
+    c = TestClient(app, base_url=LOCAL)
 
     def chunks():
         for _ in range(100):
@@ -337,8 +340,10 @@ def test_viewer_url_click_handler_and_shutdown(tmp_path):
 def test_page_has_the_panel_and_viewer(client):
     html = client.get("/designer").text
     for needle in ('id="viewer"', 'id="upload-input"', 'id="checks"', 'id="marker-list"',
-                   'id="save-button"', 'id="dl-pdf"', "/api/designer"):
+                   'id="save-button"', 'id="dl-pdf"', '/static/designer.js'):
         assert needle in html
+    js = client.get("/static/designer.js")
+    assert js.status_code == 200 and "/api/designer" in js.text
 
 
 def test_viewer_is_proxied_and_needs_full_access(tmp_path):
@@ -354,19 +359,19 @@ def test_viewer_is_proxied_and_needs_full_access(tmp_path):
     app = create_app(Settings(host="0.0.0.0", token=full, viewer_token=view,
                               designer_layouts_dir=tmp_path))
     proto = [f"viser-v{viser.__version__}"]
-    with TestClient(app) as remote:          # client "testclient": not loopback
+    with TestClient(app, base_url=LOCAL) as remote:          # client "testclient": not loopback
         assert remote.get("/designer/3d/").status_code == 401
         remote.cookies.set(COOKIE_NAME, full)
         v = remote.get(f"{API}/viewer").json()
-        assert v["url"] == "/designer/3d/" and v["direct_url"] is None
+        assert v["url"] == "/designer/3d/" and "direct_url" not in v
         server = app.state.designer.viewer().server
         assert server.get_host() == "127.0.0.1"
         r = remote.get("/designer/3d/")
         assert r.status_code == 200 and b"<html" in r.content[:2000].lower()
-        with remote.websocket_connect("/designer/3d", subprotocols=proto) as ws:
+        with remote.websocket_connect(LOCAL_WS + "/designer/3d", subprotocols=proto) as ws:
             assert ws.receive().get("bytes")          # viser's first message, relayed
         remote.cookies.set(COOKIE_NAME, view)
         with pytest.raises(WebSocketDisconnect) as e, \
-                remote.websocket_connect("/designer/3d", subprotocols=proto) as ws:
+                remote.websocket_connect(LOCAL_WS + "/designer/3d", subprotocols=proto) as ws:
             ws.receive()
         assert e.value.code == 1008

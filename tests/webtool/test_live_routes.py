@@ -17,6 +17,9 @@ from webtool.app import create_app
 from webtool.live_service import LEVELS, AdaptiveStream, LiveService
 from webtool.settings import Settings
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+LOCAL_WS = "ws://127.0.0.1:8080"
+
 TOKEN, VIEWER = "full-token-123", "viewer-token-456"
 
 
@@ -108,7 +111,7 @@ def test_adaptive_stream_keeps_under_the_share():
 
 def test_status_frame_bricks_and_target():
     app = _app()
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         st = c.get("/api/live/status").json()
         assert st["running"] and st["access"] == "full" and st["bandwidth_kbps"] == 2000
         r = c.get("/api/live/frame.jpg?level=3")
@@ -132,9 +135,9 @@ def test_status_frame_bricks_and_target():
 
 def test_several_viewers_share_the_bandwidth_cap():
     app = _app(bandwidth_bps=800_000)
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         c.get("/api/live/status")
-        with c.websocket_connect("/api/live/ws") as a, c.websocket_connect("/api/live/ws") as b:
+        with c.websocket_connect(LOCAL_WS + "/api/live/ws") as a, c.websocket_connect(LOCAL_WS + "/api/live/ws") as b:
             got = {id(a): [0, 0], id(b): [0, 0]}
             states = []
             t0 = time.monotonic()
@@ -162,7 +165,7 @@ def test_several_viewers_share_the_bandwidth_cap():
 def test_token_viewer_token_and_refusals():
     settings = Settings(host="0.0.0.0", token=TOKEN, viewer_token=VIEWER)
     app = _app(settings)
-    with TestClient(app) as remote:  # client host "testclient": not loopback
+    with TestClient(app, base_url=LOCAL) as remote:  # client host "testclient": not loopback
         assert remote.get("/live", headers={"accept": "text/html"}).status_code == 401
         assert remote.get("/api/live/status").status_code == 401
         assert remote.get("/api/live/frame.jpg").status_code == 401
@@ -170,7 +173,7 @@ def test_token_viewer_token_and_refusals():
         assert remote.get("/live/3d/").status_code == 401
         from starlette.websockets import WebSocketDisconnect
 
-        with pytest.raises(WebSocketDisconnect), remote.websocket_connect("/api/live/ws") as ws:
+        with pytest.raises(WebSocketDisconnect), remote.websocket_connect(LOCAL_WS + "/api/live/ws") as ws:
             ws.receive()
         # a viewer link: watches, cannot change
         r = remote.get(f"/live?token={VIEWER}")
@@ -179,7 +182,7 @@ def test_token_viewer_token_and_refusals():
         assert st["access"] == "viewer"
         r = remote.post("/api/live/target", json={"spec": "none"})
         assert r.status_code == 403 and r.json()["detail"] == "read-only access"
-        with remote.websocket_connect("/api/live/ws") as ws:
+        with remote.websocket_connect(LOCAL_WS + "/api/live/ws") as ws:
             m = ws.receive()
             assert m.get("bytes") or json.loads(m["text"])["access"] == "viewer"
         # the full token can change
@@ -194,12 +197,12 @@ def test_3d_client_and_socket_through_the_proxy():
     settings = Settings()
     app = create_app(settings)
     app.state.live = LiveService(settings, pipeline_factory=_fake_pipeline, scene=True)
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         r = c.get("/live/3d/")
         assert r.status_code == 200 and b"<html" in r.content[:2000].lower()
         info = c.get("/api/live/scene").json()
         assert info["url"] == "/live/3d/" and info["port"]
-        with c.websocket_connect("/live/3d", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+        with c.websocket_connect(LOCAL_WS + "/live/3d", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
             m = ws.receive()
             assert m.get("bytes")  # viser's first (msgpack) message, relayed
         for _ in range(50):

@@ -11,6 +11,8 @@ from fastapi.testclient import TestClient
 from webtool.app import create_app
 from webtool.settings import Settings
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+
 PAGES = {
     "/": "Drovisio",
     "/calibration": "Camera calibration",
@@ -29,7 +31,7 @@ def test_webtool_is_the_real_package():
 
 @pytest.fixture
 def client() -> TestClient:
-    return TestClient(create_app(Settings()))
+    return TestClient(create_app(Settings()), base_url=LOCAL)
 
 
 @pytest.mark.parametrize("path,title", PAGES.items())
@@ -61,7 +63,7 @@ def test_pages_show_the_sample_session_source(client):
 
 
 def test_pages_show_a_given_source():
-    client = TestClient(create_app(Settings(source="flight-03.mp4", camera="cam.yaml")))
+    client = TestClient(create_app(Settings(source="flight-03.mp4", camera="cam.yaml")), base_url=LOCAL)
     html = client.get("/").text
     assert "flight-03.mp4" in html and "cam.yaml" in html
 
@@ -77,7 +79,7 @@ def test_health(client):
 
 
 def test_health_with_source():
-    data = TestClient(create_app(Settings(source="0"))).get("/api/health").json()
+    data = TestClient(create_app(Settings(source="0")), base_url=LOCAL).get("/api/health").json()
     assert data["source"] == "0" and data["sample"] is False
 
 

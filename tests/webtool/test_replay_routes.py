@@ -13,6 +13,8 @@ from drovisio.mission.sim import SimParams, simulate
 from webtool.app import create_app
 from webtool.settings import Settings
 
+LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
+
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
@@ -27,11 +29,11 @@ def recordings(tmp_path_factory):
 
 @pytest.fixture
 def client(recordings):
-    with TestClient(create_app(Settings(replay_dir=recordings))) as c:
+    with TestClient(create_app(Settings(replay_dir=recordings)), base_url=LOCAL) as c:
         yield c
 
 
-def test_lists_and_refuses_bad_input(client, tmp_path):
+def test_lists_and_refuses_bad_input(client, recordings, tmp_path):
     r = client.get("/api/replay/runs")
     assert r.status_code == 200
     runs = {x["name"]: x for x in r.json()["runs"]}
@@ -43,16 +45,22 @@ def test_lists_and_refuses_bad_input(client, tmp_path):
     assert r.status_code == 422 and "schema" in r.json()["detail"]
     r = client.post("/api/replay/load", json={"name": "nope"})
     assert r.status_code == 404 and "no recording folder" in r.json()["detail"]
+    # only recordings inside the recordings folder: any other folder is refused
     r = client.post("/api/replay/load", json={"path": str(tmp_path)})
+    assert r.status_code == 403 and "not in the recordings folder" in r.json()["detail"]
+    r = client.post("/api/replay/load", json={"path": "../.."})
+    assert r.status_code == 403
+    (recordings / "empty").mkdir(exist_ok=True)
+    r = client.post("/api/replay/load", json={"path": "empty"})
     assert r.status_code == 422 and "manifest.json" in r.json()["detail"]
     assert client.post("/api/replay/load", json={}).status_code == 422
 
 
 def test_no_folder_configured(tmp_path):
-    with TestClient(create_app(Settings())) as c:
+    with TestClient(create_app(Settings()), base_url=LOCAL) as c:
         r = c.get("/api/replay/runs")
         assert r.status_code == 404 and "replay_dir" in r.json()["detail"]
-    with TestClient(create_app(Settings(replay_dir=tmp_path / "missing"))) as c:
+    with TestClient(create_app(Settings(replay_dir=tmp_path / "missing")), base_url=LOCAL) as c:
         r = c.get("/api/replay/runs")
         assert r.status_code == 404 and "does not exist" in r.json()["detail"]
 

@@ -1,1 +1,1 @@
-"""One router per area of the web tool (pages, health; calibration, designer, live to come)."""
+"""One router per area of the web tool: pages, health, calibration, designer, live, replay."""

@@ -19,71 +19,49 @@ POST     /use                         make the result this server's camera (sett
 POST     /session  {board, square_m}  start a new session (the old one stays on disk)
 =======  ===========================  =========================================================
 
-Errors answer ``{"detail": "..."}`` in plain words, with 404 (nothing there yet), 409 (not
-possible now), 422 (bad input).
+Errors (one handler, :mod:`webtool.errors`) answer ``{"detail": "..."}`` in plain words, with
+404 (nothing there yet), 409 (not possible now), 422 (bad input), 507 (disk full).
 """
 
 from __future__ import annotations
 
 import json
-import threading
-from contextlib import asynccontextmanager
-from typing import Annotated
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Body, Depends, File, HTTPException, Request, UploadFile
+from fastapi import APIRouter, Depends, File, Path, Query, UploadFile
 from fastapi.responses import JSONResponse, Response
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, Field
 
-from webtool.calibration_service import CalibrationService, ServiceError
+from webtool.calibration_service import CalibrationService
+from webtool.services import service
 
-_create_lock = threading.Lock()
-
-
-@asynccontextmanager
-async def _lifespan(app):
-    yield
-    close_service(app)
-
-
-router = APIRouter(tags=["calibration"], lifespan=_lifespan)
+router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
 NO_STORE = {"Cache-Control": "no-store"}
+Calibration = Annotated[CalibrationService, Depends(service("calibration"))]
+ViewId = Annotated[int, Path(ge=0, le=1_000_000)]
 
 
-def get_service(request: Request) -> CalibrationService:
-    """The app's calibration service (made on first use), told that someone is watching."""
-    app = request.app
-    svc = getattr(app.state, "calibration", None)
-    if svc is None:
-        with _create_lock:
-            svc = getattr(app.state, "calibration", None)
-            if svc is None:
-                svc = CalibrationService(app.state.settings)
-                app.state.calibration = svc
-    svc.touch()
-    return svc
+class Body(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-def close_service(app) -> None:
-    svc = getattr(app.state, "calibration", None)
-    if svc is not None:
-        svc.close()
+class AutoBody(Body):
+    on: bool
 
 
-Service = Annotated[CalibrationService, Depends(get_service)]
-
-
-def _fail(e: ServiceError) -> HTTPException:
-    return HTTPException(status_code=e.status, detail=str(e))
+class SessionBody(Body):
+    board: Annotated[str, Field(min_length=1, max_length=80)] | None = None
+    square_m: Annotated[float, Field(gt=0)] | None = None   # metres; the board checks more
 
 
 @router.get("/state")
-def state(svc: Service) -> JSONResponse:
+def state(svc: Calibration) -> JSONResponse:
     return JSONResponse(svc.state(), headers=NO_STORE)
 
 
 @router.get("/frame.jpg")
-def frame(svc: Service, after: int = -1) -> Response:
+def frame(svc: Calibration, after: Annotated[int, Query(ge=-1)] = -1) -> Response:
     data, seq = svc.latest_frame(after, wait=1.0)
     if data is None:
         return JSONResponse({"detail": svc.camera_message or "no picture from the camera yet"},
@@ -91,110 +69,71 @@ def frame(svc: Service, after: int = -1) -> Response:
     return Response(data, media_type="image/jpeg", headers={**NO_STORE, "X-Frame-Seq": str(seq)})
 
 
-class AutoBody(BaseModel):
-    on: bool
-
-
 @router.post("/auto")
-def auto(svc: Service, body: AutoBody) -> dict:
+def auto(svc: Calibration, body: AutoBody) -> dict:
     svc.set_auto(body.on)
     return {"auto_capture": svc.auto_capture}
 
 
 @router.post("/capture")
-def capture(svc: Service) -> dict:
-    try:
-        return svc.capture()
-    except ServiceError as e:
-        raise _fail(e) from None
+def capture(svc: Calibration) -> dict:
+    return svc.capture()
 
 
 @router.get("/views/{view_id}/thumb.jpg")
-def thumb(svc: Service, view_id: int) -> Response:
-    try:
-        data = svc.thumbnail(view_id)
-    except ServiceError as e:
-        raise _fail(e) from None
-    return Response(data, media_type="image/jpeg", headers={"Cache-Control": "max-age=3600"})
+def thumb(svc: Calibration, view_id: ViewId) -> Response:
+    return Response(svc.thumbnail(view_id), media_type="image/jpeg",
+                    headers={"Cache-Control": "max-age=3600"})
 
 
 @router.delete("/views/{view_id}")
-def delete_view(svc: Service, view_id: int) -> dict:
-    try:
-        svc.delete_view(view_id)
-    except ServiceError as e:
-        raise _fail(e) from None
+def delete_view(svc: Calibration, view_id: ViewId) -> dict:
+    svc.delete_view(view_id)
     return {"deleted": view_id, "views": len(svc.session.views)}
 
 
 @router.post("/upload")
-def upload(svc: Service, files: Annotated[list[UploadFile], File()]) -> dict:
-    try:
-        return svc.upload([(f.filename or "", f.file) for f in files])
-    except ServiceError as e:
-        raise _fail(e) from None
+def upload(svc: Calibration, files: Annotated[list[UploadFile], File()]) -> dict:
+    return svc.upload([(f.filename or "", f.file) for f in files])
 
 
 @router.post("/solve", status_code=202)
-def solve(svc: Service) -> dict:
-    try:
-        return svc.request_solve()
-    except ServiceError as e:
-        raise _fail(e) from None
+def solve(svc: Calibration) -> dict:
+    return svc.request_solve()
 
 
 @router.get("/result")
-def result(svc: Service, download: bool = False) -> Response:
-    try:
-        rep = svc.report()
-    except ServiceError as e:
-        raise _fail(e) from None
+def result(svc: Calibration, download: bool = False) -> Response:
     headers = dict(NO_STORE)
     if download:
         headers["Content-Disposition"] = (f'attachment; filename="calibration-report-'
                                           f'{svc.session_id}.json"')
-    return Response(json.dumps(rep, indent=1), media_type="application/json", headers=headers)
+    return Response(json.dumps(svc.report(), indent=1), media_type="application/json",
+                    headers=headers)
 
 
 @router.get("/uncertainty.png")
-def uncertainty(svc: Service) -> Response:
-    try:
-        data = svc.uncertainty_png()
-    except ServiceError as e:
-        raise _fail(e) from None
-    return Response(data, media_type="image/png", headers=NO_STORE)
+def uncertainty(svc: Calibration) -> Response:
+    return Response(svc.uncertainty_png(), media_type="image/png", headers=NO_STORE)
 
 
 @router.get("/camera-file")
-def camera_file(svc: Service, format: str = "opencv") -> Response:
-    try:
-        data, name = svc.camera_file(format)
-    except ServiceError as e:
-        raise _fail(e) from None
+def camera_file(svc: Calibration,
+                format: Literal["opencv", "ros", "json"] = "opencv") -> Response:  # noqa: A002
+    data, name = svc.camera_file(format)
     media = "application/json" if format == "json" else "application/x-yaml"
     return Response(data, media_type=media,
                     headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"'})
 
 
 @router.post("/use")
-def use(svc: Service) -> dict:
-    try:
-        return svc.use_result()
-    except ServiceError as e:
-        raise _fail(e) from None
-
-
-class SessionBody(BaseModel):
-    board: str | None = None
-    square_m: float | None = None
+def use(svc: Calibration) -> dict:
+    return svc.use_result()
 
 
 @router.post("/session")
-def new_session(svc: Service, body: Annotated[SessionBody | None, Body()] = None) -> dict:
+def new_session(svc: Calibration, body: SessionBody | None = None) -> dict:
     body = body or SessionBody()
-    try:
-        svc.new_session(body.board, body.square_m)
-    except ServiceError as e:
-        raise _fail(e) from None
+    svc.new_session(body.board, body.square_m)
     return {"session": svc.session_id, "folder": str(svc.folder),
             "board": svc.session.board.spec()}

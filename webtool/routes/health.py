@@ -8,7 +8,7 @@ from pydantic import BaseModel
 from webtool.routes.deps import get_settings
 from webtool.settings import Settings
 
-router = APIRouter(tags=["health"])
+router = APIRouter(prefix="/api", tags=["health"])
 
 
 class Health(BaseModel):

@@ -1,8 +1,9 @@
-"""Replay of simulated mission recordings (:mod:`webtool.replay`), shown in the live page.
+"""Replay of simulated mission recordings (:mod:`webtool.replay_service`), on the live page.
 
 =========  ========================  ==========================================================
 GET        /api/replay/runs          the recordings in ``Settings.replay_dir`` (404 without one)
-POST       /api/replay/load          ``{"name": FOLDER}`` (in replay_dir) or ``{"path": DIR}``
+POST       /api/replay/load          ``{"name": FOLDER}`` or ``{"path": DIR}`` (inside
+                                     replay_dir; any other folder is refused)
 POST       /api/replay/play          start (or restart at the end) the playback
 POST       /api/replay/pause         stop the clock
 POST       /api/replay/seek          ``{"t": seconds}``
@@ -15,117 +16,91 @@ GET        /replay/3d/               the viser client of the replay scene, throu
 WebSocket  /replay/3d                …and its WebSocket, proxied to the viser server
 =========  ========================  ==========================================================
 
-Every POST is a write: the token middleware refuses it to viewer tokens.
+Every POST is a write: the access middleware refuses it to viewer tokens and other sites.
 """
 
 from __future__ import annotations
 
 import asyncio
-import threading
-from contextlib import asynccontextmanager
 from typing import Annotated
 
-from fastapi import (
-    APIRouter,
-    Body,
-    HTTPException,
-    Request,
-    WebSocket,
-)
+from fastapi import APIRouter, Depends, Request, WebSocket
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, ConfigDict, Field
 
-from webtool.replay import ReplayError, ReplayService
+from webtool.errors import ServiceError
+from webtool.replay_service import ReplayService
+from webtool.services import get_service, service
 from webtool.viser_proxy import client_response, proxy_socket
 
-_create_lock = threading.Lock()
+router = APIRouter(prefix="/api/replay", tags=["replay"])
+viewer_router = APIRouter(prefix="/replay/3d", tags=["replay"])
 NO_STORE = {"Cache-Control": "no-store"}
+Replay = Annotated[ReplayService, Depends(service("replay"))]
 
 
-@asynccontextmanager
-async def _lifespan(app):
-    yield
-    svc = getattr(app.state, "replay", None)
-    if svc is not None:
-        await asyncio.to_thread(svc.close)
+class Body(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-router = APIRouter(tags=["replay"], lifespan=_lifespan)
+class LoadBody(Body):
+    name: Annotated[str, Field(min_length=1, max_length=255)] | None = None
+    path: Annotated[str, Field(min_length=1, max_length=4096)] | None = None
 
 
-def get_replay(app) -> ReplayService:
-    svc = getattr(app.state, "replay", None)
-    if svc is None:
-        with _create_lock:
-            svc = getattr(app.state, "replay", None)
-            if svc is None:
-                svc = app.state.replay = ReplayService(app.state.settings)
-    return svc
+class SeekBody(Body):
+    t: Annotated[float, Field(ge=0)]      # seconds; past the end means the end
+
+
+class SpeedBody(Body):
+    x: Annotated[float, Field(ge=0.05, le=64)]
 
 
 async def _call(fn, *args) -> JSONResponse:
-    try:
-        out = await asyncio.to_thread(fn, *args)
-    except ReplayError as e:
-        raise HTTPException(e.status, str(e)) from None
-    return JSONResponse(out, headers=NO_STORE)
+    return JSONResponse(await asyncio.to_thread(fn, *args), headers=NO_STORE)
 
 
-def _number(body, key: str) -> float:
-    v = body.get(key) if isinstance(body, dict) else body
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        raise HTTPException(422, f'give {{"{key}": a number}}') from None
+@router.get("/runs")
+async def runs(svc: Replay) -> JSONResponse:
+    items = await asyncio.to_thread(svc.runs)
+    return JSONResponse({"folder": str(svc.folder()), "runs": items}, headers=NO_STORE)
 
 
-@router.get("/api/replay/runs")
-async def runs(request: Request) -> JSONResponse:
-    svc = get_replay(request.app)
-    try:
-        items = await asyncio.to_thread(svc.runs)
-    except ReplayError as e:
-        raise HTTPException(e.status, str(e)) from None
-    return JSONResponse({"folder": str(svc.settings.replay_dir), "runs": items},
-                        headers=NO_STORE)
+@router.post("/load")
+async def load(svc: Replay, body: LoadBody) -> JSONResponse:
+    return await _call(svc.load, body.name, body.path)
 
 
-@router.post("/api/replay/load")
-async def load(request: Request, body: Annotated[dict, Body()]) -> JSONResponse:
-    svc = get_replay(request.app)
-    return await _call(svc.load, body.get("name"), body.get("path"))
+@router.post("/play")
+async def play(svc: Replay) -> JSONResponse:
+    return await _call(svc.play)
 
 
-@router.post("/api/replay/play")
-async def play(request: Request) -> JSONResponse:
-    return await _call(get_replay(request.app).play)
+@router.post("/pause")
+async def pause(svc: Replay) -> JSONResponse:
+    return await _call(svc.pause)
 
 
-@router.post("/api/replay/pause")
-async def pause(request: Request) -> JSONResponse:
-    return await _call(get_replay(request.app).pause)
+@router.post("/seek")
+async def seek(svc: Replay, body: SeekBody) -> JSONResponse:
+    return await _call(svc.seek, body.t)
 
 
-@router.post("/api/replay/seek")
-async def seek(request: Request, body: Annotated[dict, Body()]) -> JSONResponse:
-    return await _call(get_replay(request.app).seek, _number(body, "t"))
+@router.post("/speed")
+async def speed(svc: Replay, body: SpeedBody) -> JSONResponse:
+    return await _call(svc.set_speed, body.x)
 
 
-@router.post("/api/replay/speed")
-async def speed(request: Request, body: Annotated[dict, Body()]) -> JSONResponse:
-    return await _call(get_replay(request.app).set_speed, _number(body, "x"))
+@router.get("/state")
+async def state(svc: Replay) -> JSONResponse:
+    return await _call(svc.state)
 
 
-@router.get("/api/replay/state")
-async def state(request: Request) -> JSONResponse:
-    return await _call(get_replay(request.app).state)
-
-
-@router.get("/api/replay/scene")
-async def scene(request: Request) -> JSONResponse:
-    svc = get_replay(request.app)
+@router.get("/scene")
+async def scene(svc: Replay) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:
-        raise HTTPException(503, "the 3D view is not available")
+        raise ServiceError("the 3D view is not available", 503)
     return JSONResponse({"url": "/replay/3d/", "port": sc.port, "clients": sc.clients(),
                          "updates": sc.updates}, headers=NO_STORE)
 
@@ -135,13 +110,13 @@ async def scene(request: Request) -> JSONResponse:
 # ------------------------------------------------------------------------------------------
 
 
-@router.get("/replay/3d/{path:path}")
-async def viser_client(request: Request, path: str = "") -> Response:
-    await asyncio.to_thread(get_replay(request.app).start_scene)
+@viewer_router.get("/{path:path}")
+async def viser_client(request: Request, svc: Replay, path: str = "") -> Response:
+    await asyncio.to_thread(svc.start_scene)
     return await client_response(request, path)
 
 
-@router.websocket("/replay/3d")
+@viewer_router.websocket("")
 async def viser_socket(ws: WebSocket) -> None:
-    sc = await asyncio.to_thread(get_replay(ws.app).start_scene)
+    sc = await asyncio.to_thread(get_service(ws.app, "replay").start_scene)
     await proxy_socket(ws, sc.port if sc is not None else None)

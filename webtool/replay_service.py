@@ -3,12 +3,8 @@
 :class:`ReplayService` lists the recordings in ``Settings.replay_dir`` (each a folder with a
 ``manifest.json``), loads one and plays it on a server-side thread: the playback clock ``t``
 advances ``speed`` times real time, at ~15 Hz, and every step updates the replay's own viser
-scene (:class:`ReplayScene`, served through the app at ``/replay/3d/``).
-
-The scene is in the site frame (x east, y north, z up, metres): a ground grid, the wall plan as
-ghost outlines, the drone (FRD body axes, a flat box and the camera frustum at
-``body_from_camera``) at its recorded pose, its setpoint (a small orange ball), and each brick
-as its layout's mesh at its recorded top-face pose (placed bricks turn green).
+scene (:class:`webtool.replay_scene.ReplayScene`, served through the app at ``/replay/3d/``).
+Only recordings inside the recordings folder can be loaded.
 """
 
 from __future__ import annotations
@@ -21,29 +17,14 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
-
-from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
 from drovisio.mission.record import SCHEMA_ID, load_recording
-from drovisio.resources import layouts_dir
+from webtool.errors import ServiceError
+from webtool.replay_scene import ReplayScene
 
-__all__ = ["Playback", "ReplayError", "ReplayScene", "ReplayService"]
+__all__ = ["Playback", "ReplayService"]
 
 log = logging.getLogger(__name__)
-BRICK_RGB = (60, 130, 220)
-PLACED_RGB = (40, 160, 70)
-HELD_RGB = (250, 200, 20)
-GHOST_RGB = (150, 150, 150)
-SETPOINT_RGB = (240, 140, 20)
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
-
-
-class ReplayError(Exception):
-    """A request the replay cannot do; ``status`` is the HTTP status to answer with."""
-
-    def __init__(self, message: str, status: int = 400):
-        super().__init__(message)
-        self.status = status
 
 
 def _describe(e: dict) -> str:
@@ -75,161 +56,6 @@ def _describe(e: dict) -> str:
 # ------------------------------------------------------------------------------------------
 
 
-class ReplayScene:
-    """A viser server (127.0.0.1, own port) showing one recording at one instant."""
-
-    def __init__(self, host: str = "127.0.0.1"):
-        self.host = host
-        self.server = None
-        self._lock = threading.Lock()
-        self._bricks: dict[str, dict] = {}
-        self._meshes: dict[str, tuple[np.ndarray, np.ndarray] | None] = {}
-        self._drone = None
-        self._setpoint = None
-        self.updates = 0
-
-    @property
-    def port(self) -> int | None:
-        return None if self.server is None else int(self.server.get_port())
-
-    def start(self) -> ReplayScene:
-        with self._lock:
-            if self.server is None:
-                import viser
-
-                self.server = viser.ViserServer(host=self.host, port=0, verbose=False,
-                                                label="Drovisio replay")
-                self.server.scene.set_up_direction("+z")
-        return self
-
-    def stop(self) -> None:
-        with self._lock:
-            if self.server is not None:
-                try:
-                    self.server.stop()
-                finally:
-                    self.server = None
-
-    def clients(self) -> int:
-        return 0 if self.server is None else len(self.server.get_clients())
-
-    def _mesh(self, layout: str) -> tuple[np.ndarray, np.ndarray] | None:
-        if layout not in self._meshes:
-            mesh = None
-            try:
-                from drovisio.layout import load_layout
-                from drovisio.meshes import load_layout_mesh
-
-                f = layouts_dir() / f"{layout}.json"
-                if f.is_file():
-                    m = load_layout_mesh(load_layout(f))
-                    if m is not None:
-                        mesh = (np.asarray(m.vertices, np.float32),
-                                np.asarray(m.faces, np.int32))
-            except Exception:  # noqa: BLE001 - fall back to a box
-                mesh = None
-            self._meshes[layout] = mesh
-        return self._meshes[layout]
-
-    def _brick_node(self, name: str, layout: str, dims, color, **kw):
-        sc = self.server.scene
-        mesh = self._mesh(layout)
-        if mesh is not None:
-            return sc.add_mesh_simple(name, mesh[0], mesh[1], color=color, flat_shading=True, **kw)
-        l, w, h = dims
-        # a box whose top face is at the pose (like the layout frame of a drick)
-        node = sc.add_frame(name, show_axes=False, **kw)
-        sc.add_box(f"{name}/box", color=color, dimensions=(l, w, h), position=(0, 0, -h / 2))
-        return node
-
-    def load(self, manifest: dict) -> None:
-        """Draw the static part of a recording (site, wall plan, drone, bricks)."""
-        if self.server is None:
-            return
-        sc = self.server.scene
-        with self._lock, self.server.atomic():
-            sc.reset()
-            self._bricks.clear()
-            site = manifest.get("site") or {}
-            lo, hi = (site.get("bounds") or {}).get("min"), (site.get("bounds") or {}).get("max")
-            if lo and hi:
-                w, h = hi[0] - lo[0], hi[1] - lo[1]
-                sc.add_grid("/ground", width=w, height=h, plane="xy", cell_size=0.25,
-                            section_size=1.0,
-                            position=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0))
-            else:
-                sc.add_grid("/ground", width=8.0, height=8.0, plane="xy", cell_size=0.25)
-            layouts = manifest.get("layouts") or {}
-            for b in manifest.get("bricks", []):
-                dims = (layouts.get(b["layout"]) or {}).get("dimensions") or [0.3, 0.15, 0.12]
-                plan = b["plan"]
-                mesh = self._mesh(b["layout"])
-                if mesh is not None:
-                    sc.add_mesh_simple(f"/plan/{b['id']}", mesh[0], mesh[1], color=GHOST_RGB,
-                                       wireframe=True, opacity=0.35,
-                                       position=tuple(plan["position"]),
-                                       wxyz=yaw_quat_wxyz(plan["yaw"]))
-                else:
-                    sc.add_box(f"/plan/{b['id']}", color=GHOST_RGB, dimensions=tuple(dims),
-                               wireframe=True, wxyz=yaw_quat_wxyz(plan["yaw"]),
-                               position=tuple(np.asarray(plan["position"]) -
-                                              [0, 0, dims[2] / 2]))
-                pick = b["pick"]
-                node = self._brick_node(f"/bricks/{b['id']}", b["layout"], dims, BRICK_RGB,
-                                        position=tuple(pick["position"]),
-                                        wxyz=yaw_quat_wxyz(pick["yaw"]))
-                self._bricks[b["id"]] = {"node": node, "color": BRICK_RGB}
-            self._drone = sc.add_frame("/drone", axes_length=0.25, axes_radius=0.01)
-            sc.add_box("/drone/body", color=(70, 70, 70), dimensions=(0.35, 0.35, 0.06),
-                       opacity=0.7)
-            cam = manifest.get("camera") or {}
-            T = np.asarray(cam.get("body_from_camera") or np.eye(4), float)
-            fov, aspect = 1.0, 4 / 3
-            if cam.get("K") and cam.get("height"):
-                fov = 2 * math.atan2(cam["height"] / 2, cam["K"][1][1])
-                aspect = cam["width"] / cam["height"]
-
-            sc.add_camera_frustum("/drone/camera", fov=fov, aspect=aspect, scale=0.15,
-                                  color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
-                                  position=tuple(T[:3, 3]))
-            self._setpoint = sc.add_icosphere("/setpoint", radius=0.05, color=SETPOINT_RGB, opacity=0.8)
-            self.server.initial_camera.position = (
-                ((lo[0] + hi[0]) / 2 if lo else 1.0), (lo[1] - 3.0 if lo else -4.0), 5.0)
-            self.server.initial_camera.look_at = (
-                ((lo[0] + hi[0]) / 2 if lo else 1.0), ((lo[1] + hi[1]) / 2 if lo else 1.0), 0.5)
-            self.server.initial_camera.up = (0.0, 0.0, 1.0)
-
-    def show(self, tick: dict, placed: set[str]) -> None:
-        """Move the drone, setpoint and bricks to a tick's poses."""
-        if self.server is None or tick is None:
-            return
-        with self._lock, self.server.atomic():
-            d = tick["drone"]
-            drone = self._drone
-            if drone is None:
-                return
-            drone.position = tuple(d["position"])
-            drone.wxyz = tuple(d["quat_wxyz"])
-            sp = tick.get("setpoint")
-            sph = self._setpoint
-            if sph is not None:
-                sph.visible = sp is not None
-                if sp is not None:
-                    sph.position = tuple(sp["position"])
-            for bid, p in (tick.get("bricks") or {}).items():
-                nodes = self._bricks.get(bid)
-                if nodes is None:
-                    continue
-                nodes["node"].position = tuple(p[:3])
-                nodes["node"].wxyz = yaw_quat_wxyz(p[3])
-                color = (HELD_RGB if tick.get("holding") == bid else
-                         PLACED_RGB if bid in placed else BRICK_RGB)
-                if color != nodes["color"] and hasattr(nodes["node"], "color"):
-                    nodes["node"].color = color
-                    nodes["color"] = color
-        self.updates += 1
-
-
 # ------------------------------------------------------------------------------------------
 # Playback
 # ------------------------------------------------------------------------------------------
@@ -240,7 +66,7 @@ class Playback:
 
     def __init__(self, path: Path, manifest: dict, ticks: list[dict]):
         if not ticks:
-            raise ReplayError(f"{path}: the recording has no ticks", 422)
+            raise ServiceError(f"{path}: the recording has no ticks", 422)
         self.path = path
         self.manifest = manifest
         self.ticks = ticks
@@ -290,11 +116,11 @@ class ReplayService:
     def folder(self) -> Path:
         d = getattr(self.settings, "replay_dir", None)
         if d is None:
-            raise ReplayError("no recordings folder is configured (replay_dir; "
+            raise ServiceError("no recordings folder is configured (replay_dir; "
                               "`drovisio serve --replay-dir DIR`)", 404)
         d = Path(d)
         if not d.is_dir():
-            raise ReplayError(f"the recordings folder {d} does not exist", 404)
+            raise ServiceError(f"the recordings folder {d} does not exist", 404)
         return d
 
     def runs(self) -> list[dict]:
@@ -315,21 +141,25 @@ class ReplayService:
         return out
 
     def _resolve(self, name: str | None, path: str | None) -> Path:
+        d = self.folder()
         if path:
             p = Path(path)
             if not p.is_absolute():
-                p = self.folder() / p
+                p = d / p
         elif name:
-            d = self.folder()
             if "/" in name or "\\" in name or name == "..":
-                raise ReplayError(f"bad recording name {name!r}", 422)
+                raise ServiceError(f"bad recording name {name!r}", 422)
             p = d if name == "." else d / name
         else:
-            raise ReplayError('give "name" (a recording in the folder) or "path"', 422)
+            raise ServiceError('give "name" (a recording in the folder) or "path"', 422)
+        # only recordings in the recordings folder: a path must not reach any other folder
+        if not p.resolve().is_relative_to(d.resolve()):
+            raise ServiceError(f"{path or name}: not in the recordings folder {d}; copy the "
+                               "recording there", 403)
         if not p.is_dir():
-            raise ReplayError(f"no recording folder {p}", 404)
+            raise ServiceError(f"no recording folder {p}", 404)
         if not (p / "manifest.json").is_file():
-            raise ReplayError(f"{p} has no manifest.json: not a mission recording", 422)
+            raise ServiceError(f"{p} has no manifest.json: not a mission recording", 422)
         return p
 
     def load(self, name: str | None = None, path: str | None = None) -> dict:
@@ -337,7 +167,7 @@ class ReplayService:
         try:
             manifest, ticks = load_recording(p)
         except (ValueError, KeyError, OSError) as e:
-            raise ReplayError(f"bad recording {p}: {e}", 422) from None
+            raise ServiceError(f"bad recording {p}: {e}", 422) from None
         pb = Playback(p, manifest, ticks)
         with self._lock:
             self.pb = pb
@@ -350,7 +180,7 @@ class ReplayService:
 
     def _need(self) -> Playback:
         if self.pb is None:
-            raise ReplayError("no recording loaded", 409)
+            raise ServiceError("no recording loaded", 409)
         return self.pb
 
     # --------------------------------------------------------------- controls
@@ -372,14 +202,14 @@ class ReplayService:
         with self._lock:
             pb = self._need()
             if not math.isfinite(t):
-                raise ReplayError("t must be a number of seconds", 422)
+                raise ServiceError("t must be a number of seconds", 422)
             pb.t = min(max(float(t), 0.0), pb.duration)
         self._wake.set()
         return self.state()
 
     def set_speed(self, x: float) -> dict:
         if not (math.isfinite(x) and 0.05 <= x <= 64):
-            raise ReplayError("speed must be between 0.05 and 64", 422)
+            raise ServiceError("speed must be between 0.05 and 64", 422)
         with self._lock:
             self._need().speed = float(x)
         return self.state()

@@ -1,0 +1,80 @@
+"""The web tool's errors and their one handler: every domain error becomes ``{"detail": ...}``
+with a plain-words message and its status; nothing a user can cause gives a 500.
+
+* :class:`ServiceError` — a request a service cannot do now (``status``: 404 nothing there,
+  409 not possible now, 413 too big, 422 bad input, 503 not available, 507 disk full);
+* :class:`~drovisio.errors.InputError` (bad files and values, e.g. a layout) → 422;
+* :class:`~drovisio.errors.WriteError` (a file could not be written; nothing was lost) → 507;
+* :class:`~drovisio.designer.model.DesignError` (an impossible design edit) → 422;
+* a request body that does not fit its schema → 422, one line naming the field;
+* anything else is a bug: 500 with one line, the traceback in the server log.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from drovisio.errors import InputError, WriteError, one_line
+
+__all__ = ["ServiceError", "install_error_handlers"]
+
+log = logging.getLogger("webtool")
+NO_STORE = {"Cache-Control": "no-store"}
+
+
+class ServiceError(Exception):
+    """A request that cannot be done now; ``status`` is the HTTP status to answer with and the
+    message is meant for the person at the page."""
+
+    def __init__(self, message: str, status: int = 409) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def _answer(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"detail": one_line(message, 800)}, status_code=status,
+                        headers=NO_STORE)
+
+
+def _validation_message(exc: RequestValidationError) -> str:
+    parts = []
+    for err in exc.errors()[:3]:
+        loc = [str(x) for x in err.get("loc", ()) if x not in ("body", "query", "path")]
+        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        parts.append(f"{'.'.join(loc) or 'body'}: {msg}")
+    return "; ".join(parts) or "invalid request"
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Register the one handler of every error the tool knows."""
+    from drovisio.designer.model import DesignError
+
+    @app.exception_handler(ServiceError)
+    async def _service(request: Request, exc: ServiceError) -> JSONResponse:
+        return _answer(exc.status, str(exc))
+
+    @app.exception_handler(InputError)
+    async def _input(request: Request, exc: InputError) -> JSONResponse:
+        return _answer(422, str(exc))
+
+    @app.exception_handler(DesignError)
+    async def _design(request: Request, exc: DesignError) -> JSONResponse:
+        return _answer(422, str(exc))
+
+    @app.exception_handler(WriteError)
+    async def _write(request: Request, exc: WriteError) -> JSONResponse:
+        return _answer(507, str(exc))
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return _answer(422, _validation_message(exc))
+
+    @app.exception_handler(Exception)
+    async def _bug(request: Request, exc: Exception) -> JSONResponse:
+        log.error("internal error on %s %s", request.method, request.url.path, exc_info=exc)
+        return _answer(500, f"internal error ({type(exc).__name__}); the server log has the "
+                            "details")

@@ -1,0 +1,78 @@
+"""The web tool's services: one per area, made on first use, closed when the app stops.
+
+=============  ======================================================================
+calibration    :class:`webtool.calibration_service.CalibrationService`
+designer       :class:`webtool.designer_service.DesignerService`
+live           :class:`webtool.live_service.LiveService`
+replay         :class:`webtool.replay_service.ReplayService`
+=============  ======================================================================
+
+Routers ask for them with :func:`service` (``Annotated[..., Depends(service("live"))]``); a
+service with a ``touch()`` method is told on every request that someone is watching (the
+camera of the calibration page stops when nobody is). Tests may put their own object in
+``app.state.<name>`` before the first request.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import importlib
+import threading
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI
+from starlette.requests import HTTPConnection
+
+__all__ = ["SERVICES", "close_services", "lifespan", "service"]
+
+#: name → "module:factory" (the factory takes the app's Settings)
+SERVICES: dict[str, str] = {
+    "calibration": "webtool.calibration_service:CalibrationService",
+    "designer": "webtool.designer_service:DesignerService",
+    "live": "webtool.live_service:LiveService",
+    "replay": "webtool.replay_service:ReplayService",
+}
+_lock = threading.Lock()
+
+
+def get_service(app: FastAPI, name: str) -> Any:
+    """The app's ``name`` service, made on first use."""
+    svc = getattr(app.state, name, None)
+    if svc is None:
+        with _lock:
+            svc = getattr(app.state, name, None)
+            if svc is None:
+                module, _, factory = SERVICES[name].partition(":")
+                make = getattr(importlib.import_module(module), factory)
+                svc = make(app.state.settings)
+                setattr(app.state, name, svc)
+    return svc
+
+
+def service(name: str) -> Callable[[HTTPConnection], Any]:
+    """A FastAPI dependency giving the ``name`` service (and touching it)."""
+    def dependency(conn: HTTPConnection) -> Any:
+        svc = get_service(conn.app, name)
+        touch = getattr(svc, "touch", None)
+        if touch is not None:
+            touch()
+        return svc
+    dependency.__name__ = f"{name}_service"
+    return dependency
+
+
+def close_services(app: FastAPI) -> None:
+    for name in SERVICES:
+        svc = getattr(app.state, name, None)
+        if svc is not None:
+            svc.close()
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """The app's lifespan: nothing to start (services start on first use); every service
+    made is closed at shutdown."""
+    yield
+    await asyncio.to_thread(close_services, app)
