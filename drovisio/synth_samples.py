@@ -177,11 +177,10 @@ def write_approach_session(out: Path, camera: Camera) -> None:
         (out / "approach.mp4").write_bytes(video_tmp.read_bytes())
     (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
     (out / "gravity.jsonl").write_text("\n".join(gravity_lines) + "\n")
-    (out / "mount.json").write_text(json.dumps({
-        "schema": "drovisio/mount@1", "body_frame": "FRD",
-        "body_from_camera": mount.tolist(),
-        "note": "camera 20° tilted forward, 8 cm ahead and 5 cm below the body origin"},
-        indent=1))
+    from drovisio.mount import Mount
+
+    note = "camera 20° tilted forward, 8 cm ahead and 5 cm below the body origin"
+    (out / "mount.json").write_text(json.dumps(Mount(mount, note=note).to_file(), indent=1))
     (out / "scene.json").write_text(json.dumps({"fps": FPS, "frames": n, **meta}, indent=1))
 
 

@@ -186,3 +186,129 @@ def test_ros_json_written_values_are_shortest_repr(tmp_path: Path):
     # and the OpenCV JSON form is plain JSON other tools can read
     data = json.loads(save_camera(cam, tmp_path / "c.json").read_text())
     assert data["camera_matrix"]["rows"] == 3
+
+
+# ------------------------------------------------------------------ files other tools write
+
+# The form of OpenCV's tutorial camera files (samples/cpp/tutorial_code/objectDetection): a
+# 5x1 matrix, no image size, no camera name. Values: plain OpenCV calibration of the shared
+# left views (../shared/datasets/opencv-left).
+OPENCV_TUTORIAL_FORM = """%YAML:1.0
+camera_matrix: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 532.8, 0., 342.5,
+       0., 532.9, 233.9,
+       0., 0., 1. ]
+distortion_coefficients: !!opencv-matrix
+   rows: 5
+   cols: 1
+   dt: d
+   data: [ -0.281, 0.0249,
+       0.00121, -0.000134, 0.159 ]
+"""
+
+# ROS camera_calibration's fisheye output names the model "equidistant" (Kalibr too).
+ROS_EQUIDISTANT = """image_width: 1280
+image_height: 800
+camera_name: fisheye_cam
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [410.2, 0.0, 640.3, 0.0, 410.5, 399.1, 0.0, 0.0, 1.0]
+distortion_model: equidistant
+distortion_coefficients:
+  rows: 1
+  cols: 4
+  data: [-0.012, 0.031, -0.021, 0.004]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [410.2, 0, 640.3, 0, 0, 410.5, 399.1, 0, 0, 0, 1, 0]
+"""
+
+
+def test_opencv_tutorial_file_without_size_takes_the_image_size(tmp_path: Path):
+    (tmp_path / "tutorial_camera_params.yml").write_text(OPENCV_TUTORIAL_FORM)
+    cam = load_camera(tmp_path / "tutorial_camera_params.yml")
+    assert not cam.size_known and cam.model == "plumb_bob" and cam.dist.size == 5
+    sized, note = cam.for_image(640, 480)            # a 640x480 photo: used as such
+    assert sized.size == (640, 480) and note is None
+    _, note = cam.for_image(1920, 1080)              # principal point far off-centre: said
+    assert note is not None and "far from their centre" in note
+    with pytest.raises(ValueError, match="1920x1080 but the camera file is for 640x480"):
+        sized.for_image(1920, 1080)
+
+
+def test_ros_equidistant_is_read_as_fisheye_and_round_trips(tmp_path: Path):
+    (tmp_path / "ost.yaml").write_text(ROS_EQUIDISTANT)
+    cam = load_camera(tmp_path / "ost.yaml")
+    assert cam.model == "fisheye" and cam.is_fisheye and cam.size == (1280, 800)
+    for fmt, name in ((None, "c.yaml"), ("ros", "c.ros.yaml"), (None, "c.xml"), ("json", "c.json")):
+        back = load_camera(save_camera(cam, tmp_path / name, fmt))
+        assert back.model == "fisheye" and back.almost_equal(cam), (fmt, name)
+    assert "distortion_model: equidistant" in (tmp_path / "c.ros.yaml").read_text()
+    # OpenCV's calibration sample flags a fisheye camera with fisheye_model: 1
+    text = OPENCV_TUTORIAL_FORM.replace("   rows: 5\n   cols: 1", "   rows: 4\n   cols: 1") \
+        .replace("0.00121, -0.000134, 0.159", "0.00121, -0.000134") + "fisheye_model: 1\n"
+    (tmp_path / "fs.yml").write_text(text)
+    assert load_camera(tmp_path / "fs.yml").is_fisheye
+
+
+def test_fisheye_projection_matches_opencv_and_undistortion_inverts_it():
+    cam = Camera.from_fov(1280, 800, 150.0, dist=[0.02, -0.01, 0.003, -0.0005],
+                          model="fisheye")
+    rng = np.random.default_rng(1)
+    theta = rng.uniform(0, np.radians(74), 300)          # up to 148° across
+    phi = rng.uniform(-np.pi, np.pi, 300)
+    pts = np.c_[np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)]
+    ref, _ = cv2.fisheye.projectPoints(pts.reshape(-1, 1, 3), np.zeros((3, 1)),
+                                       np.zeros((3, 1)), cam.K, cam.dist)
+    px = cam.project(pts)
+    np.testing.assert_allclose(px, ref.reshape(-1, 2), atol=1e-9)
+    rays = cam.rays(px)
+    angle = np.arctan2(np.linalg.norm(np.cross(rays, pts), axis=1), np.sum(rays * pts, axis=1))
+    assert np.degrees(angle).max() < 1e-7
+
+
+@pytest.mark.parametrize("content,needle", [
+    # an OpenCV size that is text, not a number (was read as 1.8e308)
+    (OPENCV_SAMPLE_YAML.replace("image_width: 640", 'image_width: "abc"'),
+     "image_width: 'abc' is not a whole number"),
+    # a size that would allocate tens of GiB
+    (OPENCV_SAMPLE_YAML.replace("image_width: 640", "image_width: 100000"), "image_width"),
+    (ROS_SAMPLE_YAML.replace("image_width: 640", "image_width: abc"), "image_width"),
+    # a principal point that no image has
+    (OPENCV_TUTORIAL_FORM.replace("342.5,", "-999.,"), "principal point"),
+    (OPENCV_SAMPLE_YAML.replace("3.4215652571342125e+02", "9.4215652571342125e+02"),
+     "principal point"),
+    (OPENCV_SAMPLE_YAML.replace("5.3280072497128633e+02", ".nan"), "camera_matrix"),
+    (ROS_SAMPLE_YAML.replace("532.80072497128633", "-532.8"), "focal lengths"),
+    (ROS_SAMPLE_YAML.replace("plumb_bob", "rational_polynomial"), "rational_polynomial needs"),
+    (ROS_SAMPLE_YAML.replace("plumb_bob", "equidistant"), "fisheye (Kannala-Brandt) model has 4"),
+    (ROS_SAMPLE_YAML.replace("plumb_bob", "radtan"), "'radtan' is not a lens model"),
+    ("a: &a [1, 2]\n" + "".join(f"b{i}: &b{i} [*a, *a, *a]\n" for i in range(150)),
+     "aliases"),
+    ("[" * 5000 + "]" * 5000, "nested"),
+])
+def test_malformed_camera_files_are_one_line_naming_the_field(tmp_path: Path, content, needle):
+    path = tmp_path / "camera.yaml"
+    path.write_text(content)
+    with pytest.raises(CameraFileError) as err:
+        load_camera(path)
+    msg = str(err.value)
+    assert "camera.yaml" in msg and needle in msg and "\n" not in msg, msg
+
+
+def test_a_pipe_is_not_read_as_a_camera_file(tmp_path: Path):
+    import os
+
+    fifo = tmp_path / "camera.yaml"
+    os.mkfifo(fifo)
+    with pytest.raises(CameraFileError, match="not a regular file"):
+        load_camera(fifo)               # returns at once: a FIFO is never opened

@@ -278,6 +278,16 @@ def solve(views: list[ViewInput], image_size: tuple[int, int],
 
 def _cross_validate(views: list[ViewInput], size, fix_k3: bool, um: UncertaintyMap,
                     opt: SolveOptions) -> dict:
+    """The two halves' models compared (a diagnostic: it never stops a calibration)."""
+    try:
+        return _compare_halves(views, size, fix_k3, um, opt)
+    except Exception as e:  # noqa: BLE001 - a diagnostic degrades, it never kills the solve
+        return {"p50": None, "p95": None, "max": None,
+                "skipped": f"not computed: {type(e).__name__}: {e}"}
+
+
+def _compare_halves(views: list[ViewInput], size, fix_k3: bool, um: UncertaintyMap,
+                    opt: SolveOptions) -> dict:
     if not opt.cross_validate:
         return {"p50": None, "p95": None, "max": None, "skipped": "disabled"}
     if len(views) < opt.min_views_cross_validation:
@@ -296,12 +306,20 @@ def _cross_validate(views: list[ViewInput], size, fix_k3: bool, um: UncertaintyM
     z = (d.ravel() / np.maximum(s_ab, 1e-12)).reshape(d.shape)[m]
     v = d[m]
     vr = model_difference_px(ma.camera, mb.camera, um.xs, um.ys, compensate_rotation=True)[m]
+    finite = np.isfinite(v)
+    if not finite.any():
+        return {"p50": None, "p95": None, "max": None,
+                "skipped": "not computed: a half's lens model sees no ray over the image"}
+    z, vr = z[np.isfinite(z)], vr[np.isfinite(vr)]
+    out_of_model = float(1.0 - finite.mean())
+    v = v[finite]
     return {"p50": float(np.percentile(v, 50)), "p95": float(np.percentile(v, 95)),
             "max": float(v.max()), "halves": [len(a), len(b)],
-            "normalized_p95": float(np.percentile(z, 95)),
+            "normalized_p95": float(np.percentile(z, 95)) if z.size else None,
             "rotation_compensated": {"p50": float(np.percentile(vr, 50)),
                                      "p95": float(np.percentile(vr, 95)),
-                                     "max": float(vr.max())},
+                                     "max": float(vr.max())} if vr.size else None,
+            "no_ray_fraction": round(out_of_model, 4),
             "definition": "difference of the projections of the two halves' models over the "
                           "image, pixels: camera frame fixed (comparable with uncertainty_px), "
                           "and after the best-aligning rotation of the camera frame (what a "

@@ -196,25 +196,41 @@ def model_difference_px(a: Camera, b: Camera, xs: np.ndarray, ys: np.ndarray,
     With ``compensate_rotation`` the camera frame of b may first rotate by the small rotation
     that best aligns the two models over the grid (least squares, Gauss-Newton): what remains is
     the difference a pose estimator would feel, since it solves its own rotation anyway.
+
+    Grid points that model a sees through no ray (a distortion polynomial that folds back
+    near the image corners, as a weakly determined half-set's can) are NaN in the result and
+    take no part in the alignment.
     """
     gx, gy = np.meshgrid(xs, ys)
     q = np.stack([gx.ravel(), gy.ravel()], axis=1)
     xy = a.normalize(q)
-    p = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    ok = np.all(np.isfinite(xy), axis=1)
+    d = np.full(len(q), np.nan)
+    if not ok.any():
+        return d.reshape(ys.size, xs.size)
+    p = np.concatenate([xy[ok], np.ones((int(ok.sum()), 1))], axis=1)
+    qv = q[ok]
     if not compensate_rotation:
-        d = np.hypot(*(b.project(p) - q).T)
+        d[ok] = np.hypot(*(b.project(p) - qv).T)
         return d.reshape(ys.size, xs.size)
     w = np.zeros(3)
     for _ in range(5):
-        px, jac = cv2.projectPoints(p.reshape(-1, 1, 3), w.reshape(3, 1), np.zeros((3, 1)),
-                                    b.K, _dist5(b.dist))
-        r = (np.asarray(px, float).reshape(-1, 2) - q).ravel()
-        Jw = np.asarray(jac, float)[:, 0:3]
-        step = np.linalg.lstsq(Jw, -r, rcond=None)[0]
+        px = b.cv_project(p, w, np.zeros(3))
+        r = px - qv
+        good = np.all(np.isfinite(r), axis=1)
+        if good.sum() < 3:
+            break
+        # Jacobian of the projection with respect to the rotation, by central differences
+        # (valid for every lens model)
+        Jw = np.empty((int(good.sum()) * 2, 3))
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1e-7
+            Jw[:, k] = ((b.cv_project(p[good], w + e, np.zeros(3))
+                         - b.cv_project(p[good], w - e, np.zeros(3))) / 2e-7).ravel()
+        step = np.linalg.lstsq(Jw, -r[good].ravel(), rcond=None)[0]
         w = w + step
         if np.linalg.norm(step) < 1e-12:
             break
-    px = cv2.projectPoints(p.reshape(-1, 1, 3), w.reshape(3, 1), np.zeros((3, 1)), b.K,
-                           _dist5(b.dist))[0]
-    d = np.hypot(*(np.asarray(px, float).reshape(-1, 2) - q).T)
+    d[ok] = np.hypot(*(b.cv_project(p, w, np.zeros(3)) - qv).T)
     return d.reshape(ys.size, xs.size)
