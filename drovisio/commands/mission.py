@@ -35,13 +35,10 @@ def _resolve_scenario(arg: str) -> Path:
 
 
 def _load(arg: str):
-    from drovisio.mission.scenario import ScenarioError, load_scenario
+    """The scenario (a ScenarioError, an InputError, ends the command in one line)."""
+    from drovisio.mission.scenario import load_scenario
 
-    try:
-        return load_scenario(_resolve_scenario(arg))
-    except ScenarioError as e:
-        _err(f"drovisio mission: invalid scenario:\n{e}")
-        return None
+    return load_scenario(_resolve_scenario(arg))
 
 
 def _params(args: argparse.Namespace):
@@ -64,8 +61,6 @@ def _check(args: argparse.Namespace) -> int:
     from drovisio.mission.faults import CHECK_FAULTS, preset
 
     scn = _load(args.scenario)
-    if scn is None:
-        return 2
     cases = CHECK_FAULTS
     if args.fault:
         try:
@@ -106,8 +101,6 @@ def _simulate(args: argparse.Namespace) -> int:
     from drovisio.mission.sim import simulate
 
     scn = _load(args.scenario)
-    if scn is None:
-        return 2
     faults = ()
     if args.fault:
         try:

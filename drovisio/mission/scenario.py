@@ -607,7 +607,9 @@ def parse_scenario(data: dict | str | bytes, source: str | os.PathLike[str] = "<
                  + (f" (got {one_line(repr(err['input']), 60)})" if err["type"] not in
                     ("missing",) and not isinstance(err.get("input"), (dict, list)) else "")
                  for err in e.errors()[:20]]
-        raise ScenarioError("\n".join(lines)) from None
+        more = len(e.errors()) - 1
+        raise ScenarioError(lines[0] + (f" (and {more} more problem{'s' if more > 1 else ''}"
+                                        " in this file)" if more else "")) from None
     base = Path(src).parent if not src.startswith("<") else None
     scn._source = Path(src) if base is not None else None
     scn._layouts = _load_layouts(scn.layouts, base, src)

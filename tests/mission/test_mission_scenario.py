@@ -67,7 +67,7 @@ def test_errors_name_file_and_field(mutate, where, words):
 
 
 def test_bad_files(tmp_path):
-    with pytest.raises(ScenarioError, match="no such scenario file"):
+    with pytest.raises(ScenarioError, match="scenario file not found"):
         load_scenario(tmp_path / "missing.yaml")
     p = tmp_path / "x.yaml"
     p.write_text("schema: [unclosed")

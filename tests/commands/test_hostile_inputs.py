@@ -1,0 +1,314 @@
+"""Every command given what a hostile or unlucky user gives it: one line naming the file, the
+field and the fix, a non-zero exit, no traceback, no hang, nothing already saved lost.
+
+Each test is named after what it protects.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drovisio.cli import main
+from drovisio.resources import layouts_dir, sample_sessions_dir
+
+SAMPLE = sample_sessions_dir()
+CAMERA = SAMPLE / "camera.yaml"
+VIDEO = SAMPLE / "approach" / "approach.mp4"
+CENTRE = layouts_dir() / "drick-aruco-centre.json"
+PYRAMIDS = layouts_dir() / "drick-aruco-pyramids.json"
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "Traceback" not in out
+    return rc, out, err
+
+
+def subprocess_cli(*argv, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
+    r = subprocess.run([sys.executable, "-m", "drovisio", *map(str, argv)], capture_output=True,
+                       text=True, timeout=timeout, stdin=subprocess.DEVNULL, **kw)
+    assert "Traceback" not in r.stderr, r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory) -> Path:
+    """Three frames of the sample approach video (bricks in view) as PNG files."""
+    d = tmp_path_factory.mktemp("frames")
+    cap = cv2.VideoCapture(str(VIDEO))
+    k = 0
+    for i in range(101):
+        ok, img = cap.read()
+        assert ok
+        if i in (97, 99, 100):
+            cv2.imwrite(str(d / f"f{k}.png"), img)
+            k += 1
+    cap.release()
+    return d
+
+
+def huge_jpeg_header() -> bytes:
+    """A small JPEG whose header claims 65000 x 65000 pixels."""
+    ok, buf = cv2.imencode(".jpg", np.full((16, 16, 3), 128, np.uint8))
+    data = bytearray(buf.tobytes())
+    i = data.index(b"\xff\xc0")                     # start of frame: height, width at +5
+    data[i + 5:i + 9] = (65000).to_bytes(2, "big") * 2
+    return bytes(data)
+
+
+def damaged_videos(d: Path) -> dict[str, int]:
+    """A 60-frame MP4 with its middle overwritten, and a 60-frame AVI cut in half."""
+    def make(path: Path, fourcc: str) -> None:
+        w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 15, (640, 480))
+        for i in range(60):
+            img = np.full((480, 640, 3), 40, np.uint8)
+            cv2.putText(img, str(i), (200, 300), 0, 6, (255, 255, 255), 9)
+            w.write(img)
+        w.release()
+
+    make(d / "a.mp4", "mp4v")
+    make(d / "a.avi", "MJPG")
+    m = bytearray((d / "a.mp4").read_bytes())
+    mid = len(m) // 2
+    m[mid:mid + len(m) // 8] = os.urandom(len(m) // 8)
+    (d / "mid.mp4").write_bytes(bytes(m))
+    a = (d / "a.avi").read_bytes()
+    (d / "cut.avi").write_bytes(a[:len(a) // 2])
+    return {"mid.mp4": 60, "cut.avi": 60}
+
+
+# ------------------------------------------------------------------ drovisio detect
+
+
+def test_detect_survives_a_jpeg_claiming_65000_squared_pixels(capsys, frames, tmp_path):
+    bomb = tmp_path / "bomb.jpg"
+    bomb.write_bytes(huge_jpeg_header())
+    rc, out, err = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", CENTRE,
+                           "--layout", PYRAMIDS, bomb, frames / "f0.png")
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert rc == 1 and len(lines) == 2
+    assert "65000x65000" in lines[0]["error"] and "Mpx" in lines[0]["error"]
+    assert "error" not in lines[1] and lines[1]["bricks"]      # the next file still runs
+
+
+def test_detect_never_reads_a_pipe(tmp_path):
+    fifo = tmp_path / "frame.png"
+    os.mkfifo(fifo)
+    r = subprocess_cli("detect", "--camera", CAMERA, "--layout", CENTRE, fifo, timeout=60)
+    assert r.returncode == 1
+    assert json.loads(r.stdout)["error"] == "not a regular file (a pipe or a device)"
+
+
+def test_detect_out_may_not_overwrite_an_input_or_the_camera_file(capsys, frames, tmp_path):
+    cam = tmp_path / "camera.yaml"
+    shutil.copy(CAMERA, cam)
+    before = cam.read_bytes()
+    for target in (cam, frames / "f0.png"):
+        keep = target.read_bytes()
+        rc, out, err = run_cli(capsys, "detect", "--camera", cam, "--layout", CENTRE,
+                               "--out", target, frames / "f0.png")
+        assert rc == 2 and "same file as" in err and err.count("\n") == 1
+        assert target.read_bytes() == keep
+    assert cam.read_bytes() == before
+
+
+def test_detect_out_is_replaced_only_when_the_run_ends(capsys, frames, tmp_path):
+    out_file = tmp_path / "poses.jsonl"
+    out_file.write_text("previous run\n")
+    rc, _, _ = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", CENTRE, "--layout",
+                       PYRAMIDS, "--out", out_file, frames)
+    assert rc == 0 and len(out_file.read_text().splitlines()) == 3
+    assert [p.name for p in tmp_path.iterdir()] == ["poses.jsonl"]   # no temporary left
+
+
+def test_detect_piped_into_head_ends_quietly(frames):
+    p = subprocess.Popen([sys.executable, "-m", "drovisio", "detect", "--camera", str(CAMERA),
+                          "--layout", str(CENTRE), str(VIDEO)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+    first = p.stdout.readline()
+    p.stdout.close()                                  # what `| head -1` does
+    err = p.stderr.read().decode()
+    rc = p.wait(timeout=120)
+    assert json.loads(first)["frame"] == 0
+    assert "Traceback" not in err and "BrokenPipe" not in err
+    assert rc in (0, 141)
+
+
+def test_detect_reports_every_frame_of_a_damaged_video(capsys, tmp_path):
+    counts = damaged_videos(tmp_path)
+    for name, n in counts.items():
+        rc, out, err = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", CENTRE,
+                               tmp_path / name)
+        lines = [json.loads(x) for x in out.splitlines()]
+        frames_seen = {x["frame"] for x in lines if "error" not in x}
+        bad = [x for x in lines if "error" in x]
+        covered = set(frames_seen)
+        for x in bad:                     # an error line covers one frame (or the rest)
+            covered.add(x["frame"])
+            if x["error"].startswith("frames "):
+                a, b = x["error"].split()[1], x["error"].split()[3]
+                covered.update(range(int(a), int(b) + 1))
+        assert rc == 1 and bad, name
+        assert covered == set(range(n)), (name, sorted(set(range(n)) - covered))
+        assert "could not be decoded" in bad[0]["error"]
+
+
+def test_detect_takes_the_image_size_when_the_camera_file_has_none(capsys, frames, tmp_path):
+    text = CAMERA.read_text().splitlines()
+    cam = tmp_path / "no-size.yaml"
+    cam.write_text("\n".join(t for t in text if not t.startswith("image_")) + "\n")
+    rc, out, err = run_cli(capsys, "detect", "--camera", cam, "--layout", CENTRE, "--layout",
+                           PYRAMIDS, frames / "f1.png")
+    res = json.loads(out)
+    assert rc == 0 and "error" not in res and res["bricks"]
+
+
+def test_detect_with_a_layout_without_dimensions(capsys, frames, tmp_path):
+    data = json.loads(CENTRE.read_text())
+    data.pop("dimensions")
+    data.pop("mesh", None)
+    lay = tmp_path / "plain-code.json"
+    lay.write_text(json.dumps(data))
+    rc, out, err = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", lay,
+                           frames / "f1.png")
+    assert rc == 0 and json.loads(out)["bricks"]
+    from drovisio.layout import load_layout
+
+    dims = load_layout(lay).dimensions_m       # from the code square: 6.5 cm, 1 mm thick
+    assert dims[0] == pytest.approx(0.065) and dims[1] == pytest.approx(0.065)
+    assert dims[2] == pytest.approx(0.001)
+
+
+# ------------------------------------------------------------------ drovisio run
+
+
+@pytest.mark.parametrize("make_source,needle", [
+    (lambda d: d / "missing.mp4", "no such file or folder"),
+    (lambda d: (d / "empty").mkdir() or d / "empty", "no images in the folder"),
+    (lambda d: [(d / "cut.mp4").write_bytes(VIDEO.read_bytes()[:20000]), d / "cut.mp4"][1],
+     "cannot open the video"),
+])
+def test_run_ends_at_once_on_a_finite_source_that_cannot_be_read(tmp_path, make_source, needle):
+    src = make_source(tmp_path)
+    t0 = time.monotonic()
+    r = subprocess_cli("run", "--source", src, "--camera", CAMERA, "--layout", CENTRE,
+                       "--sink", f"jsonl:{tmp_path / 'out.jsonl'}", "--quiet", timeout=60)
+    assert r.returncode == 2, r.stderr
+    assert needle in r.stderr and str(src) in r.stderr
+    assert time.monotonic() - t0 < 45
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--frames", "0"], "--frames"),
+    (["--max-age", "nan"], "--max-age"),
+    (["--max-age", "-1"], "--max-age"),
+    (["--sink", "mavlink:udpout:no.such.host.invalid:14550"], "unknown host"),
+    (["--sink", "teapot:5"], "unknown sink"),
+    (["--target", "a:b"], "--target"),
+])
+def test_run_refuses_bad_options_in_one_line(capsys, argv, needle):
+    rc, out, err = run_cli(capsys, "run", "--source", VIDEO, "--camera", CAMERA, "--layout",
+                           CENTRE, *argv)
+    assert rc == 2 and needle in err
+
+
+def test_run_reports_a_failing_sink_and_exits_non_zero(tmp_path):
+    r = subprocess_cli("run", "--source", VIDEO, "--camera", CAMERA, "--layout", CENTRE,
+                       "--pace", "max", "--frames", "20", "--sink", "jsonl:/dev/full",
+                       timeout=120)
+    assert r.returncode == 1
+    assert "sink jsonl:/dev/full: 20 sends failed" in r.stderr
+    assert "No space left on device" in r.stderr
+
+
+# ------------------------------------------------------------------ drovisio calibrate
+
+
+def test_calibrate_refuses_out_equal_to_report(capsys, tmp_path):
+    cam = tmp_path / "camera.yaml"
+    shutil.copy(CAMERA, cam)
+    before = cam.read_bytes()
+    rc, _, err = run_cli(capsys, "calibrate", "--board", "chessboard:9x6", "--square", "0.025",
+                         "--out", cam, "--report", cam, SAMPLE / "calibration")
+    assert rc == 2 and "--report" in err and "same file" in err
+    assert cam.read_bytes() == before
+
+
+def test_calibrate_refuses_the_same_picture_twice(capsys, tmp_path):
+    for i in range(20):
+        shutil.copy(SAMPLE / "calibration" / "view_00.jpg", tmp_path / f"copy_{i:02d}.jpg")
+    rc, _, err = run_cli(capsys, "calibrate", "--board", "chessboard:9x6", "--square", "0.025",
+                         "--out", tmp_path / "cam.yaml", tmp_path)
+    assert rc == 1 and err.count("the same picture as copy_00.jpg") == 19
+    assert "only 1 usable view" in err and not (tmp_path / "cam.yaml").exists()
+
+
+# ------------------------------------------------------------------ other commands
+
+
+def test_mission_refuses_a_negative_brick_count(capsys, tmp_path):
+    rc, _, err = run_cli(capsys, "mission", "simulate", "wall-2-courses", "--record",
+                         tmp_path / "r", "--bricks", "-1")
+    assert rc == 2 and "--bricks" in err
+
+
+def test_mission_refuses_a_yaml_alias_bomb_quickly(capsys, tmp_path):
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"a{i}: &a{i} [*a{i - 1 if i else ''}, *a{i - 1 if i else ''}, "
+        f"*a{i - 1 if i else ''}]\n".replace("*a-1", "*a") for i in range(40)))
+    t0 = time.monotonic()
+    rc, _, err = run_cli(capsys, "mission", "check", bomb)
+    assert rc == 2 and "aliases" in err and err.count("\n") == 1
+    assert time.monotonic() - t0 < 5
+
+
+def test_serve_refuses_a_port_that_is_not_one(capsys):
+    rc, _, err = run_cli(capsys, "serve", "--port", "99999")
+    assert rc == 2 and "99999 is not a port" in err
+
+
+def test_serve_refuses_a_bad_camera_file_before_starting(capsys, tmp_path):
+    bad = tmp_path / "cam.yaml"
+    bad.write_text("image_width: abc\n")
+    rc, _, err = run_cli(capsys, "serve", "--camera", bad)
+    assert rc == 2 and str(bad) in err and err.count("\n") == 1
+
+
+def test_serial_mavlink_has_its_module():
+    """mavlink:/dev/ttyAMA0,921600 needs pyserial (a dependency): the error names the port,
+    not a missing module."""
+    from drovisio.sinks.base import SinkError
+    from drovisio.sinks.mavlink import MavlinkSink
+
+    with pytest.raises(SinkError) as e:
+        MavlinkSink("/dev/ttyDROVISIO-NONE,921600")
+    assert "No module named" not in str(e.value)
+
+
+def test_unexpected_errors_leave_one_line_and_a_traceback_file(capsys, monkeypatch, frames):
+    import drovisio.commands.detect as detect
+
+    def boom(args):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(detect, "run", boom)
+    rc, _, err = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", CENTRE,
+                         frames / "f0.png")
+    assert rc == 1 and err.count("\n") == 1 and "internal error: ZeroDivisionError" in err
+    path = Path(err.split("full traceback in ")[1].split(";")[0])
+    assert "ZeroDivisionError" in path.read_text()
+    path.unlink()
+
+
