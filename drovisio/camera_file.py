@@ -29,6 +29,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -41,6 +42,7 @@ from pydantic import (
 from drovisio.camera import MODEL_ALIASES, Camera, check_coefficients
 from drovisio.errors import LIMITS, InputError, one_line
 from drovisio.fileio import atomic_write
+from drovisio.textfile import BoundedYamlLoader as _BoundedYaml
 from drovisio.textfile import parse_json, parse_yaml, read_text
 
 __all__ = ["CameraFile", "CameraFileError", "CameraFormat", "load_camera", "save_camera"]
@@ -197,19 +199,17 @@ def load_camera(path: str | os.PathLike) -> Camera:
     except InputError as e:
         raise CameraFileError(str(e)) from None
     head = text.lstrip()[:200]
-    if head.startswith("%YAML") or head.startswith("<?xml") or head.startswith("<opencv"):
-        return _validated(p, _read_filestorage(p))
-    if head.startswith("{"):
+    if head.startswith("<"):
+        data = _read_opencv_xml(p, text)
+    elif head.startswith("{"):
         try:
             data = parse_json(text, str(p))
         except InputError as e:
             raise CameraFileError(str(e)) from None
     else:
-        try:
-            data = parse_yaml(text, str(p))
-        except InputError as e:
-            raise CameraFileError(f"{e}; expected an OpenCV or ROS camera file") from None
-    if not isinstance(data, dict) or "camera_matrix" not in data:
+        data = _read_opencv_yaml(p, text)
+    if not isinstance(data, dict) or not ({"camera_matrix", "distortion_coefficients",
+                                           "image_width"} & set(data)):
         raise CameraFileError(f"{p}: not a camera file: expected OpenCV FileStorage fields "
                               "'camera_matrix' and 'distortion_coefficients' or a ROS "
                               "camera_info YAML")
@@ -292,76 +292,75 @@ def _model_name(p: Path, named: Any, fisheye_flag: Any) -> Any:
     return "fisheye"
 
 
-def _node_value(p: Path, node: Any, key: str) -> Any:
-    """A scalar FileStorage node as int, float or str (None when absent)."""
-    if node.empty() or node.isNone():
-        return None
-    if node.isInt():
-        return int(node.real())
-    if node.isReal():
-        return float(node.real())
-    if node.isString():
-        return node.string()
-    raise CameraFileError(f"{p}: {key}: expected a single value")
+class _OpenCVYamlLoader(_BoundedYaml):
+    """OpenCV FileStorage YAML (``%YAML:1.0`` header removed): its ``!!opencv-matrix`` and
+    ``!!opencv-nd-matrix`` nodes are plain mappings here."""
 
 
-def _node_matrix(p: Path, node: Any, key: str) -> Any:
-    if node.empty():
-        return None
-    if node.isSeq():
-        vals = []
-        for i in range(min(node.size(), 65)):
-            v = node.at(i)
-            if not (v.isInt() or v.isReal()):
-                raise CameraFileError(f"{p}: {key}: must be a list of numbers")
-            vals.append(float(v.real()))
-        return vals
+def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> Any:
+    if not isinstance(node, yaml.MappingNode):
+        raise yaml.constructor.ConstructorError(None, None, "an opencv-matrix must be a "
+                                                "mapping of rows, cols, dt and data",
+                                                node.start_mark)
+    return loader.construct_mapping(node, deep=True)
+
+
+for _tag in ("tag:yaml.org,2002:opencv-matrix", "tag:yaml.org,2002:opencv-nd-matrix"):
+    _OpenCVYamlLoader.add_constructor(_tag, _opencv_matrix)
+
+
+def _read_opencv_yaml(p: Path, text: str) -> dict[str, Any]:
+    """OpenCV FileStorage YAML (and ROS camera_info), read by PyYAML: OpenCV's own parser
+    aborts the whole process on some malformed files, so hostile text never reaches it."""
+    lines = text.splitlines()
+    if lines and lines[0].lstrip().startswith("%YAML"):
+        lines = lines[1:]
     try:
-        m = node.mat()
-    except cv2.error:
-        raise CameraFileError(f"{p}: {key}: not a valid opencv-matrix (rows x cols must match "
-                              "the number of values in data)") from None
-    if m is None:
-        raise CameraFileError(f"{p}: {key}: not an opencv-matrix")
-    arr = np.asarray(m, np.float64)
-    if arr.size > 64:
-        raise CameraFileError(f"{p}: {key}: {arr.size} values; a camera file has at most 14")
-    return arr.tolist() if arr.ndim == 2 and arr.shape == (3, 3) else arr.ravel().tolist()
+        data = parse_yaml("\n".join(lines), str(p), loader=_OpenCVYamlLoader)
+    except InputError as e:
+        raise CameraFileError(f"{e}; expected an OpenCV or ROS camera file") from None
+    if not isinstance(data, dict):
+        raise CameraFileError(f"{p}: not a camera file: expected OpenCV FileStorage fields "
+                              "'camera_matrix' and 'distortion_coefficients'")
+    return data
 
 
-def _read_filestorage(p: Path) -> dict[str, Any]:
+def _read_opencv_xml(p: Path, text: str) -> dict[str, Any]:
+    """OpenCV FileStorage XML (``<opencv_storage>``), read by ElementTree; a document type or
+    an entity (the XML bombs) is refused before parsing."""
+    import xml.etree.ElementTree as ET
+
+    if "<!DOCTYPE" in text or "<!ENTITY" in text:
+        raise CameraFileError(f"{p}: XML with a DOCTYPE or entities is not a camera file")
     try:
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error as e:
-        raise CameraFileError(f"{p}: OpenCV cannot parse it "
-                              f"({one_line(str(e).strip().splitlines()[-1], 160)})") from None
-    try:
-        if not fs.isOpened():
-            raise CameraFileError(f"{p}: OpenCV cannot open it as FileStorage YAML/XML/JSON")
-        raw: dict[str, Any] = {}
-        K = _node_matrix(p, fs.getNode("camera_matrix"), "camera_matrix")
-        if K is not None:
-            if isinstance(K, list) and K and not isinstance(K[0], list):
-                if len(K) != 9:
-                    raise CameraFileError(f"{p}: camera_matrix: expected 3x3 values, got "
-                                          f"{len(K)}")
-                K = [K[0:3], K[3:6], K[6:9]]
-            raw["camera_matrix"] = K
-        d = _node_matrix(p, fs.getNode("distortion_coefficients"), "distortion_coefficients")
-        if d is not None:
-            raw["distortion_coefficients"] = d
-        for key in ("image_width", "image_height", "camera_name"):
-            v = _node_value(p, fs.getNode(key), key)
-            if v is not None:
-                raw[key] = v
-        model = _model_name(p, _node_value(p, fs.getNode("distortion_model"),
-                                           "distortion_model"),
-                            _node_value(p, fs.getNode("fisheye_model"), "fisheye_model"))
-        if model is not None:
-            raw["distortion_model"] = model
-    finally:
-        fs.release()
-    return raw
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise CameraFileError(f"{p}: not valid XML ({one_line(e, 120)})") from None
+    if root.tag != "opencv_storage":
+        raise CameraFileError(f"{p}: not an OpenCV FileStorage XML file (root <{root.tag}>)")
+    data: dict[str, Any] = {}
+    for child in list(root)[:64]:
+        if len(child):                       # a matrix: rows, cols, dt, data
+            m = {sub.tag: (sub.text or "").strip() for sub in child}
+            entry: dict[str, Any] = {"data": m.get("data", "").split()}
+            for k in ("rows", "cols"):
+                if k in m:
+                    try:
+                        entry[k] = int(m[k])
+                    except ValueError:
+                        raise CameraFileError(f"{p}: {child.tag}.{k}: '{one_line(m[k], 20)}' "
+                                              "is not a whole number") from None
+            data[child.tag] = entry
+        else:
+            value = (child.text or "").strip()
+            try:
+                data[child.tag] = int(value)
+            except ValueError:
+                try:
+                    data[child.tag] = float(value)
+                except ValueError:
+                    data[child.tag] = value.strip('"')
+    return data
 
 
 # ================================================================================ writing

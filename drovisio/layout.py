@@ -31,7 +31,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -216,8 +216,12 @@ def aruco_family(name: str) -> str:
 
 HsvTriple = tuple[StrictInt, StrictInt, StrictInt]
 BgrTriple = tuple[StrictInt, StrictInt, StrictInt]
-Vec3 = tuple[StrictFloat, StrictFloat, StrictFloat]
-PositiveFloat = Annotated[StrictFloat, Field(gt=0)]
+#: no coordinate or size beyond a kilometre in millimetres: such numbers are not a brick (and
+#: overflow the geometry checks)
+MAX_COORD = 1e6
+Coord = Annotated[StrictFloat, Field(ge=-MAX_COORD, le=MAX_COORD)]
+Vec3 = tuple[Coord, Coord, Coord]
+PositiveFloat = Annotated[StrictFloat, Field(gt=0, le=MAX_COORD)]
 
 
 class ColorSpec(BaseModel):
@@ -369,7 +373,7 @@ class ArucoMarker(BaseModel):
         description="Slot s in the instance's id block (0 <= s < ids_per_instance); "
         "full id = first_id + instance * ids_per_instance + s."
     )
-    size: StrictFloat = Field(gt=0, description="Side of the outer black border.")
+    size: StrictFloat = Field(gt=0, le=MAX_COORD, description="Side of the outer black border.")
     corners: tuple[Vec3, Vec3, Vec3, Vec3] | None = Field(
         default=None,
         description="Outer border corners [x, y, z] in OpenCV order: top-left, top-right, "
@@ -494,7 +498,7 @@ class DotMarker(BaseModel):
         description="Colour name: a key of the layout's 'colors' or of the default palette "
         f"({', '.join(DEFAULT_PALETTE)}).",
     )
-    diameter: StrictFloat = Field(gt=0, description="Dot diameter.")
+    diameter: StrictFloat = Field(gt=0, le=MAX_COORD, description="Dot diameter.")
     center: Vec3 = Field(description="Dot centre [x, y, z].")
     normal: Vec3 = Field(default=(0.0, 0.0, 1.0),
                          description="Direction the dot faces [x, y, z] (default +z).")
@@ -520,7 +524,7 @@ class DotMarker(BaseModel):
         return f"dot {self.color}"
 
 
-Marker = Annotated[Union[ArucoMarker, DotMarker], Field(discriminator="kind")]
+Marker = Annotated[ArucoMarker | DotMarker, Field(discriminator="kind")]
 
 
 # --------------------------------------------------------------------------------------

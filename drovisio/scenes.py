@@ -1,7 +1,7 @@
 """Random drick scenes for evaluation: bricks on the ground seen by a drone camera.
 
 One function, :func:`random_scene`, draws a scene like the ones the detectors are judged on
-(DESIGN.md, issues #3 and #4): 640×480, 60° lens with distortion, 0.4–2 m, camera tilt up to
+(DESIGN.md): 640×480, 60° lens with distortion, 0.4–2 m, camera tilt up to
 40°, gravel, grass or photo clutter on the ground, blur, noise and JPEG. Everything is drawn
 from a seed, so a test or a benchmark names its data by (spec, seed).
 """

@@ -17,7 +17,7 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["check_regular_file", "parse_json", "parse_yaml", "read_text"]
+__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "read_text"]
 
 
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
@@ -103,7 +103,7 @@ def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
     return _check_depth(data, source)
 
 
-class _BoundedLoader(yaml.SafeLoader):
+class BoundedYamlLoader(yaml.SafeLoader):
     """PyYAML's safe loader with a cap on alias references (a "billion laughs" document
     makes every later step, down to the error message, explode)."""
 
@@ -121,11 +121,13 @@ class _BoundedLoader(yaml.SafeLoader):
         return super().compose_node(parent, index)
 
 
-def parse_yaml(text: str, source: str) -> Any:
-    """YAML (safe subset) with aliases and nesting bounded."""
-    _BoundedLoader.max_aliases = LIMITS.max_yaml_aliases
+def parse_yaml(text: str, source: str, loader: type[BoundedYamlLoader] | None = None) -> Any:
+    """YAML (safe subset) with aliases and nesting bounded (``loader``: a subclass of
+    :class:`BoundedYamlLoader` that knows more tags)."""
+    loader = loader or BoundedYamlLoader
+    loader.max_aliases = LIMITS.max_yaml_aliases
     try:
-        data = yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - a SafeLoader subclass
+        data = yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
     except RecursionError:
         raise InputError(f"{source}: nested too deeply to be a Drovisio file") from None
     except yaml.YAMLError as e:

@@ -16,7 +16,6 @@ import atexit
 import os
 import shutil
 import socket
-import sys
 import tempfile
 import threading
 import time
@@ -157,3 +156,11 @@ def live_server() -> Iterator[str]:
         yield srv.start()
     finally:
         srv.stop()
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """How many inputs the fuzz suite (tests/test_fuzz.py) tried, per reader and route."""
+    tried = getattr(config, "fuzz_tried", None)
+    if tried:
+        terminalreporter.write_line("fuzz inputs tried: " + ", ".join(
+            f"{k} {v}" for k, v in sorted(tried.items())))

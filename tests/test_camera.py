@@ -152,7 +152,7 @@ def test_scaled_keeps_pixel_centre_convention():
      "!!opencv-matrix\n   rows: 1\n   cols: 3\n   dt: d\n   data: [ 0., 0., 0. ]\n",
      "3 coefficients"),
     ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-     "   data: [ 500., 0., 320., 0., 500., 240. ]\n", "camera_matrix: not a valid"),
+     "   data: [ 500., 0., 320., 0., 500., 240. ]\n", "camera_matrix: rows x cols = 3x3 but data"),
     ("{\"camera_matrix\": [1, 2", "invalid JSON"),
     ("hello: [1, 2\n", "not valid YAML"),
     ("just: text\n", "not a camera file"),

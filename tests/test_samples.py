@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from drovisio import synth_samples
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.synth import rvec_tvec, transform
-from drovisio import synth_samples
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_sessions"
 

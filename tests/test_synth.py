@@ -12,8 +12,20 @@ import pytest
 from drovisio.bench import renderer
 from drovisio.camera import Camera
 from drovisio.layout import load_layout, shipped_layouts_dir
-from drovisio.synth import (Board, BrickInstance, Effects, Ground, Prop, Scene, apply_effects,
-                            camera_over, look_at, render, rot_z, transform)
+from drovisio.synth import (
+    Board,
+    BrickInstance,
+    Effects,
+    Ground,
+    Prop,
+    Scene,
+    apply_effects,
+    camera_over,
+    look_at,
+    render,
+    rot_z,
+    transform,
+)
 
 CAM = Camera.drone_webcam()
 

@@ -62,7 +62,7 @@ class Settings(BaseModel):
     viewer_token: str | None = None
 
     @model_validator(mode="after")
-    def _token_when_exposed(self) -> "Settings":
+    def _token_when_exposed(self) -> Settings:
         if self.token is None and not is_loopback(self.host):
             self.token = new_token()
         if self.token is not None and self.viewer_token is None:

@@ -60,7 +60,7 @@ PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory", "kerne
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="drovisio bench dots",
-        description="Benchmark of the colour-dot detector on rendered scenes (issue #4): "
+        description="Benchmark of the colour-dot detector on rendered scenes: "
                     "recall, pose errors, flips, false bricks, lighting, speed, memory.",
         epilog=EXAMPLE, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default=",".join(PARTS),
@@ -772,7 +772,7 @@ def _fmt(v, nd=2):
 
 def _print_report(rep: dict) -> None:
     w = print
-    w("\ndrovisio bench dots — colour-dot bricks (issue #4)")
+    w("\ndrovisio bench dots — colour-dot bricks")
     w("=" * 78)
     acc = rep.get("accuracy")
     if acc:

@@ -1,4 +1,4 @@
-"""Camera calibration that judges by projection uncertainty, not by RMS (issue 5).
+"""Camera calibration that judges by projection uncertainty, not by RMS.
 
 One stage per module:
 

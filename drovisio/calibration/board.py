@@ -224,7 +224,7 @@ class Detection:
                 "window": self.window}
 
     @classmethod
-    def from_json(cls, d: dict) -> "Detection":
+    def from_json(cls, d: dict) -> Detection:
         return cls(corners=np.asarray(d["corners"], float).reshape(-1, 2),
                    ids=np.asarray(d["ids"], int), image_size=tuple(d["image_size"]),
                    square_px=float(d["square_px"]), window=int(d["window"]))

@@ -93,7 +93,7 @@ class View:
                 else round(self.edge_width_px, 3), "added_at": self.added_at}
 
     @classmethod
-    def from_json(cls, d: dict) -> "View":
+    def from_json(cls, d: dict) -> View:
         ew = d.get("edge_width_px")
         return cls(int(d["id"]), str(d["name"]), Detection.from_json(d["detection"]),
                    [GateResult(g["gate"], g["ok"], math.nan if g["value"] is None
@@ -460,7 +460,7 @@ class CalibrationSession:
 
     @classmethod
     def from_state(cls, state: dict, config: SessionConfig | None = None,
-                   camera_guess: Camera | None = None) -> "CalibrationSession":
+                   camera_guess: Camera | None = None) -> CalibrationSession:
         from drovisio.calibration.board import parse_board
         b = state["board"]
         s = cls(parse_board(b["spec"], b["square_m"]), state.get("image_size"), config,

@@ -1,4 +1,4 @@
-"""``drovisio mission``: check, simulate and draw the pick-and-place strategy (issue #8).
+"""``drovisio mission``: check, simulate and draw the pick-and-place strategy.
 
 * ``check SCENARIO`` — validate the scenario, then simulate it with each injected fault of
   :data:`drovisio.mission.faults.CHECK_FAULTS` and print the fault table; exit 1 if a safety

@@ -176,7 +176,7 @@ class ArucoBrickDetector:
         self._detectors: list[tuple[cv2.aruco.ArucoDetector, np.ndarray, dict, int]] = []
         self._dvalue: dict[int, int] = {}
         self._patterns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        for f, entry in fam.items():
+        for entry in fam.values():
             dvalue = aruco_dictionary_id(entry["dict"])
             full = cv2.aruco.getPredefinedDictionary(dvalue)
             ids = np.array(sorted(i for i in entry["ids"] if i < full.bytesList.shape[0]),

@@ -3,7 +3,7 @@
 Why not OpenCV's corner refinement: the outer edge of a printed code sits between its black
 border and whatever is around it (a thin strip of paper, then the brick); once blurred, that
 neighbourhood pulls every local edge or corner estimator (gradient peak, threshold crossing,
-``cornerSubPix``) by 0.3–0.7 px, the bias the issue measured. Here the outer edge is not used
+``cornerSubPix``) by 0.3–0.7 px, a bias measured on renders. Here the outer edge is not used
 at all. Each code is fitted *as a whole* from the inside: knowing the code's bits (from its
 decoded id), the model predicts every pixel of the code's interior,
 

@@ -1477,7 +1477,7 @@ def undistort(px, fx, fy, cx, cy, d):
         a01 = 0.0
         a10 = 0.0
         a11 = 1.0
-        for it in range(12):
+        for _ in range(12):
             r2 = x * x + y * y
             Nn = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
             Dd = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))

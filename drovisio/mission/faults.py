@@ -68,7 +68,7 @@ class FaultCase:
     expect: Literal["completed", "safe_zone"]
     note: str = ""
 
-    def for_order(self, order: list[str]) -> "FaultCase":
+    def for_order(self, order: list[str]) -> FaultCase:
         """The case with ``#k`` bricks resolved against a build order."""
         def res(b: str | None) -> str | None:
             if b is None or not b.startswith("#"):

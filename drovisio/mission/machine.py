@@ -249,7 +249,7 @@ class MissionPlan:
     bounds_max: tuple[float, float, float]
 
     @classmethod
-    def from_scenario(cls, scn: Scenario) -> "MissionPlan":
+    def from_scenario(cls, scn: Scenario) -> MissionPlan:
         b = scn.site.bounds
         return cls(scn, tuple(scn.order), tuple(b.min), tuple(b.max))
 

@@ -93,7 +93,7 @@ class Bounds(_M):
     max: Vec3 = Field(description="highest corner of the geofence (x, y, z), site frame, m")
 
     @model_validator(mode="after")
-    def _order(self) -> "Bounds":
+    def _order(self) -> Bounds:
         for i, axis in enumerate("xyz"):
             if not self.min[i] < self.max[i]:
                 raise ValueError(f"min.{axis} ({self.min[i]}) must be below max.{axis} "
@@ -145,7 +145,7 @@ class PlanEntry(_M):
     rests_on: list[str] | None = Field(None, description="upper courses: the two bricks below")
 
     @model_validator(mode="after")
-    def _one_of(self) -> "PlanEntry":
+    def _one_of(self) -> PlanEntry:
         if self.course == 1 and (self.slot is None or self.rests_on is not None):
             raise ValueError("a course-1 brick needs 'slot' (its index along the wall) and no "
                              "'rests_on'")
@@ -352,7 +352,7 @@ class Scenario(_M):
         dxy = rot2(-r.yaw) @ (s.xy - r.xy)
         return Pose4(float(dxy[0]), float(dxy[1]), s.z - r.z, s.yaw - r.yaw)
 
-    def subset(self, keep: list[str]) -> "Scenario":
+    def subset(self, keep: list[str]) -> Scenario:
         """The same scenario building only the bricks ``keep`` (validated again: the bricks a
         kept brick rests on must be kept too)."""
         data = self.model_dump(by_alias=True, exclude_none=True)

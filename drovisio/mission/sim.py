@@ -27,8 +27,8 @@ output) and the outcome, placement errors included.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -295,7 +295,7 @@ class Simulator:
 
     def _under(self, xy, exclude: str | None = None) -> list[str]:
         out = []
-        for bid, T in self.bricks.items():
+        for bid in self.bricks:
             if bid in (exclude, self.held):
                 continue
             d = self._dims(bid)

@@ -1,4 +1,4 @@
-"""A replay of a simulated run plays in the live page (issue #8): the panel loads a short
+"""A replay of a simulated run plays in the live page: the panel loads a short
 recording, plays it (the time and the state of the machine move on), and the server-side
 playback moves the drone and drives the replay's 3D view."""
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import pytest
 
-from drovisio.camera import Camera
 from drovisio.calibration.board import BoardSpec, parse_board
+from drovisio.camera import Camera
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 OPENCV_LEFT = Path(os.environ.get("DROVISIO_OPENCV_LEFT",
@@ -39,7 +39,7 @@ def opencv_files() -> list[Path]:
 
 
 @pytest.fixture(scope="session")
-def opencv_images(opencv_files) -> dict[str, "cv2.Mat"]:
+def opencv_images(opencv_files) -> dict[str, cv2.Mat]:
     return {f.name: cv2.imread(str(f)) for f in opencv_files}
 
 

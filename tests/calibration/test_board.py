@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drovisio.calibration.board import (BoardSpecError, detect, parse_board, refine_window)
+from drovisio.calibration.board import BoardSpecError, detect, parse_board, refine_window
 from drovisio.calibration.solve import ViewInput, fit_model
 
 

@@ -52,6 +52,6 @@ def test_charuco_views_calibrate_to_the_true_camera(tmp_path, capsys):
     r = json.loads(rep.read_text())
     for name, a, b in (("fx", got.fx, cam.fx), ("fy", got.fy, cam.fy),
                        ("cx", got.K[0, 2], cam.K[0, 2]), ("cy", got.K[1, 2], cam.K[1, 2])):
-        # within 0.3 % (issue #5's target on renders) and 3 reported standard deviations
+        # within 0.3 % (the calibration's target on renders) and 3 reported standard deviations
         assert abs(a / b - 1) < 3e-3 and abs(a - b) < 3 * r["std"][name], (name, a, b)
     assert r["rms_px"] < 0.15 and len(r["per_view"]) >= 20

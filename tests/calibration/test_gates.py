@@ -8,8 +8,13 @@ from dataclasses import replace
 import pytest
 
 from drovisio.calibration.board import detect
-from drovisio.calibration.gates import (corner_motion_px, gate_novel, gate_sharpness, gate_size,
-                                        gate_still)
+from drovisio.calibration.gates import (
+    corner_motion_px,
+    gate_novel,
+    gate_sharpness,
+    gate_size,
+    gate_still,
+)
 from drovisio.calibration.synthetic import DEFAULT_BOARD, calibration_poses
 
 

@@ -7,8 +7,7 @@ import cv2
 import numpy as np
 
 from drovisio.calibration.board import detect
-from drovisio.calibration.solve import (RMS_DEFINITION, SolveOptions, ViewInput, fit_model,
-                                        solve)
+from drovisio.calibration.solve import RMS_DEFINITION, SolveOptions, ViewInput, fit_model, solve
 
 
 def _plain_opencv(views, flags=0):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from drovisio.calibration.uncertainty import grid_jacobians, model_difference_px, sigma_max
 from drovisio.camera import Camera
-from drovisio.calibration.uncertainty import (grid_jacobians, model_difference_px, sigma_max)
 
 
 def test_intrinsics_within_0_3_percent(rendered_session, true_camera):

@@ -1,4 +1,4 @@
-"""The colour-dot detector (issue #4): stages, accuracy on rendered scenes, partial matches,
+"""The colour-dot detector: stages, accuracy on rendered scenes, partial matches,
 symmetry, gravity, and bad input. Heavy evaluation lives in ``drovisio bench dots``."""
 
 from __future__ import annotations

@@ -9,8 +9,15 @@ import pytest
 
 from drovisio.mission import machine as M
 from drovisio.mission.frames import site_from_body, site_from_brick
-from drovisio.mission.machine import (TRANSITIONS, Memory, MissionPlan, Readings, Sighting,
-                                      State, step)
+from drovisio.mission.machine import (
+    TRANSITIONS,
+    Memory,
+    MissionPlan,
+    Readings,
+    Sighting,
+    State,
+    step,
+)
 
 S = State
 

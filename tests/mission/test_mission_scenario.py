@@ -7,8 +7,7 @@ import math
 import pytest
 import yaml
 
-from drovisio.mission.scenario import (ScenarioError, load_scenario, parse_scenario,
-                                       shipped_scenario)
+from drovisio.mission.scenario import ScenarioError, load_scenario, parse_scenario, shipped_scenario
 
 
 def _data():

@@ -33,7 +33,7 @@ def test_sample_mount_and_gravity(tmp_path):
      '[0,0,0,1]]}', ["body_from_camera", "orthonormal"]),
     ('{"schema": "drovisio/mount@1", "body_frame": "NED", "body_from_camera": '
      '[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}', ["body_frame"]),
-    ("[1, 2", ["not valid JSON"]),
+    ("[1, 2", ["invalid JSON"]),
 ])
 def test_bad_mount_files_are_named(tmp_path, text, words):
     f = tmp_path / "m.json"

@@ -19,8 +19,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from drovisio.camera_file import load_camera
-from webtool.app import create_app
 from drovisio.sources import PlaybackReader, RawFrame
+from webtool.app import create_app
 from webtool.calibration_service import CalibrationService
 from webtool.settings import Settings
 
