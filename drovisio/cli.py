@@ -154,6 +154,11 @@ def _add_run(p: argparse.ArgumentParser) -> None:
                    help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
                         "distance, default) or px4 (LOCAL_NED from the link's attitude and "
                         "position)")
+    p.add_argument("--send-held-targets", action="store_true",
+                   help="also send the flight controller a target not seen in the current frame "
+                        "(its last measurement, stamped with that measurement's time). Off by "
+                        "default: autopilots filter line-of-sight measurements and expect "
+                        "silence when the target is not seen")
     p.add_argument("--max-age", type=positive_float, default=0.5, metavar="SECONDS",
                    help="drop a brick not seen for this long (default 0.5 s)")
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime",

@@ -147,6 +147,8 @@ class PipelineStats:
         self.detector_errors = 0
         self.sink_errors = 0
         self.bricks = 0
+        self.held = 0
+        """Bricks of the last frame held over by the tracker (not measured in it)."""
         self.last_error: str | None = None
 
     def fps(self, now: float | None = None) -> float:
@@ -167,7 +169,8 @@ class PipelineStats:
         return {"frames": self.frames, "fps": round(self.fps(), 2),
                 "detect_ms": round(self._median(self.detect_ms), 2),
                 "latency_ms": round(self._median(self.latency_ms), 2),
-                "bricks": self.bricks, "detector_errors": self.detector_errors,
+                "bricks": self.bricks, "held": self.held,
+                "detector_errors": self.detector_errors,
                 "sink_errors": self.sink_errors, "last_error": self.last_error}
 
 
@@ -306,6 +309,7 @@ class Pipeline:
         st.frame_times.append(now)
         st.frames += 1
         st.bricks = len(bricks)
+        st.held = sum(not b.measured for b in bricks)
         if self.recorder is not None and frame.image is not None:
             self.recorder.add(frame, out)
         self.last_output = out
@@ -343,6 +347,7 @@ class Pipeline:
             self.tracker.prune(self.source.now() if hasattr(self.source, "now")
                                else time.monotonic())
             self.stats.bricks = len(self.tracker.tracks)
+            self.stats.held = len(self.tracker.tracks)
             self._notify(None, None)
             return None
         return self.process(frame)

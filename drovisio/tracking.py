@@ -96,12 +96,20 @@ class TrackedBrick:
     ambiguous: bool = False
     body_from_brick: np.ndarray | None = None
     """4×4, when a camera mount is known."""
+    last_measured: np.ndarray | None = None
+    """4×4 ``camera_from_brick`` of the last measurement (taken at ``t_measured``)."""
 
     def camera_from_brick(self) -> np.ndarray:
         T = np.eye(4)
         T[:3, :3] = so3_exp(self.rvec)
         T[:3, 3] = self.tvec
         return T
+
+    def measured_camera_from_brick(self) -> np.ndarray | None:
+        """This frame's measurement as a 4×4 ``camera_from_brick`` — what the camera saw, not
+        the filter's estimate — or None when the brick was not measured in this frame. Of an
+        ambiguous or symmetric measurement's candidates, the one the track agrees with."""
+        return self.last_measured if self.measured else None
 
     @property
     def key(self) -> tuple[str, int | None, int]:
@@ -173,6 +181,8 @@ class Track:
     outliers: int = 0
     hits: int = 1
     trail: deque = field(default_factory=lambda: deque(maxlen=30))
+    last_measured: np.ndarray | None = None
+    """4×4 ``camera_from_brick`` of the last measurement."""
 
     # ------------------------------------------------------------------ model
     def predict(self, t_mono: float, cfg: TrackerConfig) -> None:
@@ -348,6 +358,10 @@ class BrickTracker:
         for tr in self.tracks:
             m = measured.get(id(tr))
             tr.trail.append(tr.p.copy())
+            if m is not None:
+                R_m, t_m = max(pose_candidates(m), key=lambda c: float(np.trace(tr.R.T @ c[0])))
+                tr.last_measured = np.eye(4)
+                tr.last_measured[:3, :3], tr.last_measured[:3, 3] = R_m, t_m
             rvec = so3_log(tr.R)
             T = np.eye(4)
             T[:3, :3] = tr.R
@@ -359,7 +373,8 @@ class BrickTracker:
                 t=t_wall, t_measured=tr.t_measured_wall, age=age, measured=m is not None,
                 measurement=m, symmetric=tr.symmetric,
                 ambiguous=bool(m is not None and m.ambiguous and tr.hits <= 1),
-                body_from_brick=None if self.mount is None else self.mount.body_from(T)))
+                body_from_brick=None if self.mount is None else self.mount.body_from(T),
+                last_measured=tr.last_measured))
         out.sort(key=lambda b: (b.layout, -1 if b.instance is None else b.instance, b.track))
         return out
 

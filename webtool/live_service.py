@@ -181,9 +181,7 @@ def annotate(image: np.ndarray, output, camera) -> np.ndarray:
         if camera is not None and b.tvec[2] > 0.05:
             try:
                 axes = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]], np.float64)
-                c, _ = cv2.projectPoints(axes, np.asarray(b.rvec, np.float64),
-                                         np.asarray(b.tvec, np.float64), camera.K, camera.dist)
-                c = c.reshape(-1, 2)
+                c = camera.cv_project(axes, b.rvec, b.tvec)
                 if not np.all(np.isfinite(c)) or np.abs(c).max() > 1e5:
                     continue
                 o = tuple(int(v) for v in np.round(c[0]))

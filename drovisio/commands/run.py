@@ -61,7 +61,9 @@ def status_line(st: dict, elapsed: float) -> str:
     if st.get("sink_errors"):
         extra += f" | {st['sink_errors']} sink exceptions"
     return (f"{elapsed:7.1f} s | {st['fps']:5.1f} fps | detect {st['detect_ms']:6.1f} ms | "
-            f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks | source {state} | "
+            f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks"
+            + (f" ({st['held']} held over, not sent)" if st.get("held") else "")
+            + f" | source {state} | "
             f"{target}{extra}")
 
 
@@ -92,7 +94,8 @@ def build_pipeline(args: argparse.Namespace, out=None):
         for spec in (args.sink or ["jsonl:-"]):
             sinks.append(open_sink(spec, target=target,
                                    autopilot=getattr(args, "autopilot", "ardupilot"),
-                                   mount=mount, layouts=layouts))
+                                   mount=mount, layouts=layouts,
+                                   send_held=getattr(args, "send_held_targets", False)))
     except Exception:
         for s in sinks:
             s.close()

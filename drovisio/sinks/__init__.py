@@ -9,7 +9,8 @@ SINK strings (``--sink`` of ``drovisio run``, :func:`open_sink`):
 * ``jsonl:-`` (stdout), ``jsonl:PATH`` — one JSON object per frame;
 * ``udp://HOST:PORT`` — the same object as one UDP datagram per frame;
 * ``mavlink:CONNECTION`` — ``LANDING_TARGET`` to a flight controller through pymavlink
-  (``mavlink:udpout:127.0.0.1:14550``, ``mavlink:/dev/ttyAMA0,921600``);
+  (``mavlink:udpout:127.0.0.1:14550``, ``mavlink:/dev/ttyAMA0,921600``), only for frames
+  that measured the target;
 * ``ws://HOST:PORT`` — a WebSocket server that pushes the objects to every connected client
   (and takes ``{"set_target": "..."}`` messages).
 """
@@ -23,7 +24,7 @@ __all__ = ["Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink", "pa
 
 
 def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str = "ardupilot",
-              mount=None, layouts=None) -> Sink:
+              mount=None, layouts=None, send_held: bool = False) -> Sink:
     """Open the sink of a SINK string (see the module doc)."""
     s = spec.strip()
     if s.startswith("jsonl:"):
@@ -38,7 +39,7 @@ def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str
         from drovisio.sinks.mavlink import MavlinkSink
 
         return MavlinkSink(s[len("mavlink:"):], autopilot=autopilot, target=target,
-                           mount=mount, layouts=layouts)
+                           mount=mount, layouts=layouts, send_held=send_held)
     if s.startswith("ws://"):
         from drovisio.sinks.websocket import WebSocketSink
 

@@ -1,8 +1,17 @@
 """``mavlink:CONNECTION``: the target brick as MAVLink ``LANDING_TARGET``, for ArduPilot or PX4.
 
-One message per processed frame in which a target is chosen (see
-:mod:`drovisio.sinks.target`); nothing when there is none (the autopilots then time the
-target out: ArduPilot after 1 s). MAVLink 2 (the position fields are extensions).
+One message per processed frame in which the target (see :mod:`drovisio.sinks.target`) was
+**measured** — seen by the camera in that very frame — stamped with that frame's capture time
+and carrying that measurement (what the camera saw, not the tracker's filtered or predicted
+pose). A frame that does not show the target sends nothing: ArduPilot's and PX4's own filters
+expect line-of-sight measurements, and a held-over pose sent as a new one would be counted
+again as evidence (and is wrong as soon as the drone moves: 0.4 s at 0.5 m/s is 20 cm). The
+autopilots handle a lost target themselves (ArduPilot waits ~2 s before giving up).
+
+``send_held=True`` (``--send-held-targets``: off by default, for a camera with long dropouts
+and an autopilot that needs a steady stream, at the risk above) also sends a held-over
+target, with its last measurement stamped with the time of that measurement. MAVLink 2 (the
+position fields are extensions).
 
 ArduPilot (``autopilot="ardupilot"``, default; ``PLND_TYPE=1`` companion computer,
 ``PLND_ORIENT`` down, ``PLND_CAM_POS_*`` = 0 because the mount offset is applied here):
@@ -131,12 +140,18 @@ class VehicleState:
 
 def landing_target_fields(brick, t_wall: float, mount: Mount | None, autopilot: str = "ardupilot",
                           attitude: tuple | None = None, position: tuple | None = None,
-                          size_m: tuple[float, float] | None = None) -> dict:
+                          size_m: tuple[float, float] | None = None,
+                          camera_from_brick: np.ndarray | None = None) -> dict:
     """The ``LANDING_TARGET`` fields (pymavlink ``landing_target_send`` keywords) for a tracked
     brick (a :class:`drovisio.tracking.TrackedBrick`). See the module doc for the conventions.
+
+    Args:
+        brick: The target (its instance or track number becomes ``target_num``).
+        t_wall: Capture time of the pose (UNIX s): ``time_usec``.
+        camera_from_brick: The pose to send (default: the brick's own pose).
     """
     mount = mount if mount is not None else down_camera_mount()
-    T_cb = brick.camera_from_brick()
+    T_cb = camera_from_brick if camera_from_brick is not None else brick.camera_from_brick()
     p_cam = T_cb[:3, 3]
     T_bb = mount.body_from(T_cb)
     p_body = T_bb[:3, 3]
@@ -214,7 +229,8 @@ class MavlinkSink:
                  target: TargetSelector | None = None, mount: Mount | None = None,
                  layouts=None, source_system: int = 1,
                  source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
-                 max_state_age: float = 0.3, heartbeat_period: float = 1.0):
+                 max_state_age: float = 0.3, heartbeat_period: float = 1.0,
+                 send_held: bool = False):
         if autopilot not in ("ardupilot", "px4"):
             raise SinkError(f"unknown autopilot {autopilot!r}: ardupilot or px4")
         self.name = f"mavlink:{connection}"
@@ -226,6 +242,9 @@ class MavlinkSink:
         self.max_state_age = max_state_age
         self.heartbeat_period = heartbeat_period
         self.vehicle = VehicleState()
+        self.send_held = send_held
+        self.held_not_sent = 0
+        """Frames whose target was held over (not measured): nothing sent for them."""
         self.sent = 0
         self.sent_position_valid = 0
         self.errors = 0
@@ -290,13 +309,21 @@ class MavlinkSink:
             else self.target.choose(output.bricks)
         if brick is None:
             return
+        T_cb = brick.measured_camera_from_brick()
+        t_wall, t_mono = output.t, output.t_mono
+        if T_cb is None:                 # held over: not seen in this frame
+            if not self.send_held or brick.last_measured is None:
+                self.held_not_sent += 1
+                return
+            T_cb = brick.last_measured
+            t_wall, t_mono = brick.t_measured, output.t_mono - brick.age
         att = pos = None
         if self.autopilot == "px4":
-            att = self.vehicle.attitude_at(output.t_mono, self.max_state_age)
-            pos = self.vehicle.position_at(output.t_mono, self.max_state_age)
+            att = self.vehicle.attitude_at(t_mono, self.max_state_age)
+            pos = self.vehicle.position_at(t_mono, self.max_state_age)
         try:
-            f = landing_target_fields(brick, output.t, self.mount, self.autopilot, att, pos,
-                                      self.sizes.get(brick.layout))
+            f = landing_target_fields(brick, t_wall, self.mount, self.autopilot, att, pos,
+                                      self.sizes.get(brick.layout), camera_from_brick=T_cb)
             with self._lock:
                 self.conn.mav.landing_target_send(
                     f["time_usec"], f["target_num"], f["frame"], f["angle_x"], f["angle_y"],
@@ -319,5 +346,6 @@ class MavlinkSink:
     def status(self) -> dict:
         return {"sink": self.name, "autopilot": self.autopilot, "sent": self.sent,
                 "position_valid": self.sent_position_valid, "errors": self.errors,
+                "held_not_sent": self.held_not_sent,
                 "last_error": self.last_error,
                 "attitude": self.vehicle.attitude_at(time.monotonic(), 1.0) is not None}

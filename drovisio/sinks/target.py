@@ -7,6 +7,11 @@ Spec strings (``--target`` of ``drovisio run``, the live page, the WebSocket fee
 * ``LAYOUT:INSTANCE`` — that brick (e.g. ``drick-aruco-pyramids:1``);
 * ``track:N`` — the brick of track N (bricks without ids, e.g. dots);
 * ``none`` — no target (nothing is sent to the flight controller).
+
+The choice follows a track: once a brick is the target it stays the target while its track
+lives (measured, or held over for a missed frame), unless another brick of the spec is
+clearly nearer (``switch_ratio``). What a flight controller is sent is another matter: only a
+target measured in the frame (:mod:`drovisio.sinks.mavlink`).
 """
 
 from __future__ import annotations
@@ -83,11 +88,21 @@ def parse_target(spec: str | dict | TargetSpec | None) -> TargetSpec:
 
 class TargetSelector:
     """Chooses the target among a frame's tracked bricks; :meth:`set` may be called from any
-    thread while the pipeline runs."""
+    thread while the pipeline runs.
 
-    def __init__(self, spec: str | dict | TargetSpec | None = "nearest"):
+    Args:
+        spec: The target spec (module doc).
+        switch_ratio: With ``nearest`` or ``LAYOUT``, another brick takes over from the current
+            target's track only when it is nearer by this factor (no flicker between two bricks
+            at about the same distance).
+    """
+
+    def __init__(self, spec: str | dict | TargetSpec | None = "nearest",
+                 switch_ratio: float = 0.8):
         self._lock = threading.Lock()
         self._spec = parse_target(spec)
+        self.switch_ratio = switch_ratio
+        self._track: int | None = None
 
     @property
     def spec(self) -> TargetSpec:
@@ -97,6 +112,7 @@ class TargetSelector:
         new = parse_target(spec)
         with self._lock:
             self._spec = new
+            self._track = None
         return new
 
     def choose(self, bricks: Sequence):
@@ -111,4 +127,11 @@ class TargetSelector:
             c = [b for b in bricks if b.track == s.track]
         else:
             c = list(bricks)
-        return min(c, key=lambda b: b.distance) if c else None
+        if not c:
+            return None
+        nearest = min(c, key=lambda b: b.distance)
+        current = next((b for b in c if b.track == self._track), None)
+        if current is not None and nearest.distance >= self.switch_ratio * current.distance:
+            return current
+        self._track = nearest.track
+        return nearest

@@ -17,7 +17,8 @@
     $("fig-fps").textContent = fmt(st.fps, " fps", 1);
     $("fig-detect").textContent = fmt(st.detect_ms, " ms", 1);
     $("fig-latency").textContent = fmt(st.latency_ms, " ms", 1);
-    $("fig-bricks").textContent = (msg.bricks || []).length;
+    const all = msg.bricks || [], held = all.filter((b) => !b.measured).length;
+    $("fig-bricks").textContent = all.length + (held ? " (" + held + " held over)" : "");
     const s = msg.stream || {};
     $("fig-stream").textContent = fmt(s.kbps, " kbit/s", 0);
     $("stream-note").title = "JPEG quality " + s.jpeg_quality + ", scale " + s.scale + ", share " + s.share_kbps + " kbit/s of " + st.bandwidth_kbps + ", " + st.viewers + " viewer(s)";
