@@ -133,23 +133,24 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
                    help="calibration images, or folders of them")
 
 
-def _add_run(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--source", required=True, metavar="SOURCE",
-                   help="camera index (0), video file, folder of images (name order) or stream URL")
-    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
-    p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",
-                   help="marker layout file; repeat for several brick types")
+def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
+    """The pipeline's options, shared by ``run`` and ``serve`` (one process on the drone)."""
+    p.add_argument("--layout", required=not serving, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types"
+                        + (" (default: the shipped layouts)" if serving else ""))
     p.add_argument("--mount", metavar="MOUNT_FILE",
-                   help="camera mount (body_from_camera, tilt included) for poses in the drone's "
-                        "FRD body frame")
+                   help="camera mount (tilt, pan, roll and offset, or body_from_camera) for "
+                        "poses in the drone's FRD body frame")
     p.add_argument("--sink", action="append", metavar="SINK",
                    help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION or ws://HOST:PORT "
-                        "(WebSocket feed); repeatable (default jsonl:-)")
+                        "(WebSocket feed); repeatable"
+                        + (" (with a sink, the pipeline runs from the start, watched or not)"
+                           if serving else " (default jsonl:-)"))
     p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
     p.add_argument("--target", default="nearest", metavar="TARGET",
                    help="brick sent to the flight controller: nearest (default), LAYOUT, "
-                        "LAYOUT:INSTANCE, track:N or none; changeable at run time through a "
-                        "ws:// sink")
+                        "LAYOUT:INSTANCE, track:N or none; changeable at run time"
+                        + (" on the live page" if serving else " through a ws:// sink"))
     p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
                    help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
                         "distance, default) or px4 (LOCAL_NED from the link's attitude and "
@@ -161,6 +162,13 @@ def _add_run(p: argparse.ArgumentParser) -> None:
                         "silence when the target is not seen")
     p.add_argument("--max-age", type=positive_float, default=0.5, metavar="SECONDS",
                    help="drop a brick not seen for this long (default 0.5 s)")
+
+
+def _add_run(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--source", required=True, metavar="SOURCE",
+                   help="camera index (0), video file, folder of images (name order) or stream URL")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    _add_pipeline(p, serving=False)
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime",
                    help="files and recordings: play at their own frame rate like a camera "
                         "(realtime, default) or process every frame as fast as possible (max)")
@@ -179,9 +187,10 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
                    help="camera index, video file, folder of images or stream URL "
                         "(default: the built-in sample session)")
     p.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
+    _add_pipeline(p, serving=True)
     p.add_argument("--replay-dir", metavar="DIR",
                    help="folder of mission recordings (drovisio mission simulate --record) to "
-                        "replay in 3D on the live page")
+                        "replay in 3D on the live page (default: the sample mission)")
 
 
 def _add_mission(p: argparse.ArgumentParser) -> None:
@@ -303,7 +312,11 @@ COMMANDS: dict[str, Command] = {
                         "0.0.0.0 for a tablet on the drone's Wi-Fi) turns on token access: open "
                         "the printed URL, which carries the token.",
             example="drovisio serve\n"
-                    "  drovisio serve --host 0.0.0.0 --port 8080 --source 0 --camera camera.yaml",
+                    "  drovisio serve --host 0.0.0.0 --port 8080 --source 0 --camera camera.yaml\n"
+                    "  drovisio serve --host 0.0.0.0 --source 0 --camera camera.yaml "
+                    "--mount mount.json \\\n"
+                    "      --layout marker_layouts/drick-aruco-pyramids.json "
+                    "--sink mavlink:/dev/ttyAMA0,921600",
             add_arguments=_add_serve,
             target="webtool.serve:run",
         ),

@@ -268,36 +268,35 @@ class LiveService:
 
         sample_dir = Path(s.sample_session)
         approach = sample_dir / "approach"
+        camera = Path(s.camera) if s.camera else sample_dir / "camera.yaml"
         if s.source is None:
             scene = json.loads((approach / "scene.json").read_text())
             root = shipped_layouts_dir()
-            return _Config(str(approach / "approach.mp4"), True,
-                           Path(s.camera) if s.camera else sample_dir / "camera.yaml",
-                           [root / f"{n}.json" for n in scene["layouts"]],
-                           approach / "mount.json", True)
-        return _Config(s.source, False, Path(s.camera) if s.camera else sample_dir / "camera.yaml",
-                       [p for p in list_shipped_layouts()], None, False)
+            return _Config(str(approach / "approach.mp4"), True, camera,
+                           list(s.layouts) or [root / f"{n}.json" for n in scene["layouts"]],
+                           s.mount or approach / "mount.json", True)
+        return _Config(s.source, False, camera, list(s.layouts) or list_shipped_layouts(),
+                       s.mount, False)
 
     def _build(self):
+        """The pipeline ``drovisio run`` would build from the same options (sinks, target,
+        mount, recording included): the page watches what the flight controller is fed."""
         if self.pipeline_factory is not None:
             return self.pipeline_factory(self)
-        from drovisio.camera_file import load_camera
-        from drovisio.layout import load_layouts
-        from drovisio.mount import load_mount
-        from drovisio.pipeline import Pipeline, detectors_for
-        from drovisio.sources import FrameSource, reader_for
+        import argparse
+
+        from drovisio.commands.run import build_pipeline
 
         c = self.config()
-        self.camera = load_camera(c.camera_file)
-        self.layouts = load_layouts(c.layout_files)
-        self.mount = load_mount(c.mount_file) if c.mount_file else None
-        g = self.mount.gravity_in_camera() if self.mount is not None else None
-        gravity = (lambda _t: g) if g is not None else None  # level flight (no autopilot here)
-
-        p = Pipeline(FrameSource(reader_for(c.source, loop=c.loop)),
-                     detectors_for(self.camera, self.layouts), mount=self.mount,
-                     gravity=gravity, layouts=self.layouts)
-        p.warm_up(self.camera.width, self.camera.height)
+        s = self.settings
+        args = argparse.Namespace(
+            source=c.source, camera=str(c.camera_file), layout=[str(x) for x in c.layout_files],
+            mount=str(c.mount_file) if c.mount_file else None, sink=list(s.sinks),
+            record=str(s.record) if s.record else None, target=s.target,
+            autopilot=s.autopilot, send_held_targets=s.send_held_targets,
+            max_age=s.max_age, pace="realtime")
+        p = build_pipeline(args, loop=c.loop, default_sinks=())
+        self.camera, self.layouts, self.mount = p.camera, p.layouts, p.mount
         return p
 
     # ------------------------------------------------------------------ lifecycle
@@ -346,7 +345,8 @@ class LiveService:
     def _watch(self) -> None:
         while not self._closed.wait(1.0):
             idle = time.monotonic() - self._last_touch
-            if not self._viewers and idle > self.idle_timeout and self.pipeline is not None:
+            if (not self._viewers and idle > self.idle_timeout and self.pipeline is not None
+                    and not self.settings.flying):
                 self.stop_pipeline()
 
     def stop_pipeline(self) -> None:
@@ -480,7 +480,6 @@ class LiveService:
                     "sample": bool(c.sample) if c else None}
         if self.pipeline is not None:
             st.update(self.pipeline.status())
-            st["sinks"] = []
         else:
             st.update({"fps": 0.0, "detect_ms": 0.0, "latency_ms": 0.0, "bricks": 0,
                        "source": {"label": c.source if c else "", "state": "stopped",

@@ -83,6 +83,14 @@ def _check_inputs(args: argparse.Namespace) -> None:
         from drovisio.errors import InputError
 
         raise InputError(f"{args.replay_dir}: --replay-dir: no such folder")
+    if getattr(args, "layout", None):
+        from drovisio.layout import load_layouts
+
+        load_layouts(args.layout)
+    if getattr(args, "mount", None):
+        from drovisio.mount import load_mount
+
+        load_mount(args.mount)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,6 +105,14 @@ def run(args: argparse.Namespace) -> int:
         port=args.port,
         source=args.source,
         camera=Path(args.camera) if args.camera else None,
+        layouts=[Path(x) for x in (getattr(args, "layout", None) or [])],
+        mount=Path(args.mount) if getattr(args, "mount", None) else None,
+        sinks=list(getattr(args, "sink", None) or []),
+        target=getattr(args, "target", "nearest"),
+        autopilot=getattr(args, "autopilot", "ardupilot"),
+        record=Path(args.record) if getattr(args, "record", None) else None,
+        send_held_targets=bool(getattr(args, "send_held_targets", False)),
+        max_age=getattr(args, "max_age", 0.5),
         replay_dir=Path(args.replay_dir) if getattr(args, "replay_dir", None) else None,
     )
     app = create_app(settings)

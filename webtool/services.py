@@ -72,7 +72,13 @@ def close_services(app: FastAPI) -> None:
 
 @asynccontextmanager
 async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-    """The app's lifespan: nothing to start (services start on first use); every service
+    """The app's lifespan: services start on first use, except the live pipeline when it
+    feeds sinks (the flight controller: it runs from the start, watched or not); every service
     made is closed at shutdown."""
+    if app.state.settings.flying:
+        svc = get_service(app, "live")
+        await asyncio.to_thread(svc.ensure_started)
+        if svc.error:
+            raise RuntimeError(f"the pipeline could not start: {svc.error}")
     yield
     await asyncio.to_thread(close_services, app)

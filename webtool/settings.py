@@ -6,7 +6,9 @@ import ipaddress
 import secrets
 from pathlib import Path
 
-from pydantic import BaseModel, model_validator
+from typing import Literal
+
+from pydantic import BaseModel, Field, model_validator
 
 from drovisio.resources import sample_sessions_dir
 
@@ -38,6 +40,17 @@ class Settings(BaseModel):
     port: int = 8080
     source: str | None = None  # None: run on the sample session
     camera: Path | None = None
+    # The pipeline of the live page, as `drovisio run` takes it (one process on the drone:
+    # what the page shows is what the flight controller is sent). Empty layouts: the shipped
+    # ones (the sample session's with no source); with sinks, the pipeline runs from the start.
+    layouts: list[Path] = []
+    mount: Path | None = None
+    sinks: list[str] = []
+    target: str = "nearest"
+    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
+    record: Path | None = None
+    send_held_targets: bool = False
+    max_age: float = Field(default=0.5, gt=0)
     sample_session: Path = DEFAULT_SAMPLE_SESSION
     # Calibration page (webtool.calibration_service). Sessions are saved under
     # calibration_dir/<session-id>/ (None: $XDG_DATA_HOME or ~/.local/share, then
@@ -70,6 +83,12 @@ class Settings(BaseModel):
         if self.viewer_token is not None and self.viewer_token == self.token:
             raise ValueError("the viewer token must differ from the access token")
         return self
+
+    @property
+    def flying(self) -> bool:
+        """Sinks are given: the pipeline feeds something (the flight controller) and runs
+        whether anyone watches or not."""
+        return bool(self.sinks)
 
     @property
     def token_required(self) -> bool:

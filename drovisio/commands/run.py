@@ -67,8 +67,17 @@ def status_line(st: dict, elapsed: float) -> str:
             f"{target}{extra}")
 
 
-def build_pipeline(args: argparse.Namespace, out=None):
-    """The pipeline a ``drovisio run`` namespace describes (also used by the benchmark)."""
+def build_pipeline(args: argparse.Namespace, loop: bool = False,
+                   default_sinks: tuple[str, ...] = ("jsonl:-",)):
+    """The pipeline a ``drovisio run`` namespace describes (also used by ``drovisio serve``
+    and the benchmarks).
+
+    Args:
+        args: ``source``, ``camera``, ``layout``, ``mount``, ``sink``, ``record``, ``target``,
+            ``autopilot``, ``send_held_targets``, ``max_age``, ``pace``.
+        loop: Play a file source in a loop (the web tool's sample session).
+        default_sinks: The sinks when ``args.sink`` is empty.
+    """
     from drovisio.camera_file import load_camera
     from drovisio.layout import load_layouts
     from drovisio.mount import load_mount
@@ -84,14 +93,14 @@ def build_pipeline(args: argparse.Namespace, out=None):
     if not any(lay.has_codes or lay.has_dots for lay in layouts):
         raise InputError("the layouts have neither codes nor dots: nothing to detect")
     mount = load_mount(args.mount) if getattr(args, "mount", None) else None
-    reader = reader_for(args.source, loop=False)
+    reader = reader_for(args.source, loop=loop)
     try:
         target = TargetSelector(getattr(args, "target", None) or "nearest")
     except ValueError as e:
         raise InputError(f"--target: {e}") from None
     sinks = []
     try:
-        for spec in (args.sink or ["jsonl:-"]):
+        for spec in (args.sink or list(default_sinks)):
             sinks.append(open_sink(spec, target=target,
                                    autopilot=getattr(args, "autopilot", "ardupilot"),
                                    mount=mount, layouts=layouts,

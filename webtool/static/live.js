@@ -19,6 +19,12 @@
     $("fig-latency").textContent = fmt(st.latency_ms, " ms", 1);
     const all = msg.bricks || [], held = all.filter((b) => !b.measured).length;
     $("fig-bricks").textContent = all.length + (held ? " (" + held + " held over)" : "");
+    const fc = (st.sinks || []).filter((k) => String(k.sink).startsWith("mavlink:"));
+    $("fig-fc-box").hidden = !fc.length;
+    if (fc.length) {
+      const k = fc[0];
+      $("fig-fc").textContent = k.sent + " targets sent" + (k.held_not_sent ? ", " + k.held_not_sent + " frames without the target (nothing sent)" : "") + (k.errors ? ", " + k.errors + " failed" : "");
+    }
     const s = msg.stream || {};
     $("fig-stream").textContent = fmt(s.kbps, " kbit/s", 0);
     $("stream-note").title = "JPEG quality " + s.jpeg_quality + ", scale " + s.scale + ", share " + s.share_kbps + " kbit/s of " + st.bandwidth_kbps + ", " + st.viewers + " viewer(s)";
