@@ -13,12 +13,13 @@ VPY   := $(VENV)/bin/python
 STAMP := $(VENV)/.drovisio-installed
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo test samples clean distclean
+.PHONY: help install demo test lint samples clean distclean
 
 help:
 	@echo "make demo      install (once) and serve the web tool on the sample session"
 	@echo "               (HOST=0.0.0.0 to reach it from a phone/tablet, PORT=8080)"
 	@echo "make test      install (once) and run the tests (PYTEST_ARGS='-k pages' to filter)"
+	@echo "make lint      ruff and mypy on the package (CI runs it after the tests)"
 	@echo "make samples   regenerate sample_sessions/ with drovisio's renderer"
 	@echo "make clean     remove caches and build leftovers (keeps .venv)"
 	@echo "make distclean clean, and remove .venv too"
@@ -46,6 +47,10 @@ test: $(STAMP)
 	if [ $$rc -eq 5 ]; then \
 	  echo "ERROR: pytest collected no tests (exit 5). Check tests/ and PYTEST_ARGS." >&2; fi; \
 	exit $$rc
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check drovisio webtool
+	$(VENV)/bin/mypy
 
 samples: $(STAMP)
 	$(VENV)/bin/drovisio synth samples --out sample_sessions

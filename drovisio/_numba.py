@@ -29,7 +29,7 @@ try:  # pragma: no cover - depends on the platform
 
     AVAILABLE = True
 except ImportError:  # pragma: no cover
-    _numba = None
+    _numba = None  # type: ignore[assignment]
     AVAILABLE = False
 
     def jit(fn):

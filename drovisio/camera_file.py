@@ -159,11 +159,12 @@ class CameraFile(BaseModel):
     def to_camera(self) -> Camera:
         K = np.asarray(self.camera_matrix, np.float64)
         known = self.image_width is not None
-        w = self.image_width if known else max(1, round(2 * K[0, 2] + 1))
-        h = self.image_height if known else max(1, round(2 * K[1, 2] + 1))
+        w = self.image_width or max(1, round(2 * K[0, 2] + 1))
+        h = self.image_height or max(1, round(2 * K[1, 2] + 1))
+        model = MODEL_ALIASES[self.distortion_model]
         return Camera(K=K, dist=np.asarray(self.distortion_coefficients, np.float64),
-                      width=int(w), height=int(h or 1), name=self.camera_name or "camera",
-                      model=self.distortion_model, size_known=known)
+                      width=int(w), height=int(h), name=self.camera_name or "camera",
+                      model=model, size_known=known)
 
 
 def _validated(p: Path, raw: dict[str, Any]) -> Camera:
@@ -239,7 +240,7 @@ def _matrix_field(p: Path, data: dict, key: str, shape: tuple[int, int] | None) 
         if not all(isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 64
                    for x in (rows, cols)):
             raise CameraFileError(f"{p}: {key}: rows and cols must be small whole numbers")
-        if rows * cols != len(values):
+        if int(rows) * int(cols) != len(values):  # type: ignore[arg-type]
             raise CameraFileError(f"{p}: {key}: rows x cols = {rows}x{cols} but data has "
                                   f"{len(values)} values")
     if shape is not None:

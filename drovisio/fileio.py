@@ -16,7 +16,7 @@ import errno
 import os
 import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from drovisio.errors import WriteError
@@ -46,7 +46,7 @@ def _explain(path: Path, e: OSError) -> WriteError:
 
 
 def check_output_path(path: str | os.PathLike, what: str = "--out",
-                      not_same_as: dict[str, str | os.PathLike] | None = None) -> Path:
+                      not_same_as: Mapping[str, str | os.PathLike] | None = None) -> Path:
     """Refuse an output path that is a folder or would overwrite one of ``not_same_as``
     (e.g. an input or the camera file), before any work is done.
 

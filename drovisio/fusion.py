@@ -158,13 +158,11 @@ def fuse_pair(code: BrickPose, dots: BrickPose, gate: float = CHI2_6_999,
     Ra, ta = so3_exp(code.rvec), np.asarray(code.tvec, np.float64).ravel()
     Ca = _tangent_cov(code)
     Cb = _tangent_cov(dots)
-    best = None
+    scored = []
     for Rb, tb in pose_candidates(dots, half_turn):
         e = _residual(Ra, ta, Rb, tb)
-        d2 = float(e @ np.linalg.solve(Ca + Cb, e))
-        if best is None or d2 < best[0]:
-            best = (d2, e)
-    d2, e = best
+        scored.append((float(e @ np.linalg.solve(Ca + Cb, e)), e))
+    d2, e = min(scored, key=lambda x: x[0])
     if not np.isfinite(d2) or d2 > gate:
         return code, d2
     Ia, Ib = np.linalg.inv(Ca), np.linalg.inv(Cb)

@@ -92,8 +92,8 @@ def to_bgr8(img: np.ndarray) -> tuple[np.ndarray, list[str]]:
         a = np.clip(np.rint(a.astype(np.float64) * (255.0 / full)), 0, 255).astype(np.uint8)
     elif np.issubdtype(a.dtype, np.floating):
         finite = a[np.isfinite(a)]
-        top = float(finite.max()) if finite.size else 1.0
-        scale = 255.0 if top <= 1.0 else 255.0 / top
+        peak = float(finite.max()) if finite.size else 1.0
+        scale = 255.0 if peak <= 1.0 else 255.0 / peak
         notes.append(f"floating-point image scaled to 8 bits (x{scale:.4g})")
         a = np.clip(np.rint(np.nan_to_num(a) * scale), 0, 255).astype(np.uint8)
     else:

@@ -254,10 +254,12 @@ class Pipeline:
     # ------------------------------------------------------------------ stages
     def _detect(self, frame: Frame, g: np.ndarray | None) -> tuple[list[BrickPose], list[str]]:
         errors: list[str] = []
+        image = frame.image
+        assert image is not None
 
         def one(d: Detector) -> list[BrickPose]:
             try:
-                return list(d.detect(frame.image, frame.t_wall, gravity=g))
+                return list(d.detect(image, frame.t_wall, gravity=g))
             except Exception as e:  # noqa: BLE001
                 self.stats.detector_errors += 1
                 msg = f"{getattr(d, 'name', type(d).__name__)}: {type(e).__name__}: {e}"
@@ -281,6 +283,7 @@ class Pipeline:
                 g = None
         t0 = time.perf_counter()
         mismatch = self._fit_camera(frame.image) if frame.image is not None else None
+        poses: list[BrickPose]
         if frame.image is None:   # a frame the source could not decode: said, not detected
             poses, errors = [], [frame.error or "frame could not be decoded"]
         elif mismatch is not None:

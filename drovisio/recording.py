@@ -110,7 +110,7 @@ class Recorder:
 def read_index(folder: str | Path) -> list[dict]:
     """The frames of a recording, in order: dicts with ``frame``, ``t``, ``image``, ``output``."""
     folder = Path(folder)
-    out = []
+    out: list[dict] = []
     idx = folder / "frames.jsonl"
     if not idx.is_file():
         return out

@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -274,7 +274,7 @@ class SharedCamera:
         return self._users
 
     def _run(self) -> None:
-        cap = None
+        cap: Any = None
         pause = 0.1
         try:
             while not self._stop.is_set():
@@ -412,7 +412,7 @@ class VideoFileReader:
         self.label = self.path
         self.loop = loop
         self.finite = not loop
-        self.cap = None
+        self.cap: Any = None
         self.fps = 0.0
         self.index = 0
         self.lap = 0
@@ -694,11 +694,11 @@ class PlaybackReader:
             a = min(1.0, (now - self._since) / self.move_s, 0.5 * self._n)
             mixed = cv2.addWeighted(prev, 1.0 - a, cur, a, 0.0)
             dx = 4.0 + (1.0 - a) * 12.0
-            m = np.float32([[1, 0, dx], [0, 1, 0.3 * dx]])
+            m = np.array([[1, 0, dx], [0, 1, 0.3 * dx]], np.float32)
             mixed = cv2.warpAffine(mixed, m, (w, h), borderMode=cv2.BORDER_REPLICATE)
             return cv2.blur(mixed, (17, 1))  # horizontal motion blur
         dx, dy = self._rng.uniform(-0.2, 0.2, 2)
-        m = np.float32([[1, 0, dx], [0, 1, dy]])
+        m = np.array([[1, 0, dx], [0, 1, dy]], np.float32)
         img = cv2.warpAffine(cur, m, (w, h), flags=cv2.INTER_LINEAR,
                              borderMode=cv2.BORDER_REPLICATE)
         return self._noisy(img)
@@ -1058,7 +1058,7 @@ class FrameSource:
             delay = self.backoff[0]
             if not pace_max and raw.media_time is not None:
                 now = self._mono()
-                if t_start is None:
+                if t_start is None or m_start is None:
                     t_start, m_start = now, raw.media_time
                 due = t_start + (raw.media_time - m_start)
                 if due > now:

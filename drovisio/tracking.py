@@ -332,12 +332,8 @@ class BrickTracker:
                 self.tracks.append(tr)
                 measured[id(tr)] = p
                 continue
-            best = None
-            for R_m, t_m in cands:
-                z, S, d2 = tr.innovation(R_m, t_m, C)
-                if best is None or d2 < best[2]:
-                    best = (z, S, d2, R_m, t_m)
-            z, S, d2, R_m, t_m = best
+            z, S, d2, R_m, t_m = min(((*tr.innovation(R_m, t_m, C), R_m, t_m)
+                                      for R_m, t_m in cands), key=lambda x: x[2])
             if d2 > cfg.gate_chi2:
                 tr.outliers += 1
                 if tr.outliers >= cfg.restart_after:

@@ -14,7 +14,7 @@ from importlib.metadata import PackageNotFoundError, version
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
-from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
@@ -53,7 +53,7 @@ class BodyLimitMiddleware:
             received = 0
             inner = receive
 
-            async def counting() -> dict:
+            async def counting() -> Message:
                 nonlocal received
                 message = await inner()
                 received += len(message.get("body", b""))

@@ -177,12 +177,12 @@ class DesignerScene(ViserScene):
         if not doc.has_mesh:
             return
         mesh = doc.mesh
-        self.mesh_handle = scene.add_mesh_simple(
+        handle = self.mesh_handle = scene.add_mesh_simple(
             "/model/mesh", np.asarray(mesh.vertices, np.float32),
             np.asarray(mesh.faces, np.uint32), color=(178, 182, 190), flat_shading=True,
             side="double")
 
-        @self.mesh_handle.on_click
+        @handle.on_click
         def _(event) -> None:
             try:
                 self.session.click(event.ray_origin, event.ray_direction)

@@ -313,15 +313,15 @@ class DesignerService:
                              "symmetry": doc.symmetry}
             first = doc.effective_first_id() if doc.codes() else 0
             for i, m in enumerate(doc.brick_markers()):
-                item = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
+                item: dict[str, Any] = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
                         "size_mm": round(m.size * 1000, 3),
                         "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
                         "normal": [round(v, 4) + 0.0 for v in m.normal],
                         "on_face": doc.markers[i].face is not None}
-                if m.kind == "aruco":
+                if m.kind == "aruco" and m.slot is not None:
                     item["slot"] = m.slot
                     item["id"] = first + m.slot
-                else:
+                elif m.color is not None:
                     item["color"] = m.color
                     item["rgb"] = list(doc.palette()[m.color].display_rgb())
                 out["markers"].append(item)

@@ -310,14 +310,15 @@ class LiveService:
             if self._closed.is_set() or (self._thread is not None and self._thread.is_alive()):
                 return
             try:
-                self.pipeline = self._build()
+                p = self.pipeline = self._build()
                 self.error = None
             except Exception as e:  # noqa: BLE001 - shown on the page
                 self.error = f"{type(e).__name__}: {e}"
                 self.pipeline = None
                 return
-            self.pipeline.add_listener(self._on_frame)
-            self._thread = threading.Thread(target=self._run, daemon=True, name="live-pipeline")
+            p.add_listener(self._on_frame)
+            self._thread = threading.Thread(target=self._run_pipeline, args=(p,),
+                                            daemon=True, name="live-pipeline")
             self._thread.start()
             if self._watchdog is None:
                 self._watchdog = threading.Thread(target=self._watch, daemon=True,
@@ -333,8 +334,7 @@ class LiveService:
                 self.scene = LiveScene(self.mount, self.camera, self.layouts).start()
             return self.scene
 
-    def _run(self) -> None:
-        p = self.pipeline
+    def _run_pipeline(self, p) -> None:
         try:
             p.run()
         except Exception as e:  # noqa: BLE001

@@ -120,10 +120,10 @@ class ReplayScene(ViserScene):
                                   color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
                                   position=tuple(T[:3, 3]))
             self._setpoint = sc.add_icosphere("/setpoint", radius=0.05, color=SETPOINT_RGB, opacity=0.8)
-            self.server.initial_camera.position = (
-                ((lo[0] + hi[0]) / 2 if lo else 1.0), (lo[1] - 3.0 if lo else -4.0), 5.0)
-            self.server.initial_camera.look_at = (
-                ((lo[0] + hi[0]) / 2 if lo else 1.0), ((lo[1] + hi[1]) / 2 if lo else 1.0), 0.5)
+            cx, cy, y0 = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[1]) if lo and hi \
+                else (1.0, 1.0, -1.0)
+            self.server.initial_camera.position = (cx, y0 - 3.0, 5.0)
+            self.server.initial_camera.look_at = (cx, cy, 0.5)
             self.server.initial_camera.up = (0.0, 0.0, 1.0)
 
     def show(self, tick: dict, placed: set[str]) -> None:

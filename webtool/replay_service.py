@@ -16,6 +16,7 @@ import math
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 from drovisio.mission.record import SCHEMA_ID, load_recording
 from webtool.errors import ServiceError
@@ -127,7 +128,8 @@ class ReplayService:
         d = self.folder()
         out = []
         for m in sorted(d.glob("*/manifest.json")) + sorted(d.glob("manifest.json")):
-            item = {"name": m.parent.name if m.parent != d else ".", "path": str(m.parent)}
+            item: dict[str, Any] = {"name": m.parent.name if m.parent != d else ".",
+                                    "path": str(m.parent)}
             try:
                 js = json.loads(m.read_text())
                 if js.get("schema") != SCHEMA_ID:
@@ -239,13 +241,14 @@ class ReplayService:
     def start_scene(self) -> ReplayScene | None:
         with self._lock:
             if self.scene is None:
+                scene = ReplayScene()
                 try:
-                    self.scene = ReplayScene().start()
+                    scene.start()
                 except Exception:  # noqa: BLE001 - the panel works without the 3D view
-                    self.scene = None
                     return None
+                self.scene = scene
                 if self.pb is not None:
-                    self.scene.load(self.pb.manifest)
+                    scene.load(self.pb.manifest)
                     self._shown = -1
         self._ensure_thread()
         self._wake.set()

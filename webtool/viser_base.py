@@ -16,7 +16,7 @@ from __future__ import annotations
 import http
 import threading
 import types
-from typing import Any
+from typing import Any, Literal
 
 __all__ = ["ViserScene", "refuses_browsers"]
 
@@ -54,7 +54,7 @@ def _install_guard() -> None:
         datastructures=websockets.datastructures,
         exceptions=websockets.exceptions,
     )
-    _infra.websockets = shim  # type: ignore[attr-defined]
+    setattr(_infra, "websockets", shim)  # noqa: B010 - a module attribute replaced on purpose
     _infra._drovisio_guard = True  # type: ignore[attr-defined]
 
 
@@ -76,7 +76,7 @@ class ViserScene:
     """
 
     label = "Drovisio"
-    up = "+z"
+    up: Literal["+x", "+y", "+z", "-x", "-y", "-z"] = "+z"
 
     def __init__(self) -> None:
         self.server: Any = None

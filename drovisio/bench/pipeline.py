@@ -49,10 +49,12 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from drovisio.resources import layouts_dir, sample_sessions_dir
+from drovisio.sources import Pace
 
 __all__ = ["main", "rss_mb"]
 
@@ -104,7 +106,7 @@ def _args(sinks: list[str]) -> argparse.Namespace:
                               autopilot="ardupilot", max_age=0.5, pace="realtime")
 
 
-def _pipeline(sinks: list[str], fps: float, pace: str):
+def _pipeline(sinks: list[str], fps: float, pace: Pace):
     from drovisio.commands.run import build_pipeline
     from drovisio.sources import FrameSource, VideoFileReader
 
@@ -269,7 +271,7 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False) -> dict:
     mavutil = mavutil2()
     rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
     port = rx.port.getsockname()[1]
-    got: list[tuple[float, object]] = []
+    got: list[tuple[float, Any]] = []
     stop = threading.Event()
 
     def listen() -> None:

@@ -185,8 +185,8 @@ def parse_board(spec: str, square: float) -> BoardSpec:
         raise BoardSpecError(f"board spec {spec!r}: too many fields; "
                              "charuco:COLSxROWS[:DICTIONARY[:MARKER_RATIO]]")
     n_markers = ((cols + 1) * (rows + 1)) // 2
-    dict_size = int(re.search(r"_(\d+)$", dictionary).group(1)) if re.search(
-        r"_(\d+)$", dictionary) else 1000
+    size_match = re.search(r"_(\d+)$", dictionary)
+    dict_size = int(size_match.group(1)) if size_match else 1000
     if n_markers > dict_size:
         raise BoardSpecError(f"board spec {spec!r}: the board needs {n_markers} markers but "
                              f"{dictionary} has {dict_size}")

@@ -47,7 +47,7 @@ def place_board(camera: Camera, board: BoardSpec, target_px, distance: float,
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z], axis=1)  # columns: board axes in the camera frame
-    R = R @ _rot([0, 0, 1], math.radians(roll_deg))
+    R = R @ _rot(np.array([0.0, 0.0, 1.0]), math.radians(roll_deg))
     a = math.radians(tilt_axis_deg)
     axis_cam = math.cos(a) * x + math.sin(a) * y  # in-image direction of the tilt axis
     R = _rot(axis_cam, math.radians(tilt_deg)) @ R

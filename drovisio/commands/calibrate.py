@@ -163,10 +163,10 @@ def run(args: argparse.Namespace) -> int:
         fr = session.evaluate(img, name)
         del img
         frames.append(fr)
-        if fr.usable:
-            es = fr.sharpness
-            print(f"{tag}: {fr.detection.n} corners, squares {fr.detection.square_px:.0f} px, "
-                  f"edges {es.width_px:.1f} px", file=sys.stderr, flush=True)
+        if fr.usable and fr.detection is not None:
+            edges = f", edges {fr.sharpness.width_px:.1f} px" if fr.sharpness else ""
+            print(f"{tag}: {fr.detection.n} corners, squares {fr.detection.square_px:.0f} px"
+                  f"{edges}", file=sys.stderr, flush=True)
         else:
             print(f"{tag}: rejected: {'; '.join(fr.reasons)}", file=sys.stderr, flush=True)
 
@@ -175,19 +175,19 @@ def run(args: argparse.Namespace) -> int:
         _maybe_report(report_path, session, build_report)
         return 1
     # one resolution: the one most usable views (then most images) have
-    sizes = Counter(fr.image_size for fr in frames if fr.usable) or Counter(
-        fr.image_size for fr in frames)
+    sized = [(fr, fr.image_size) for fr in frames if fr.image_size is not None]
+    sizes = Counter(s for fr, s in sized if fr.usable) or Counter(s for _, s in sized)
     size, _ = sizes.most_common(1)[0]
-    all_sizes = Counter(fr.image_size for fr in frames)
+    all_sizes = Counter(s for _, s in sized)
     if len(all_sizes) > 1:
         desc = ", ".join(f"{c} at {w}x{h}" for (w, h), c in all_sizes.most_common())
         _err(f"mixed image sizes ({desc}); calibrating the {size[0]}x{size[1]} images (a "
              "calibration belongs to one resolution)")
-    for fr in frames:
-        if fr.image_size != size:
-            session.add_rejected(fr.name, f"image size {fr.image_size[0]}x{fr.image_size[1]} "
+    for fr, fsize in sized:
+        if fsize != size:
+            session.add_rejected(fr.name, f"image size {fsize[0]}x{fsize[1]} "
                                           f"differs from the {size[0]}x{size[1]} of the others")
-        elif fr.usable:
+        elif fr.usable and fr.detection is not None:
             dup = session.duplicate_of(fr.detection)
             if dup is None:
                 session.keep(fr)

@@ -28,7 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -178,7 +178,7 @@ class _Streams:
         self.camera = camera
         self.aruco_layouts = aruco_layouts
         self.dots_layouts = dots_layouts
-        self._by_source: dict[tuple[str, bool], tuple[object, list]] = {}
+        self._by_source: dict[tuple[str, bool], tuple[Any, list]] = {}
         self.noted: set[str] = set()
 
     def detectors(self, source: str, stream: bool, size: tuple[int, int]):
@@ -186,8 +186,7 @@ class _Streams:
 
         key = (source if stream else "", stream)
         got = self._by_source.get(key)
-        camera = got[0] if got is not None else None
-        if camera is None or getattr(camera, "size", None) != size:
+        if got is None or got[0].size != size:
             camera, note = self.camera.for_image(*size)   # ValueError: another size
             if note and note not in self.noted:
                 self.noted.add(note)

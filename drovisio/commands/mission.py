@@ -101,7 +101,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from drovisio.mission.sim import simulate
 
     scn = _load(args.scenario)
-    faults = ()
+    faults: tuple = ()
     if args.fault:
         try:
             faults = tuple(f for name in args.fault

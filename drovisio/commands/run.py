@@ -114,7 +114,7 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     def attitude_gravity(t_mono: float):
         """Gravity in the camera frame: the autopilot's roll/pitch if the link gives them,
         else level flight."""
-        if mav is not None:
+        if mav is not None and mount is not None:
             att = mav.attitude_at(t_mono)
             if att is not None:
                 return mount.gravity_in_camera(att[0], att[1])

@@ -46,6 +46,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -165,7 +166,7 @@ def landing_target_fields(brick, t_wall: float, mount: Mount | None, autopilot: 
     else:
         size_x = size_y = 0.0
     num = brick.instance if brick.instance is not None else brick.track
-    fields = dict(time_usec=int(round(t_wall * 1e6)), target_num=int(num) % 256,
+    fields: dict[str, Any] = dict(time_usec=int(round(t_wall * 1e6)), target_num=int(num) % 256,
                   angle_x=angle_x, angle_y=angle_y, distance=dist, size_x=size_x,
                   size_y=size_y, type=LANDING_TARGET_TYPE_VISION_FIDUCIAL)
     if autopilot == "ardupilot":
@@ -237,8 +238,9 @@ class MavlinkSink:
         self.autopilot = autopilot
         self.target = target or TargetSelector()
         self.mount = mount
-        self.sizes = {lay.name: tuple(float(x) for x in lay.dimensions_m[:2])
-                      for lay in (layouts or [])}
+        self.sizes: dict[str, tuple[float, float]] = {
+            lay.name: (float(lay.dimensions_m[0]), float(lay.dimensions_m[1]))
+            for lay in (layouts or [])}
         self.max_state_age = max_state_age
         self.heartbeat_period = heartbeat_period
         self.vehicle = VehicleState()

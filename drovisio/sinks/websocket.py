@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import json
 import threading
+from typing import Any
 from urllib.parse import urlsplit
 
 from drovisio.sinks.base import SinkError
@@ -38,7 +39,7 @@ class WebSocketSink:
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._server = None
+        self._server: Any = None
         self.port = port
         self._thread = threading.Thread(target=self._run, daemon=True, name="ws-sink")
         self._thread.start()
