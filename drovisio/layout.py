@@ -63,6 +63,7 @@ __all__ = [
     "aruco_dictionaries",
     "aruco_dictionary_id",
     "aruco_dictionary_size",
+    "aruco_code_bits",
     "aruco_family",
     "square_corners",
     "parse_layout",
@@ -195,6 +196,26 @@ def aruco_dictionary_id(name: str) -> int:
 def aruco_dictionary_size(name: str) -> int:
     """Number of codes (ids ``0 .. size-1``) in a predefined dictionary."""
     return _dict_info(name).size
+
+
+@lru_cache(maxsize=1024)
+def aruco_code_bits(dictionary: str | int, marker_id: int) -> np.ndarray:
+    """A code's cells, its black border included: (n, n) uint8, 1 = white, 0 = black; row 0
+    is the printed image's top edge, column 0 its left edge (read-only, cached).
+
+    Args:
+        dictionary: The dictionary's name (``DICT_4X4_50``) or OpenCV's id for it.
+        marker_id: The code's id in the dictionary.
+    """
+    import cv2
+
+    did = aruco_dictionary_id(dictionary) if isinstance(dictionary, str) else int(dictionary)
+    d = cv2.aruco.getPredefinedDictionary(did)
+    n = d.markerSize + 2
+    img = cv2.aruco.generateImageMarker(d, int(marker_id), n, borderBits=1)
+    out = (img > 127).astype(np.uint8)
+    out.flags.writeable = False
+    return out
 
 
 def aruco_family(name: str) -> str:

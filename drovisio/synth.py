@@ -24,6 +24,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.geometry import rot_z, rvec_tvec, transform
+from drovisio.layout import aruco_code_bits
 
 __all__ = [
     "Board", "BrickInstance", "Effects", "Ground", "Prop", "RenderResult", "Scene",
@@ -652,14 +653,6 @@ def brick_mesh_for(layout) -> object:
     return box
 
 
-@functools.lru_cache(maxsize=64)
-def _code_bits(dictionary: str, marker_id: int) -> np.ndarray:
-    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
-    n = d.markerSize + 2
-    img = cv2.aruco.generateImageMarker(d, marker_id, n, borderBits=1)
-    return (img > 127).astype(np.int64)
-
-
 def _paint_for(layout, color_name: str) -> tuple[float, float, float]:
     entry = layout.palette()[color_name]
     return tuple(float(c) for c in entry.display_bgr())
@@ -704,7 +697,7 @@ def _draw_brick(canvas: _Canvas, brick: BrickInstance, camera_from_world: np.nda
             u_b = (c[1] - c[0]) / size      # along the printed image's rows
             v_b = (c[3] - c[0]) / size      # down the printed image
             n_b = np.cross(u_b, v_b)        # into the face: the printed side looks along -n
-            bits = _code_bits(m.dictionary, lay.marker_id(brick.instance, m.id))
+            bits = aruco_code_bits(m.dictionary, lay.marker_id(brick.instance, m.id))
             margin = 0.035 * size  # white paper around the black border
             # draw() wants axes with u × v = the printed side's normal and a CCW polygon,
             # so use v' = -v (up the printed image) and flip back in the texture lookup

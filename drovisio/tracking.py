@@ -43,6 +43,7 @@ from drovisio.fusion import (
     so3_log,
     tangent_cov_to_rvec,
 )
+from drovisio.geometry import from_rvec_tvec
 
 __all__ = ["BrickTracker", "Track", "TrackedBrick", "TrackerConfig"]
 
@@ -100,10 +101,7 @@ class TrackedBrick:
     """4×4 ``camera_from_brick`` of the last measurement (taken at ``t_measured``)."""
 
     def camera_from_brick(self) -> np.ndarray:
-        T = np.eye(4)
-        T[:3, :3] = so3_exp(self.rvec)
-        T[:3, 3] = self.tvec
-        return T
+        return from_rvec_tvec(self.rvec, self.tvec)
 
     def measured_camera_from_brick(self) -> np.ndarray | None:
         """This frame's measurement as a 4×4 ``camera_from_brick`` — what the camera saw, not

@@ -23,7 +23,6 @@ import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 import trimesh
 
@@ -32,13 +31,13 @@ from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
 from drovisio.layout import (
     LayoutError,
     MarkerLayout,
-    aruco_dictionary_id,
+    aruco_code_bits,
     parse_layout,
     save_layout,
 )
 
 __all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "SavedDesign", "build_layout", "save_design",
-           "export_glb", "code_bits", "SheetItem", "sheet_items", "sheet_pages",
+           "export_glb", "SheetItem", "sheet_items", "sheet_pages",
            "print_sheet_pdf", "print_sheet_svg", "mesh_stl_bytes"]
 
 MM_TO_PT = 72.0 / 25.4
@@ -141,19 +140,10 @@ def save_design(doc: DesignDocument, folder: str | os.PathLike[str], overwrite: 
 # ------------------------------------------------------------------------------ codes
 
 
-def code_bits(dictionary: str, marker_id: int) -> np.ndarray:
-    """The code's cells including its black border: (n, n) array, 1 = white, 0 = black;
-    row 0 is the printed image's top edge, column 0 its left edge."""
-    d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
-    n = d.markerSize + 2
-    img = cv2.aruco.generateImageMarker(d, int(marker_id), n, borderBits=1)
-    return (img > 127).astype(np.uint8)
-
-
 def code_image_rgb(dictionary: str, marker_id: int, px_per_cell: int = 16,
                    margin_cells: float = 0.0) -> np.ndarray:
     """The code as an RGB uint8 image (for textures), optionally with a white margin."""
-    bits = code_bits(dictionary, marker_id)
+    bits = aruco_code_bits(dictionary, marker_id)
     img = np.kron(bits, np.ones((px_per_cell, px_per_cell), np.uint8)) * 255
     m = int(round(margin_cells * px_per_cell))
     if m:
@@ -190,7 +180,7 @@ def marker_geometry(m: DesignMarker, dictionary: str | None, marker_id: int | No
     h = m.size / 2
     if m.kind == "aruco":
         assert dictionary is not None and marker_id is not None
-        bits = code_bits(dictionary, marker_id)
+        bits = aruco_code_bits(dictionary, marker_id)
         k = bits.shape[0]
         cs = m.size / k
         quads = [_quad(c - n * lift * 0.25, r, u, -h - cs * 0.4, h + cs * 0.4, -h - cs * 0.4,
@@ -280,7 +270,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
         for k in ks:
             if not 0 <= k < doc.instances:
                 raise DesignError(f"brick number {k} is outside 0..{doc.instances - 1}")
-        cells = code_bits(dictionary, 0).shape[0]
+        cells = aruco_code_bits(dictionary, 0).shape[0]
         margins = {}
         for i, m in codes:  # white paper around a code: one cell (at most 10 mm), less if
             cell = min(m.size / cells, 0.01)  # the face is smaller
@@ -353,7 +343,7 @@ def _draw_item(page: _Page, it: SheetItem, x: float, y: float) -> None:
         page.ops.append(("rect", x, y, box, box, None, grey, (2.0, 1.5), 0.2))  # cut line
         bx, by = x + mg, y + mg
         page.ops.append(("rect", bx, by, s, s, (0, 0, 0), None, None, 0))  # the code square
-        bits = code_bits(it.dictionary, it.marker_id)
+        bits = aruco_code_bits(it.dictionary, it.marker_id)
         k = bits.shape[0]
         cs = s / k
         for i in range(k):

@@ -1062,13 +1062,6 @@ class DesignDocument:
                 self.selected -= 1
         self._changed()
 
-    def clear_markers(self) -> None:
-        if self.markers:
-            self._push()
-            self.markers = []
-            self.selected = None
-            self._changed()
-
     # ------------------------------------------------------------------ layout settings
 
     def set_mode(self, mode: str) -> None:

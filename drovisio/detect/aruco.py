@@ -39,9 +39,14 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.detect.corners import RefinedCode, code_bits, refine_codes
+from drovisio.detect.corners import RefinedCode, refine_codes
 from drovisio.detect.result import BrickPose
-from drovisio.layout import aruco_dictionary_id, aruco_dictionary_size, aruco_family
+from drovisio.layout import (
+    aruco_code_bits,
+    aruco_dictionary_id,
+    aruco_dictionary_size,
+    aruco_family,
+)
 from drovisio.pose import PoseEvidence, PoseHistory, solve_brick_pose
 
 __all__ = [
@@ -192,7 +197,7 @@ class ArucoBrickDetector:
                 self._dvalue[int(mid)] = dvalue
             # the inner bits of every id, in the four rotations a quad's corner order can
             # read them in: pats[k] is the code rotated by -k quarter turns (np.rot90)
-            inner = [code_bits(dvalue, int(i))[1:-1, 1:-1] > 0.5 for i in ids]
+            inner = [aruco_code_bits(dvalue, int(i))[1:-1, 1:-1] > 0 for i in ids]
             self._patterns[dvalue] = (
                 np.array([[np.rot90(b, -k).ravel() for b in inner] for k in range(4)],
                          np.int8), ids)
@@ -244,7 +249,7 @@ class ArucoBrickDetector:
             starts = q + self.params.initial_expand_px * d / np.sqrt(
                 (d * d).sum(axis=2, keepdims=True))
             ref = refine_codes(gray, self.camera, starts,
-                               [code_bits(self._dvalue[c.marker_id], c.marker_id)
+                               [aruco_code_bits(self._dvalue[c.marker_id], c.marker_id).astype(np.float64)
                                 for c in codes],
                                iterations=self.params.refine_iterations,
                                coarse_iterations=self.params.refine_coarse_iterations,
@@ -305,7 +310,7 @@ class ArucoBrickDetector:
         if len(quads) == 0:
             return []
         pats, pat_ids = self._patterns[dvalue]  # (4 rotations, ids, bits)
-        n = code_bits(dvalue, int(pat_ids[0])).shape[0]
+        n = aruco_code_bits(dvalue, int(pat_ids[0])).shape[0]
         ctr = quads.mean(axis=1, keepdims=True)
         radial = quads - ctr
         radial /= np.sqrt((radial * radial).sum(axis=2, keepdims=True))

@@ -40,16 +40,14 @@ BR, BL of the printed code (the order of ``cv2.aruco`` and of the layout file).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
-import cv2
 import numpy as np
 
 from drovisio import _numba
 from drovisio.camera import Camera
 from drovisio.detect import corners_kernels as _ck
 
-__all__ = ["RefinedCode", "code_bits", "normalized_grid", "refine_codes"]
+__all__ = ["RefinedCode", "normalized_grid", "refine_codes"]
 
 #: samples (pixels) per code in the fit; bigger codes are subsampled on a regular grid
 MAX_SAMPLES = 280
@@ -87,17 +85,6 @@ class RefinedCode:
     estimate of each cell's whiteness a (0 black .. 1 white) at the fitted geometry and blur:
     min over cells of (a - 0.5) for white cells and (0.5 - a) for black ones. Below 0 some
     cell reads wrong: a decoy or another code."""
-
-
-@lru_cache(maxsize=256)
-def code_bits(dictionary: int, marker_id: int) -> np.ndarray:
-    """The code image in cells, border included: (n, n) float64, 1 = white, 0 = black."""
-    d = cv2.aruco.getPredefinedDictionary(dictionary)
-    n = d.markerSize + 2
-    img = cv2.aruco.generateImageMarker(d, int(marker_id), n, borderBits=1)
-    out = (img > 127).astype(np.float64)
-    out.flags.writeable = False
-    return out
 
 
 _GRID_CACHE: dict[bytes, np.ndarray] = {}
@@ -148,14 +135,6 @@ def _phi_cdf(z: np.ndarray) -> np.ndarray:
                                 + z.dtype.type(0.035677408136300125) * z * z))
 
 
-def _apply_h(g: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """(u, v, D) of the homography g (C, 8) at points (C, M)."""
-    D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
-    u = (g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) / D
-    v = (g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) / D
-    return u, v, D
-
-
 def _g_to_mat(g: np.ndarray) -> np.ndarray:
     C = g.shape[0]
     H = np.ones((C, 3, 3))
@@ -178,19 +157,6 @@ def _inv3(H: np.ndarray) -> np.ndarray:
     adj[:, 0, 1], adj[:, 1, 1], adj[:, 2, 1] = c * h - b * i, a * i - c * g, b * g - a * h
     adj[:, 0, 2], adj[:, 1, 2], adj[:, 2, 2] = b * f - c * e, c * d - a * f, a * e - b * d
     return adj / det[:, None, None]
-
-
-def _corners_local(g: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Outer corners in local normalised coordinates: (C, 4, 2) = G⁻¹ of the cell corners."""
-    Hinv = _inv3(_g_to_mat(g))
-    uv = np.zeros((g.shape[0], 4, 3))
-    uv[:, :, 2] = 1.0
-    uv[:, 1, 0] = n
-    uv[:, 2, 0] = n
-    uv[:, 2, 1] = n
-    uv[:, 3, 1] = n
-    p = np.einsum("cij,ckj->cki", Hinv, uv)
-    return p[..., :2] / p[..., 2:3]
 
 
 def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -409,7 +375,8 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
         camera: The calibrated camera the image comes from (its size must match).
         corners: Per code, (4, 2) rough corners in pixels, TL, TR, BR, BL (e.g. from
             ``cv2.aruco``), good to about a third of a cell; a list or a (C, 4, 2) array.
-        bits: Per code, (n, n) cells with border, 1 = white (:func:`code_bits`).
+        bits: Per code, (n, n) cells with border, 1 = white
+            (:func:`drovisio.layout.aruco_code_bits`).
         iterations: Levenberg–Marquardt iterations (the first ``coarse_iterations`` with a
             wide blur for a wide basin of convergence).
         chord_from: From this iteration on, reuse the last Jacobian (chord steps, a fifth

@@ -243,7 +243,6 @@ class DotDetector:
                 max_ellipse_err=cfg.max_ellipse_err, max_holes=cfg.max_holes)
         self._v_ranges = np.array([[s.hsv[0][2], s.hsv[1][2]] for s in specs], float) \
             if specs else np.zeros((0, 2))
-        self.last_diagnostics: dict = {}
         # the distortion as 12 coefficients for the compiled undistortion (None: tilted model)
         d = np.zeros(14)
         d[:camera.dist.size] = camera.dist
@@ -860,8 +859,6 @@ class DotDetector:
         r0, r1 = rmse[rows, 0], rmse[rows, 1]
         ambiguous = ~same & np.isfinite(r1) & (r1 <= cfg.ambiguity_ratio * np.maximum(
             r0, cfg.ambiguity_sigma_px))
-        self.last_diagnostics = {"rmse": r0, "rmse_other": r1,
-                                 "other_angle_deg": np.degrees(np.arccos(cos_ang))}
         choose = np.zeros(B, np.int64)
         if gravity is not None:
             # bricks lie roughly flat: of two plausible solutions, the one whose z is closer to

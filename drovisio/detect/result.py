@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drovisio.geometry import from_rvec_tvec
+
 __all__ = ["BrickPose", "FrameResult"]
 
 
@@ -51,12 +53,7 @@ class BrickPose:
 
     def camera_from_brick(self) -> np.ndarray:
         """The pose as a 4×4 matrix."""
-        import cv2
-
-        T = np.eye(4)
-        T[:3, :3] = cv2.Rodrigues(np.asarray(self.rvec, np.float64).reshape(3, 1))[0]
-        T[:3, 3] = np.asarray(self.tvec, np.float64).ravel()
-        return T
+        return from_rvec_tvec(self.rvec, self.tvec)
 
     def to_json(self, with_covariance: bool = False) -> dict:
         """The DESIGN.md JSON object of one brick (flags only when they are true)."""

@@ -14,13 +14,13 @@ from drovisio.designer.checks import apply_fix, check_design
 from drovisio.designer.export import (
     MM_TO_PT,
     build_layout,
-    code_bits,
     export_glb,
     print_sheet_pdf,
     print_sheet_svg,
     save_design,
 )
 from drovisio.designer.model import DesignError
+from drovisio.layout import aruco_code_bits as code_bits
 from drovisio.layout import load_layout
 
 pypdf = pytest.importorskip("pypdf")
