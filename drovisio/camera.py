@@ -246,6 +246,23 @@ class Camera:
             px, _ = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
         return px.reshape(-1, 2)
 
+    def project_points(self, object_points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels (N, 2) of object points (N, 3) seen with pose (rvec, tvec)
+        (``camera_from_object``), and their Jacobian (2N, 6) with respect to (rvec, tvec),
+        through this camera's lens model (rows x0, y0, x1, y1, ...)."""
+        pts = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+        if pts.shape[0] == 0:
+            return np.zeros((0, 2)), np.zeros((0, 6))
+        rvec = np.asarray(rvec, np.float64).reshape(3, 1)
+        tvec = np.asarray(tvec, np.float64).reshape(3, 1)
+        if self.is_fisheye:
+            # columns: fx fy cx cy k1..k4 | rvec | tvec | alpha
+            px, J = cv2.fisheye.projectPoints(pts, rvec, tvec, self.K, self.dist)
+            return px.reshape(-1, 2), J[:, 8:14]
+        px, J = cv2.projectPoints(pts, rvec, tvec, self.K, self.dist)
+        return px.reshape(-1, 2), J[:, :6]
+
     def project_from(self, points: np.ndarray, camera_from_object: np.ndarray) -> np.ndarray:
         """Project object-frame points (N, 3) through a 4×4 ``camera_from_object`` transform."""
         T = np.asarray(camera_from_object, dtype=np.float64)

@@ -1,8 +1,9 @@
 """Synthetic scenes with exact ground truth: the test bed of every detector and of calibration.
 
 The renderer is a ray caster, not a rasteriser: every sub-pixel sample's viewing ray is found by
-undistorting its pixel position through the camera model (OpenCV's Brown distortion), and is
-intersected with the scene's planar polygons (ground, mesh triangles, printed codes, dots,
+undistorting its pixel position through the camera's lens model (OpenCV's Brown and rational
+models, or the Kannala–Brandt fisheye: samples more than 90° off a fisheye's axis see the
+background), and is intersected with the scene's planar polygons (ground, mesh triangles, printed codes, dots,
 chessboards). Geometry is therefore exact under distortion: a 3D point seen in the image is
 where ``Camera.project`` puts it. Anti-aliasing is a box filter over ``ss × ss`` samples per
 pixel, placed symmetrically about the pixel centre (pixel (0, 0) is the centre of the top-left
@@ -237,11 +238,12 @@ class RenderResult:
 
 # ============================================================================= rasteriser
 @functools.lru_cache(maxsize=4)
-def _sample_rays(K_bytes: bytes, dist_bytes: bytes, width: int, height: int,
+def _sample_rays(K_bytes: bytes, dist_bytes: bytes, model: str, width: int, height: int,
                  ss: int) -> np.ndarray:
-    """Normalised (x/z, y/z) of every sub-pixel sample, shape (H·ss, W·ss, 2), float64."""
+    """Normalised (x/z, y/z) of every sub-pixel sample, shape (H·ss, W·ss, 2), float64 (NaN
+    where no ray of the lens reaches: a fisheye's view beyond 90° from its axis)."""
     cam = Camera(K=np.frombuffer(K_bytes).reshape(3, 3), dist=np.frombuffer(dist_bytes),
-                 width=width, height=height)
+                 model=model, width=width, height=height)
     offs = (np.arange(ss) + 0.5) / ss - 0.5
     xs = (np.arange(width)[:, None] + offs[None, :]).ravel()
     ys = (np.arange(height)[:, None] + offs[None, :]).ravel()
@@ -258,8 +260,8 @@ class _Canvas:
     def __init__(self, camera: Camera, ss: int, background: Sequence[float]):
         self.camera = camera
         self.ss = ss
-        self.rays = _sample_rays(camera.K.tobytes(), camera.dist.tobytes(), camera.width,
-                                 camera.height, ss)
+        self.rays = _sample_rays(camera.K.tobytes(), camera.dist.tobytes(), camera.model,
+                                 camera.width, camera.height, ss)
         H, W = self.rays.shape[:2]
         self.color = np.empty((H, W, 3), np.float32)
         self.color[:] = np.asarray(background, np.float32)

@@ -5,7 +5,9 @@ the shipped mission. (About a minute and a half: pip takes the dependencies from
 from __future__ import annotations
 
 import os
+import shutil
 import socket
+import zipfile
 import subprocess
 import sys
 import time
@@ -26,8 +28,12 @@ def _run(cmd, **kw) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> tuple[Path, dict]:
     d = tmp_path_factory.mktemp("wheel")
+    # from a copy without build leftovers (setuptools packs a stale build/lib as well)
+    src = d / "src"
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache"))
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(d / "dist"),
-          str(REPO)])
+          str(src)])
     wheels = list((d / "dist").glob("drovisio-*.whl"))
     assert len(wheels) == 1
     _run([sys.executable, "-m", "venv", str(d / "venv")])
@@ -43,6 +49,18 @@ def _where(ctx, expr: str) -> str:
     r = _run([str(ctx["py"]), "-c", f"from drovisio import resources as r; print({expr})"],
              cwd=ctx["cwd"], env=ctx["env"])
     return r.stdout.strip()
+
+
+def test_the_wheel_holds_every_module_and_no_other(installed):
+    d, _ = installed
+    wheel = next((d / "dist").glob("drovisio-*.whl"))
+    with zipfile.ZipFile(wheel) as z:
+        packed = {n for n in z.namelist() if n.endswith(".py")}
+    here = {str(p.relative_to(REPO)) for top in ("drovisio", "webtool")
+            for p in (REPO / top).rglob("*.py") if "__pycache__" not in p.parts}
+    assert {n for n in packed if n.startswith(("drovisio/", "webtool/"))
+            and not n.startswith(("drovisio/marker_layouts/", "drovisio/sample_sessions/",
+                                  "webtool/templates/"))} == here
 
 
 def test_the_wheel_holds_the_data_and_not_the_checkout(installed):

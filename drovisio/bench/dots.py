@@ -596,11 +596,11 @@ def part_kernels(src, det, args, n, repeats) -> dict:
     import cv2
 
     from drovisio.detect import dots_kernels as K
-    from drovisio.detect import dots_pose
     from drovisio.detect.dots import _STENCIL  # the detector's 5-point stencil
     from drovisio.detect.dots_blobs import refine_centers
     from drovisio.detect.dots_color import ClaheMap
     from drovisio.detect.dots_match import BlobGeometry, generate_hypotheses
+    from drovisio.pose import batch as dots_pose
 
     if not K.enabled():
         return {"skipped": "numba is not installed (or DROVISIO_NUMBA=0)"}

@@ -335,7 +335,10 @@ class CalibrationSession:
 
     def _pose(self, det: Detection, cam: Camera) -> tuple[float, float] | None:
         obj = self.board.object_points()[det.ids]
-        ok, rvec, tvec = cv2.solvePnP(obj, det.corners, cam.K, cam.dist)
+        xn = cam.normalize(det.corners)    # every lens model: PnP on normalised points
+        if not np.all(np.isfinite(xn)):
+            return None
+        ok, rvec, tvec = cv2.solvePnP(obj, xn, np.eye(3), None)
         if not ok:
             return None
         T = np.eye(4)

@@ -33,7 +33,7 @@ Typical use::
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -47,7 +47,7 @@ from drovisio.layout import (
     aruco_dictionary_size,
     aruco_family,
 )
-from drovisio.pose import PoseEvidence, PoseHistory, solve_brick_pose
+from drovisio.pose import AmbiguityRule, PoseEvidence, PoseHistory, solve_brick_pose
 
 __all__ = [
     "ArucoBrickDetector",
@@ -71,9 +71,10 @@ class ArucoParams:
     paper rim is < 1 px at 2 m), so the quad is lost."""
     pixels_per_cell: int = 8
     """Samples per cell when the bits are read (OpenCV's 4 misreads codes of ~3 px cells)."""
-    min_perimeter_rate: float = 0.07
-    """Smallest code perimeter as a fraction of the image's larger side (0.07 at 640 px: a
-    code of 11 px side; the target is ≥ 15 px). Fewer candidates, same recall as 0.05."""
+    min_code_px: float = 11.0
+    """Smallest code side, pixels; OpenCV's perimeter rate is set from it for the camera's
+    image size (0.07 at 640 px). The target is ≥ 15 px; fewer candidates than 8 px, same
+    recall."""
     error_correction_rate: float = 0.6
     corner_noise_scale: float = 2.0
     """Multiplies the corner standard deviations predicted by the photometric fit; the fit
@@ -82,15 +83,14 @@ class ArucoParams:
     max_rmse_px: float = 2.0
     """Bricks whose joint fit is worse than this (px RMS) are dropped (a wrong grouping or a
     code on a bent surface)."""
-    gravity_tol_deg: float = 25.0
-    """How far from flat a brick may lie for the gravity test."""
     gravity_prior_deg: float | None = 5.0
     """With gravity, a soft prior that the brick lies flat (standard deviation, degrees;
     None: gravity only chooses between flip candidates). It covers the drone's attitude
     error and uneven ground; strong image evidence wins over it."""
-    chi2_margin: float = 25.0
-    """χ² difference at which the reprojection alone decides between flip candidates
-    (measured on the bench: at 16, small single codes were flipped by corner errors)."""
+    ambiguity: AmbiguityRule = field(default_factory=AmbiguityRule)
+    """The planar ambiguity's rule, the same as the dot detector's
+    (:mod:`drovisio.pose.ambiguity`; measured on the bench: at a χ² margin of 16, small single
+    codes were flipped by corner errors, hence 25)."""
     initial_expand_px: float = 1.0
     """OpenCV's corners (contours of the thresholded image) lie inside the code: at the
     threshold settings above their mean signed radial error is -1.06 px (bench). The fit
@@ -210,7 +210,8 @@ class ArucoBrickDetector:
         p.adaptiveThreshWinSizeStep = 10
         p.adaptiveThreshConstant = float(self.params.threshold_constant)
         p.perspectiveRemovePixelPerCell = int(self.params.pixels_per_cell)
-        p.minMarkerPerimeterRate = float(self.params.min_perimeter_rate)
+        side = max(self.camera.width, self.camera.height)
+        p.minMarkerPerimeterRate = float(4.0 * self.params.min_code_px / side)
         p.errorCorrectionRate = float(self.params.error_correction_rate)
         p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
         return p
@@ -374,7 +375,6 @@ class ArucoBrickDetector:
         results: dict[tuple[str, int], tuple] = {}
         for key, group in groups.items():
             res = self._solve(group, PoseEvidence(gravity=g,
-                                                  gravity_tol_deg=self.params.gravity_tol_deg,
                                                   previous=self._previous(key)))
             if res is not None:
                 results[key] = res
@@ -391,8 +391,7 @@ class ArucoBrickDetector:
                 for key, (res, group) in list(results.items()):
                     if res.ambiguous:
                         res2 = self._solve(group, PoseEvidence(
-                            gravity=g, gravity_tol_deg=self.params.gravity_tol_deg,
-                            reference_up=up, previous=self._previous(key)))
+                            gravity=g, reference_up=up, previous=self._previous(key)))
                         if res2 is not None:
                             results[key] = res2
         self.last_codes = codes
@@ -438,7 +437,7 @@ class ArucoBrickDetector:
             for i, c in enumerate(group):
                 info[8 * i:8 * i + 8, 8 * i:8 * i + 8] = c.info
         res = solve_brick_pose(obj, img, self.camera, image_pts_norm=xn, points_info=info,
-                               evidence=evidence, chi2_margin=self.params.chi2_margin,
+                               evidence=evidence, rule=self.params.ambiguity,
                                gravity_prior_deg=self.params.gravity_prior_deg, planar=None)
         if res is None or not np.isfinite(res.rmse_px) or res.rmse_px > self.params.max_rmse_px:
             if len(group) > 1:  # one code may be wrong: keep the best single-code pose

@@ -15,7 +15,7 @@ The thesis's pipeline, stage by stage (each a small function of its own module):
    relief (a drick's pyramids) or something in front cuts are dropped, then wrong blobs,
    missing dots are looked for where the pose puts them, and the perspective shift of
    ellipse centres is corrected in one Gauss–Newton step for all bricks (unbiased centres
-   and poses; :mod:`.dots_pose`);
+   and poses; :mod:`drovisio.pose.batch`);
 8. the planar ambiguity flagged (or resolved with gravity), a symmetric layout's yaw put in
    one canonical half-turn (and kept there over a stream with :class:`DotsState`).
 
@@ -62,17 +62,25 @@ from drovisio.detect.dots_match import (
     generate_hypotheses,
     occluded_dots,
 )
-from drovisio.detect.dots_pose import (
+from drovisio.detect.result import BrickPose
+from drovisio.layout import MarkerLayout
+from drovisio.pose import (
+    HALF_TURN,
+    AmbiguityRule,
+    alternative_plausible,
+    canonical_half_turn,
+    decide_flips,
+)
+from drovisio.pose.batch import (
     conic_center_offsets,
     gn_step,
+    ippe_batch,
     mirror_pose,
     pose_covariance_from_normal,
     project_normalized,
     refine_poses,
+    rotation_vectors,
 )
-from drovisio.detect.result import BrickPose
-from drovisio.geometry import so3_exp, so3_log
-from drovisio.layout import MarkerLayout
 
 __all__ = [
     "DotDetector",
@@ -84,8 +92,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("drovisio.detect.dots")
-
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-12)
 
 
 @dataclass(frozen=True)
@@ -128,13 +134,9 @@ class DotsConfig:
     """Accepted measured / predicted dot size."""
     max_view_angle_deg: float = 82.0
     """Dots seen more obliquely than this (from their normal) are not trusted."""
-    ambiguity_ratio: float = 3.0
-    """The other planar solution is plausible (→ ``ambiguous``) when its RMS error is below
-    ``ambiguity_ratio · max(rms, ambiguity_sigma_px)``."""
-    ambiguity_sigma_px: float = 0.12
-    gravity_max_tilt_deg: float = 15.0
-    """With gravity, bricks tilted less than this from level are 'lying flat' (the planar
-    ambiguity is resolved for them; a pose tilted more is flagged ``ambiguous``)."""
+    ambiguity: AmbiguityRule = field(default_factory=AmbiguityRule)
+    """The planar ambiguity's rule, the same as the ArUco detector's
+    (:mod:`drovisio.pose.ambiguity`); χ² at ``centroid_sigma_px``."""
     centroid_sigma_px: float = 0.15
     """Prior standard deviation of a dot centre (for the covariance)."""
     covariance: bool = True
@@ -149,8 +151,8 @@ class DotsState:
     built for the camera and layouts. Its size does not grow with the number of frames.
     """
 
-    previous: list[tuple[str, np.ndarray, np.ndarray]] = field(default_factory=list)
-    """(layout name, tvec, rotation matrix) of the bricks of the previous frame."""
+    previous: list[tuple[str, np.ndarray, np.ndarray, bool]] = field(default_factory=list)
+    """(layout name, tvec, rotation matrix, ambiguous) of the bricks of the previous frame."""
     note: str | None = None
     """Why the last frame gave nothing, when it was not a usable colour image."""
     detector: DotDetector | None = None
@@ -243,10 +245,13 @@ class DotDetector:
                 max_ellipse_err=cfg.max_ellipse_err, max_holes=cfg.max_holes)
         self._v_ranges = np.array([[s.hsv[0][2], s.hsv[1][2]] for s in specs], float) \
             if specs else np.zeros((0, 2))
-        # the distortion as 12 coefficients for the compiled undistortion (None: tilted model)
+        # the distortion as 12 coefficients for the compiled undistortion (None: a model the
+        # kernels do not know: tilted sensor, fisheye; the camera's own methods serve then)
         d = np.zeros(14)
-        d[:camera.dist.size] = camera.dist
-        self._dist12 = d[:12].copy() if not d[12:].any() else None
+        self._dist12 = None
+        if not camera.is_fisheye:
+            d[:camera.dist.size] = camera.dist
+            self._dist12 = d[:12].copy() if not d[12:].any() else None
         self._hsv: np.ndarray | None = None    # frame buffers, reused (no allocation per frame)
 
     # ------------------------------------------------------------------------------ stages
@@ -321,8 +326,7 @@ class DotDetector:
         got = self._undistort_compiled(px)
         if got is not None:
             return got[0]
-        return cv2.undistortPoints(px, self.camera.K, self.camera.dist, None, None, None,
-                                   _UNDISTORT_CRITERIA).reshape(-1, 2)
+        return self.camera.normalize(px.reshape(-1, 2))
 
     def _project(self, Y: np.ndarray) -> np.ndarray:
         """Camera-frame points (..., 3) → distorted pixels (..., 2)."""
@@ -335,8 +339,7 @@ class DotDetector:
             return _k.project(np.ascontiguousarray(flat, np.float64), float(K[0, 0]),
                               float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
                               self._dist12).reshape(shp + (2,))
-        p, _ = cv2.projectPoints(flat, _ZERO3, _ZERO3, self.camera.K, self.camera.dist)
-        return p.reshape(shp + (2,))
+        return self.camera.project(flat).reshape(shp + (2,))
 
     def _blob_geometry(self, blobs: Blobs) -> tuple[np.ndarray, np.ndarray]:
         """Normalised centres and second-moment matrices of blobs (local undistortion)."""
@@ -386,7 +389,8 @@ class DotDetector:
                 poses = self._detect(img, gravity, state)
         if state is not None:
             state.previous = [(p.layout, np.asarray(p.tvec, float).copy(),
-                               cv2.Rodrigues(np.asarray(p.rvec, float))[0]) for p in poses]
+                               cv2.Rodrigues(np.asarray(p.rvec, float))[0], p.ambiguous)
+                              for p in poses]
         return poses
 
     def _detect(self, img: np.ndarray, gravity, state: DotsState | None) -> list[BrickPose]:
@@ -469,43 +473,17 @@ class DotDetector:
             else:
                 fit.append(r)
         if fit:
-            ippe = self._ippe_compiled if _k.enabled() else self._ippe_opencv
-            special += ippe(bt, fit)
+            special += self._ippe(bt, fit)
         if special:
             self._special_poses(bt, np.array(special))
         if warm:
             self._refine_both(bt, np.array(warm))
         self._prefer_level(bt, rows, bt.gravity)
 
-    def _ippe_opencv(self, bt: _Batch, rows: list[int]) -> list[int]:
-        """Both IPPE solutions of each brick with OpenCV; returns the bricks it failed on."""
-        failed, done, rvs_all, tvs_all, errs = [], [], [], [], []
-        for r in rows:
-            sel = bt.blob[r] >= 0
-            try:
-                n, rvs, tvs, err = cv2.solvePnPGeneric(bt.X[r][sel], bt.q[r][sel], _EYE3, None,
-                                                       flags=cv2.SOLVEPNP_IPPE)
-            except cv2.error:
-                n = 0
-            if not n:
-                failed.append(r)
-                continue
-            done.append(r)
-            j = 1 if n > 1 else 0
-            rvs_all += [rvs[0], rvs[j]]
-            tvs_all += [tvs[0], tvs[j]]
-            errs.append((float(err[0, 0]), float(err[j, 0]), int(sel.sum())))
-        if done:
-            d = np.array(done)
-            bt.R[d] = so3_exp(np.concatenate(rvs_all, axis=1).T).reshape(-1, 2, 3, 3)
-            bt.t[d] = np.concatenate(tvs_all, axis=1).T.reshape(-1, 2, 3)
-            e = np.array(errs)
-            bt.cost[d] = e[:, :2] ** 2 * e[:, 2:3]
-        return failed
-
-    def _ippe_compiled(self, bt: _Batch, rows: list[int]) -> list[int]:
-        """Both IPPE solutions with the compiled kernel, all bricks of a layout at once;
-        returns the bricks it failed on."""
+    @staticmethod
+    def _ippe(bt: _Batch, rows: list[int]) -> list[int]:
+        """Both planar solutions of the given bricks, all bricks of a layout at once; returns
+        the bricks it failed on."""
         groups: dict[int, list[int]] = {}
         for r in rows:
             groups.setdefault(id(bt.models[r]), []).append(r)
@@ -515,11 +493,7 @@ class DotDetector:
             ga = np.asarray(g, np.int64)
             Pm = np.zeros((ga.size, bt.blob.shape[1], 2))
             Pm[:, :m.n] = m.P
-            T = m.plane_from_brick
-            R, t, cost, ok = _k.ippe(Pm, np.ascontiguousarray(bt.q[ga]),
-                                     np.ascontiguousarray(bt.w[ga]),
-                                     np.ascontiguousarray(T[:3, :3]),
-                                     np.ascontiguousarray(T[:3, 3]))
+            R, t, cost, ok = ippe_batch(Pm, bt.q[ga], bt.w[ga], m.plane_from_brick)
             bt.R[ga[ok]] = R[ok]
             bt.t[ga[ok]] = t[ok]
             bt.cost[ga[ok]] = cost[ok]
@@ -809,25 +783,34 @@ class DotDetector:
             out[kk, :m.n] = occluded_dots(m, bt.R[rr, sol], bt.t[rr, sol], clearance=True)
         return out
 
-    def _alt_plausible(self, bt: _Batch, rows) -> np.ndarray:
-        """Whether the second planar solution of the given bricks is plausible (the same test
-        as the final ``ambiguous`` flag, on the current costs)."""
-        cfg = self.config
+    def _chi2(self, bt: _Batch, rows) -> tuple[np.ndarray, np.ndarray]:
+        """χ² (n, 2) of both solutions of the given bricks at ``centroid_sigma_px``, and the
+        degrees of freedom (n,) of their fits."""
         rows = np.asarray(rows)
-        n = np.maximum(bt.used[rows].sum(axis=1), 1)
-        rm = np.sqrt(bt.cost[rows] / n[:, None] / 2) * self.f
-        return np.isfinite(rm[:, 1]) & (rm[:, 1] <= cfg.ambiguity_ratio * np.maximum(
-            rm[:, 0], cfg.ambiguity_sigma_px))
+        n = bt.used[rows].sum(axis=1)
+        chi2 = bt.cost[rows] * (self.f / self.config.centroid_sigma_px) ** 2
+        return chi2, np.maximum(2 * n - 6, 1)
+
+    def _alt_plausible(self, bt: _Batch, rows) -> np.ndarray:
+        """Whether the second planar solution of the given bricks is plausible (the rule's
+        test, on the current costs)."""
+        chi2, dof = self._chi2(bt, rows)
+        return alternative_plausible(chi2, dof, self.config.ambiguity)
 
     def _prefer_level(self, bt: _Batch, rows, gravity: np.ndarray | None) -> None:
-        """With gravity: where the second solution is plausible and lies flatter (bricks lie
-        roughly flat), make it the working solution."""
+        """With gravity: where the second solution is plausible and gravity speaks for it
+        (bricks lie roughly flat), make it the working solution."""
         if gravity is None or not len(rows):
             return
         rows = np.asarray(rows)
-        cz = bt.R[rows][:, :, :, 2] @ -gravity                  # (n, 2) cos of the tilts
-        level = cz[:, 1] >= math.cos(math.radians(self.config.gravity_max_tilt_deg))
-        swap = rows[(cz[:, 1] > cz[:, 0]) & level & self._alt_plausible(bt, rows)]
+        chi2, dof = self._chi2(bt, rows)
+        plaus = alternative_plausible(chi2, dof, self.config.ambiguity)
+        if not plaus.any():
+            return
+        rows, chi2, dof = rows[plaus], chi2[plaus], dof[plaus]
+        pick, _ = decide_flips(bt.R[rows], chi2, dof, gravity=gravity,
+                               rule=self.config.ambiguity, use_fit=False)
+        swap = rows[pick == 1]
         if swap.size:
             bt.R[swap] = bt.R[swap][:, ::-1]
             bt.t[swap] = bt.t[swap][:, ::-1]
@@ -852,24 +835,25 @@ class DotDetector:
         B = rows.size
         ar = np.arange(B)
         R2, t2 = bt.R[rows], bt.t[rows]
-        # ---- the planar ambiguity: is the other solution plausible?
-        cos_ang = np.clip(((R2[:, 0] * R2[:, 1]).sum(axis=(1, 2)) - 1) / 2, -1, 1)
-        dt = t2[:, 0] - t2[:, 1]
-        same = (cos_ang > _COS_HALF_DEG) & ((dt * dt).sum(axis=1) < 1e-6)
-        r0, r1 = rmse[rows, 0], rmse[rows, 1]
-        ambiguous = ~same & np.isfinite(r1) & (r1 <= cfg.ambiguity_ratio * np.maximum(
-            r0, cfg.ambiguity_sigma_px))
-        choose = np.zeros(B, np.int64)
-        if gravity is not None:
-            # bricks lie roughly flat: of two plausible solutions, the one whose z is closer to
-            # up; a pose that gravity does not confirm (tilted beyond the limit) stays
-            # flagged, with the other solution as the alternative
-            cz = R2[:, :, :, 2] @ -gravity                       # (B, 2) cos of the tilts
-            cos_max = math.cos(math.radians(cfg.gravity_max_tilt_deg))
-            pick = np.where(ambiguous & (cz[:, 1] > cz[:, 0]), 1, 0)
-            level = cz[ar, pick] >= cos_max
-            choose = np.where(ambiguous & level, pick, 0)
-            ambiguous = (ambiguous & ~level) | (~same & (cz[ar, choose] < cos_max))
+        # ---- the planar ambiguity: the one rule (gravity, the previous frame, the image,
+        # "close"); then the bricks still undecided with the up of the decided ones
+        chi2, dof = self._chi2(bt, rows)
+        prev = self._previous_rotations(bt, rows, R2, t2, state)
+        choose, why = decide_flips(R2, chi2, dof, gravity=gravity, previous=prev,
+                                   rule=cfg.ambiguity)
+        undecided = choose < 0
+        firm = np.array([w in ("gravity", "reprojection", "previous") for w in why])
+        if undecided.any() and firm.any():
+            up = np.median(R2[ar[firm], choose[firm], :, 2], axis=0)
+            if np.linalg.norm(up) > 0.5:
+                u = np.flatnonzero(undecided)
+                c2, w2 = decide_flips(R2[u], chi2[u], dof[u], gravity=gravity,
+                                      reference_up=up / np.linalg.norm(up),
+                                      previous=None if prev is None else [prev[k] for k in u],
+                                      rule=cfg.ambiguity)
+                choose[u] = c2
+        ambiguous = choose < 0
+        choose = np.where(ambiguous, 0, choose)      # undecided: the better fit, flagged
         Rc, tc = R2[ar, choose], t2[ar, choose]
         rm = rmse[rows][ar, choose]
         qsel = bt.q[rows] - bt.offset[rows][ar, choose]
@@ -880,15 +864,14 @@ class DotDetector:
             sym = np.array([bt.models[r].sym_perm is not None for r in rows.tolist()])
         flip = np.zeros(B, bool)
         if sym.any():
-            x = Rc[:, :, 0]
-            flip = sym & np.where(np.abs(x[:, 0]) > 1e-9, x[:, 0] < 0, x[:, 1] < 0)
+            flip = sym & canonical_half_turn(Rc)
             prev = state.previous if state is not None else []
             if prev:
                 for k in np.flatnonzero(sym).tolist():
                     f = self._previous_flip(bt.models[rows[k]], Rc[k], tc[k], prev)
                     if f is not None:
                         flip[k] = f
-            Rc = np.where(flip[:, None, None], Rc * _HALF, Rc)
+            Rc = np.where(flip[:, None, None], Rc * HALF_TURN, Rc)
         # ---- unbiased centres in pixels, covariance
         img_pts = self._project(np.concatenate([qsel, np.ones(qsel.shape[:2] + (1,))], axis=2))
         cov = None
@@ -897,14 +880,10 @@ class DotDetector:
             sig = np.maximum(cfg.centroid_sigma_px, rm * np.sqrt(2 * n / np.maximum(
                 2 * n - 6, 1))) / self.f
             A = bt.normal_eq[rows][ar, choose]
-            rvecs = self._rvecs(Rc)
-            if _k.enabled():
-                cov = _k.pose_covariance(np.ascontiguousarray(A), rvecs,
-                                         np.ascontiguousarray(sig, np.float64))
-            else:
-                cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
+            rvecs = rotation_vectors(Rc)
+            cov = pose_covariance_from_normal(A, Rc, tc, rvecs, sig)
         else:
-            rvecs = self._rvecs(Rc)
+            rvecs = rotation_vectors(Rc)
         # dot labels in the reported (possibly half-turned) frame, sorted
         N = bt.blob.shape[1]
         used = bt.used[rows]
@@ -931,8 +910,8 @@ class DotDetector:
             alt = []
             if amb[k]:
                 Ra = R2[k, 1 - chl[k]]
-                if syml[k] and self._canonical_flip(Ra):
-                    Ra = Ra * _HALF
+                if syml[k] and canonical_half_turn(Ra):
+                    Ra = Ra * HALF_TURN
                 alt = [(cv2.Rodrigues(Ra)[0].ravel(), t2[k, 1 - chl[k]].copy())]
             out.append(BrickPose(
                 layout=names[k], instance=None, method="dots", rvec=rvecs[k], tvec=tc[k],
@@ -942,43 +921,55 @@ class DotDetector:
         return out
 
     @staticmethod
-    def _rvecs(R: np.ndarray) -> np.ndarray:
-        """Rotation vectors of (B, 3, 3) rotations (OpenCV's Rodrigues for a few)."""
-        if _k.enabled():
-            return _k.so3_log(np.ascontiguousarray(R, np.float64))
-        if R.shape[0] > 6:
-            return so3_log(R)
-        return np.array([cv2.Rodrigues(Rk)[0].ravel() for Rk in R]).reshape(-1, 3)
-
-    @staticmethod
-    def _canonical_flip(R: np.ndarray) -> bool:
-        """The canonical half-turn: the brick's x axis toward the camera's +x (image right);
-        if perpendicular, toward +y."""
-        x = R[:, 0]
-        return bool(x[0] < 0) if abs(x[0]) > 1e-9 else bool(x[1] < 0)
-
-    @staticmethod
-    def _previous_flip(model: DotModel, R: np.ndarray, t: np.ndarray,
-                       previous: list[tuple[str, np.ndarray, np.ndarray]]) -> bool | None:
-        """With a brick of the same layout in the previous frame (within half the layout's
-        extent): whether to half-turn the pose to stay in that brick's half-turn."""
+    def _previous_match(model: DotModel, t: np.ndarray,
+                        previous: list[tuple[str, np.ndarray, np.ndarray, bool]]
+                        ) -> tuple[np.ndarray, bool] | None:
+        """The brick of the same layout in the previous frame nearest to ``t`` (within half
+        the layout's extent): (its rotation, whether it was ambiguous), or None."""
         best, bd = None, 0.5 * model.max_extent
-        for name, tp, Rp in previous:
+        for name, tp, Rp, amb in previous:
             if name == model.name:
                 d = float(np.linalg.norm(tp - t))
                 if d < bd:
-                    best, bd = Rp, d
-        if best is None:
+                    best, bd = (Rp, amb), d
+        return best
+
+    def _previous_flip(self, model: DotModel, R: np.ndarray, t: np.ndarray,
+                       previous: list[tuple[str, np.ndarray, np.ndarray, bool]]
+                       ) -> bool | None:
+        """With a brick of the same layout in the previous frame: whether to half-turn the
+        pose to stay in that brick's half-turn."""
+        m = self._previous_match(model, t, previous)
+        return None if m is None else float(R[:, 0] @ m[0][:, 0]) < 0
+
+    def _previous_rotations(self, bt: _Batch, rows: np.ndarray, R2: np.ndarray,
+                            t2: np.ndarray, state: DotsState | None
+                            ) -> list[np.ndarray | None] | None:
+        """Per brick, the rotation of the same brick in the previous frame when that pose was
+        decided (evidence for the planar ambiguity), else None. A symmetric layout's pose
+        was reported in one of its half-turns: the one nearer to either candidate."""
+        if state is None or not any(not p[3] for p in state.previous):
             return None
-        return float(R[:, 0] @ best[:, 0]) < 0
+        out: list[np.ndarray | None] = []
+        for k, r in enumerate(rows.tolist()):
+            m = bt.models[r]
+            hit = self._previous_match(m, t2[k, 0], state.previous)
+            if hit is None or hit[1]:
+                out.append(None)
+                continue
+            Rp = hit[0]
+            if m.sym_perm is not None:
+                Rh = Rp * HALF_TURN
+                near = max(float(np.trace(Rp.T @ R2[k, j])) for j in (0, 1))
+                near_h = max(float(np.trace(Rh.T @ R2[k, j])) for j in (0, 1))
+                Rp = Rh if near_h > near else Rp
+            out.append(Rp)
+        return out
 
 
-_ZERO3 = np.zeros(3)
 _BITS = 1 << np.arange(16)
 _EYE3 = np.eye(3)
-_HALF = np.array([-1.0, -1.0, 1.0])
 _STENCIL = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-_COS_HALF_DEG = math.cos(math.radians(0.5))
 
 
 class _CosTable(dict):

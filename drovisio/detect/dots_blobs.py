@@ -12,7 +12,7 @@ filters, and sub-pixel centres.
   estimated per blob) over a support slightly larger than the blob. A projected circle is an
   ellipse (centrally symmetric), blur kernels are symmetric, so this centroid estimates the
   ellipse's centre without the ±0.5 px quantisation of a binary mask. (The ellipse centre is
-  not the projected circle centre under perspective; :mod:`.dots_pose` corrects that.)
+  not the projected circle centre under perspective; :mod:`drovisio.pose.batch` corrects that.)
 
 Pixel (0, 0) is the centre of the top-left pixel.
 """

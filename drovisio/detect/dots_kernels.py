@@ -1,7 +1,7 @@
 """Compiled kernels of the dot detector's per-frame geometry (numba).
 
 The dot detector's stages are written once with numpy (the reference implementations in
-:mod:`.dots_blobs`, :mod:`.dots_color`, :mod:`.dots_match`, :mod:`.dots_pose`). Vectorised
+:mod:`.dots_blobs`, :mod:`.dots_color`, :mod:`.dots_match`, :mod:`drovisio.pose.batch`). Vectorised
 numpy is fast for big arrays but a frame of the dot detector is made of many *small* ones: a
 few blobs, a few bricks of six dots. There each numpy call costs more in dispatch than in
 arithmetic, and a 640×480 frame needed ~1 300 of them. These kernels do the same arithmetic
@@ -865,7 +865,7 @@ def _solve_sym(A, g, n, x):
 @_jit
 def _normal_eq(X, q, w, R, t, A, g):
     """JᵀJ (6×6) and Jᵀr (6) of one pose (parameters: left rotation increment, translation;
-    as :func:`.dots_pose._residual_jacobian`), returns the cost."""
+    as :func:`drovisio.pose.batch._residual_jacobian`), returns the cost."""
     for r in range(6):
         g[r] = 0.0
         for c in range(6):
@@ -946,7 +946,7 @@ def _apply(delta, R, t, Rn, tn):
 
 @_jit
 def refine_poses(X, q, w, R, t, iterations, tol):
-    """Levenberg–Marquardt of many poses (as :func:`.dots_pose.refine_poses`; each pose
+    """Levenberg–Marquardt of many poses (as :func:`drovisio.pose.batch.refine_poses`; each pose
     stops on its own). Returns (R, t, cost) (new arrays)."""
     B = X.shape[0]
     Ro = R.copy()
@@ -994,7 +994,7 @@ def refine_poses(X, q, w, R, t, iterations, tol):
 
 @_jit
 def gn_step(X, q, w, R, t):
-    """One Gauss–Newton step of many poses (as :func:`.dots_pose.gn_step` with
+    """One Gauss–Newton step of many poses (as :func:`drovisio.pose.batch.gn_step` with
     ``return_normal``): (R, t, cost, normal matrices (B, 6, 6), residuals (B, N))."""
     B = X.shape[0]
     N = X.shape[1]
@@ -1325,7 +1325,7 @@ def ippe(P, q, w, Rpb, tpb):
 
 @_jit
 def so3_log(R):
-    """Rotation vectors (B, 3) of rotations (B, 3, 3) (as :func:`.dots_pose.so3_log`)."""
+    """Rotation vectors (B, 3) of rotations (B, 3, 3) (as :func:`drovisio.pose.batch.so3_log`)."""
     B = R.shape[0]
     out = np.empty((B, 3))
     for b in range(B):
@@ -1366,7 +1366,7 @@ def so3_log(R):
 @_jit
 def pose_covariance(A, rvec, sigma):
     """6×6 covariances of (rvec, tvec) from normal matrices (as
-    :func:`.dots_pose.pose_covariance_from_normal`)."""
+    :func:`drovisio.pose.batch.pose_covariance_from_normal`)."""
     B = A.shape[0]
     out = np.empty((B, 6, 6))
     M = np.empty((6, 12))
@@ -1542,7 +1542,7 @@ def project(Y, fx, fy, cx, cy, d):
 @_jit
 def conic_center_offsets(X, normals, radii, R, t):
     """Ellipse centre minus projected circle centre, normalised (B, N, 2) (as
-    :func:`.dots_pose.conic_center_offsets`)."""
+    :func:`drovisio.pose.batch.conic_center_offsets`)."""
     B = X.shape[0]
     N = X.shape[1]
     out = np.empty((B, N, 2))

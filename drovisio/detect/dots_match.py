@@ -18,7 +18,7 @@ work grows with the number of blobs (linearly with bricks in view), and it is do
 hypotheses at once with numpy. Any planar layout of four or more dots works (not only two
 lines); the layout's symmetry (``rot180_z``) is used to skip hypotheses that only relabel
 another one. :func:`assign_greedy` then gives blobs to the best hypotheses first; poses are
-checked later (:mod:`.dots_pose`, :mod:`.dots`).
+checked later (:mod:`drovisio.pose.batch`, :mod:`.dots`).
 """
 
 from __future__ import annotations
@@ -230,7 +230,7 @@ class DotModel:
         return got
 
     def degeneracy(self, dots) -> float:
-        """:func:`~drovisio.detect.dots_pose.layout_degeneracy` of a subset of dots (cached).
+        """:func:`~drovisio.pose.batch.layout_degeneracy` of a subset of dots (cached).
 
         Args:
             dots: Dot indices, or the subset as a bit mask (int: bit i = dot i).
@@ -238,7 +238,7 @@ class DotModel:
         key = dots if isinstance(dots, int) else int(np.sum(1 << np.asarray(dots, np.int64)))
         val = self._degeneracy.get(key)
         if val is None:
-            from drovisio.detect.dots_pose import layout_degeneracy
+            from drovisio.pose.batch import layout_degeneracy
 
             sel = [i for i in range(self.n) if key >> i & 1]
             val = self._degeneracy[key] = layout_degeneracy(self.P[sel])

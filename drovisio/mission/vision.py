@@ -198,8 +198,11 @@ def opencv_aruco_baseline(image: np.ndarray, camera: Camera, layouts: list,
             lay = next(x for x in lays if x.name == name)
             obj = np.concatenate([lay.code_corners_m()[s] for s, _ in items]).astype(np.float64)
             img = np.concatenate([c for _, c in items]).astype(np.float64)
-            n, rv, tv, _ = cv2.solvePnPGeneric(obj, img, camera.K, camera.dist,
-                                               flags=cv2.SOLVEPNP_IPPE)
+            # PnP in undistorted normalised coordinates: right for every lens model
+            xn = camera.normalize(img)
+            if not np.all(np.isfinite(xn)):
+                continue
+            n, rv, tv, _ = cv2.solvePnPGeneric(obj, xn, _EYE3, None, flags=cv2.SOLVEPNP_IPPE)
             best = None
             for r, t in zip(rv, tv):
                 R = cv2.Rodrigues(r)[0]
@@ -207,10 +210,12 @@ def opencv_aruco_baseline(image: np.ndarray, camera: Camera, layouts: list,
                 score = float(R[:, 2] @ up)
                 if best is None or score > best[0]:
                     best = (score, r, t)
+            if best is None:
+                continue
             _, r, t = best
-            r, t = cv2.solvePnPRefineLM(obj, img, camera.K, camera.dist, r.copy(), t.copy())
-            proj, _ = cv2.projectPoints(obj, r, t, camera.K, camera.dist)
-            rmse = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
+            r, t = cv2.solvePnPRefineLM(obj, xn, _EYE3, None, r.copy(), t.copy())
+            proj, _ = camera.project_points(obj, r, t)
+            rmse = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
             out.append(BrickPose(name, k, "aruco", r.ravel(), t.ravel(), rmse,
                                  markers=[lay.marker_id(k, s) for s, _ in items]))
     return out
@@ -321,3 +326,6 @@ class RenderVision:
         self.frames += 1
         self.seconds += time.perf_counter() - t0
         return out
+
+
+_EYE3 = np.eye(3)

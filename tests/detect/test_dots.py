@@ -35,13 +35,14 @@ from drovisio.detect.dots_color import (
     to_hsv,
 )
 from drovisio.detect.dots_match import DotModel, occluded_dots
-from drovisio.detect.dots_pose import conic_center_offsets, so3_exp
+from drovisio.geometry import so3_exp
 from drovisio.layout import (
     DEFAULT_PALETTE,
     load_layout,
     parse_layout,
     shipped_layouts_dir,
 )
+from drovisio.pose.batch import conic_center_offsets
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import (
     BrickInstance,

@@ -13,7 +13,6 @@ import pytest
 
 from drovisio.camera import Camera
 from drovisio.detect import dots_kernels as K
-from drovisio.detect import dots_pose
 from drovisio.detect.dots import DotDetector
 from drovisio.detect.dots_blobs import _measure, find_blobs_multi, refine_centers
 from drovisio.detect.dots_color import ClaheMap, clean_mask
@@ -24,6 +23,7 @@ from drovisio.detect.dots_match import (
     occluded_dots,
 )
 from drovisio.layout import load_layout, shipped_layouts_dir
+from drovisio.pose import batch as dots_pose
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import render
 
@@ -200,12 +200,15 @@ def test_pose_kernels(drick, cam):
     A = ga[3]
     rv = dots_pose.so3_log(ga[0])
     sig = np.full(B, 2e-4)
-    np.testing.assert_allclose(K.pose_covariance(A, rv, sig),
-                               dots_pose.pose_covariance_from_normal(A, ga[0], ga[1], rv, sig),
-                               rtol=1e-6, atol=1e-18)
+    ca, cb = _both(lambda: dots_pose.pose_covariance_from_normal(A, ga[0], ga[1], rv, sig))
+    np.testing.assert_allclose(ca, cb, rtol=1e-6, atol=1e-18)
+    np.testing.assert_allclose(ca, K.pose_covariance(A, rv, sig), rtol=1e-12, atol=1e-24)
+    assert np.all(np.linalg.eigvalsh(cb) > 0)
 
 
 def test_ippe_gives_opencvs_two_solutions(drick, cam):
+    """The batched IPPE (compiled kernel, and OpenCV when numba is absent) gives OpenCV's
+    two solutions and their costs (sum of squared normalised residuals)."""
     det = DotDetector(cam, [drick])
     m = det.models[0]
     rng = np.random.default_rng(9)
@@ -213,19 +216,22 @@ def test_ippe_gives_opencvs_two_solutions(drick, cam):
     R, t = _random_poses(rng, B)
     Y = m.X[None] @ R.transpose(0, 2, 1) + t[:, None, :]
     q = Y[..., :2] / Y[..., 2:] + rng.normal(0, 2e-4, (B, m.n, 2))
-    T = m.plane_from_brick
-    Rk, tk, ck, ok = K.ippe(np.repeat(m.P[None], B, axis=0), q, np.ones((B, m.n)),
-                            np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]))
-    assert ok.all()
-    for b in range(B):
-        n, rvs, tvs, err = cv2.solvePnPGeneric(m.X, q[b], np.eye(3), None,
-                                               flags=cv2.SOLVEPNP_IPPE)
-        for s in range(n):
-            Ro = cv2.Rodrigues(rvs[s])[0]
-            ang = np.degrees(np.arccos(np.clip((np.trace(Rk[b, s].T @ Ro) - 1) / 2, -1, 1)))
-            assert ang < 0.05 and np.linalg.norm(tk[b, s] - tvs[s].ravel()) < 1e-3, (b, s, ang)
-            # cost = OpenCV's error² × n (half the sum of squared residuals)
-            assert ck[b, s] == pytest.approx(err[s, 0] ** 2 * m.n, rel=0.05, abs=1e-12)
+    P = np.repeat(m.P[None], B, axis=0)
+    for Rk, tk, ck, ok in _both(lambda: dots_pose.ippe_batch(P, q, np.ones((B, m.n)),
+                                                             m.plane_from_brick)):
+        assert ok.all()
+        for b in range(B):
+            n, rvs, tvs, err = cv2.solvePnPGeneric(m.X, q[b], np.eye(3), None,
+                                                   flags=cv2.SOLVEPNP_IPPE)
+            for s in range(n):
+                Ro = cv2.Rodrigues(rvs[s])[0]
+                ang = np.degrees(np.arccos(np.clip((np.trace(Rk[b, s].T @ Ro) - 1) / 2,
+                                                   -1, 1)))
+                assert ang < 0.05 and np.linalg.norm(tk[b, s] - tvs[s].ravel()) < 1e-3, \
+                    (b, s, ang)
+                # OpenCV's error is the RMS over the 2n coordinates
+                assert ck[b, s] == pytest.approx(2 * err[s, 0] ** 2 * m.n, rel=0.05,
+                                                 abs=1e-12)
 
 
 def test_undistort_and_project():

@@ -1,7 +1,8 @@
-"""Pose of a rigid object from 2D–3D point correspondences, with its ambiguity handled.
+"""Pose of one rigid object from 2D–3D point correspondences (the ArUco codes of a brick),
+through the full lens model, with its planar ambiguity decided by the one rule of
+:mod:`drovisio.pose.ambiguity` (which the dot detector's batched poses use too).
 
-One entry point, :func:`solve_brick_pose`, used by every detector (ArUco corners, colour
-dots) and by the pipeline:
+:func:`solve_brick_pose`:
 
 1. **Candidates.** Planar point sets (every code of a drick's top, a dot pattern) have, seen
    from afar or nearly head-on, two poses that reproject almost equally well (the "flip"
@@ -9,14 +10,11 @@ dots) and by the pipeline:
    normalised coordinates (our own undistortion, not OpenCV's 5-step one) and points
    expressed in their own plane (OpenCV's IPPE is wrong for a plane z = const ≠ 0, e.g. the
    drick's pyramid tops at z = 0.02). Non-planar sets use SQPnP (one global solution).
-2. **Choice, with evidence** (:class:`PoseEvidence`), in this order:
-   gravity (a brick lies roughly flat: its ``up_axis`` ≈ −gravity), a reference "up" from
-   other, decided bricks of the same frame, a previous pose of the same object (a stream,
-   see :class:`PoseHistory`), then the reprojection: after refining both candidates, the
-   alternative is rejected when its χ² exceeds the best one's by ``chi2_margin`` at the
-   measured corner noise and the best fit is consistent with that noise. Candidates closer
-   than ``ambiguity_min_deg`` are not an ambiguity. When nothing decides, the result says
-   so (``ambiguous``) and carries the alternative.
+2. **Choice**, by :func:`drovisio.pose.ambiguity.decide_flips` (gravity, a reference "up",
+   a previous pose, then the reprojection at the measured corner noise): the evidence is
+   weighed before refinement (flips differ by tens of degrees), the χ² after refining both
+   candidates. When nothing decides, the result says so (``ambiguous``) and carries the
+   alternative.
 3. **Refinement.** Gauss–Newton (Levenberg-damped) in *pixels* through the full lens model,
    weighted by the image points' covariance; with gravity known, an optional soft "lies
    flat" prior.
@@ -38,19 +36,10 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.geometry import quat_wxyz
+from drovisio.pose.ambiguity import AmbiguityRule, PoseEvidence, decide_flips
+from drovisio.pose.measures import is_planar, tilt_deg
 
-__all__ = [
-    "PoseCandidate",
-    "PoseEvidence",
-    "PoseHistory",
-    "PoseResult",
-    "is_planar",
-    "rotation_angle_deg",
-    "solve_brick_pose",
-    "tilt_deg",
-    "yaw_about_axis_deg",
-]
+__all__ = ["PoseCandidate", "PoseResult", "solve_brick_pose"]
 
 
 
@@ -76,33 +65,6 @@ class PoseCandidate:
 
 
 @dataclass
-class PoseEvidence:
-    """What is known besides the image points, to decide between flip candidates.
-
-    Args:
-        gravity: Unit vector of gravity in the camera frame (pointing down), or None.
-        gravity_tol_deg: How far from flat an object may lie (its ``up_axis`` vs −gravity)
-            for the gravity test; also the attitude error budget.
-        reference_up: Unit "up" direction in the camera frame from other objects of the same
-            frame (e.g. the median z axis of unambiguous bricks on the same ground), or None.
-        previous: A recent pose of the same object (rvec, tvec), e.g. from
-            :class:`PoseHistory`, or None.
-        previous_tol_deg: Rotation within which the previous pose supports a candidate.
-        min_separation_deg: When both candidates are within the tolerance of the reference
-            up (or of the previous pose), the closer one is chosen only if it is closer by
-            at least this much (those references are uncertain by a few degrees).
-    """
-
-    gravity: np.ndarray | None = None
-    gravity_tol_deg: float = 25.0
-    reference_up: np.ndarray | None = None
-    reference_tol_deg: float = 20.0
-    previous: tuple[np.ndarray, np.ndarray] | None = None
-    previous_tol_deg: float = 15.0
-    min_separation_deg: float = 6.0
-
-
-@dataclass
 class PoseResult:
     """The chosen pose, its quality and the alternative(s) when undecided."""
 
@@ -124,49 +86,6 @@ class PoseResult:
         T[:3, :3] = cv2.Rodrigues(np.asarray(self.rvec, np.float64).reshape(3, 1))[0]
         T[:3, 3] = np.ravel(self.tvec)
         return T
-
-
-# ----------------------------------------------------------------------------- geometry
-def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
-    """Angle of the rotation between two rotation matrices, degrees."""
-    c = (np.trace(np.asarray(R_a).T @ np.asarray(R_b)) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-
-def tilt_deg(R: np.ndarray, gravity: np.ndarray, up_axis=(0.0, 0.0, 1.0)) -> float:
-    """Angle between the object's ``up_axis`` (in the camera frame) and −gravity, degrees."""
-    up = np.asarray(R) @ np.asarray(up_axis, np.float64)
-    g = np.asarray(gravity, np.float64)
-    c = float(-up @ g / math.sqrt(float(up @ up) * float(g @ g)))
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-
-def yaw_about_axis_deg(R_true: np.ndarray, R_est: np.ndarray, axis=(0.0, 0.0, 1.0)) -> float:
-    """Signed rotation about the object's ``axis`` between truth and estimate, degrees.
-
-    Computed from ``R_true.T @ R_est`` (the error in the object frame) by the swing–twist
-    decomposition: the twist about ``axis``.
-    """
-    dR = np.asarray(R_true).T @ np.asarray(R_est)
-    q = np.asarray(quat_wxyz(dR))
-    a = np.asarray(axis, np.float64)
-    a = a / np.linalg.norm(a)
-    p = float(q[1:] @ a)
-    ang = 2.0 * math.atan2(p, q[0])
-    ang = (ang + math.pi) % (2 * math.pi) - math.pi
-    return math.degrees(ang)
-
-
-def is_planar(points: np.ndarray, rel_tol: float = 1e-3) -> bool:
-    """True if 3D points lie on one plane within ``rel_tol`` of their extent."""
-    P = np.asarray(points, np.float64).reshape(-1, 3)
-    if len(P) < 4:
-        return True
-    if np.ptp(P[:, 2]) == 0.0:  # the common case: a flat face at z = const
-        return True
-    c = P - P.mean(axis=0)
-    s = np.linalg.svd(c, compute_uv=False)
-    return bool(s[-1] <= rel_tol * max(s[0], 1e-12))
 
 
 # ----------------------------------------------------------------------------- solving
@@ -216,14 +135,8 @@ def _sigma_inv(points_cov: np.ndarray | None, n: int, default_sigma: float) -> n
         return np.linalg.pinv(C)
 
 
-def _project(obj: np.ndarray, rvec, tvec, camera: Camera, jac: bool = False):
-    px, J = cv2.projectPoints(obj.reshape(-1, 1, 3), np.asarray(rvec, np.float64).reshape(3, 1),
-                              np.asarray(tvec, np.float64).reshape(3, 1), camera.K, camera.dist)
-    return px.reshape(-1, 2), (J[:, :6] if jac else None)
-
-
 def _candidate(obj, img, rvec, tvec, camera, Winv) -> PoseCandidate:
-    px, _ = _project(obj, rvec, tvec, camera)
+    px, _ = camera.project_points(obj, rvec, tvec)
     r = (px - img).ravel()
     return PoseCandidate(np.asarray(rvec, np.float64).ravel().copy(),
                          np.asarray(tvec, np.float64).ravel().copy(),
@@ -257,11 +170,10 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
         last = it == iterations
         if last and it > 0:  # the final check needs no Jacobian (the information matrix
             # is taken at the previous point: one small step away)
-            px, _ = cv2.projectPoints(obj3, rvec, tvec, camera.K, camera.dist)
+            px, _ = camera.project_points(obj3, rvec, tvec)
             J = None
         else:
-            px, J = cv2.projectPoints(obj3, rvec, tvec, camera.K, camera.dist)
-            J = J[:, :6]
+            px, J = camera.project_points(obj3, rvec, tvec)
         d = img - px.reshape(-1, 2)
         r = d.ravel()
         chi2 = float(r @ Winv @ r)
@@ -300,7 +212,7 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
         tvec = tvec + step[3:]
     n = len(obj)
     out = PoseCandidate(best_rt[0].copy(), best_rt[1].copy(), math.sqrt(best_sq / n), best_chi2)
-    return out, info
+    return out, np.zeros((6, 6)) if info is None else info   # None: no finite cost at all
 
 
 def _covariance(info: np.ndarray, chi2: float, dof: int) -> np.ndarray:
@@ -319,7 +231,7 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                      points_cov: np.ndarray | None = None, default_sigma_px: float = 0.2,
                      points_info: np.ndarray | None = None,
                      up_axis=(0.0, 0.0, 1.0), evidence: PoseEvidence | None = None,
-                     chi2_margin: float = 25.0, ambiguity_min_deg: float = 5.0,
+                     rule: AmbiguityRule = AmbiguityRule(),
                      gravity_prior_deg: float | None = None,
                      refine: bool = True) -> PoseResult | None:
     """Pose of an object from ≥ 4 point correspondences, flip ambiguity resolved with evidence.
@@ -340,11 +252,7 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
             ``points_cov`` (saves an inversion when the caller has it).
         up_axis: The object axis that points up when it lies flat (for gravity).
         evidence: Gravity, reference up, previous pose (see :class:`PoseEvidence`).
-        chi2_margin: The reprojection alone decides when the alternative's χ² exceeds the
-            best one's by this much (25 = a 5-sigma difference) and the best fit's χ² is
-            consistent with the noise (≤ 3·dof + 4).
-        ambiguity_min_deg: Candidates closer than this (rotation) are not reported as an
-            ambiguity: the better-fitting one is kept (``decided_by="close"``).
+        rule: The ambiguity rule's numbers (:class:`~drovisio.pose.ambiguity.AmbiguityRule`).
         gravity_prior_deg: With gravity known, also pull the chosen pose toward lying flat
             (its ``up_axis`` along −gravity) with this standard deviation (a soft prior:
             strong image evidence wins; None or 0: gravity only chooses between candidates).
@@ -362,7 +270,7 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                          "image points")
     ev = evidence if evidence is not None else PoseEvidence()
     if gravity is not None:
-        ev = PoseEvidence(**{**ev.__dict__, "gravity": np.asarray(gravity, np.float64)})
+        ev = PoseEvidence(np.asarray(gravity, np.float64), ev.reference_up, ev.previous)
     if planar is None:
         planar = is_planar(obj)
     xn = (np.asarray(image_pts_norm, np.float64).reshape(-1, 2) if image_pts_norm is not None
@@ -372,7 +280,11 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
     Winv = (np.asarray(points_info, np.float64) if points_info is not None
             else _sigma_inv(points_cov, n, default_sigma_px))
     I3 = np.eye(3)
-    rvecs, tvecs, errs, Rs = [], [], [], []
+    rvecs: list = []
+    tvecs: list = []
+    Rs: list[np.ndarray] = []
+    errs: list = []
+    er = None
     try:
         if planar:
             # OpenCV's IPPE is only right for points on z = 0: solve in the points' plane
@@ -391,9 +303,9 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                 Rs.append(R)
                 tvecs.append(np.ravel(t_) - R @ c)
         else:
-            _, rvecs, tvecs, er = cv2.solvePnPGeneric(obj.reshape(-1, 1, 3),
-                                                      xn.reshape(-1, 1, 2), I3, None,
-                                                      flags=cv2.SOLVEPNP_SQPNP)
+            _, rv, tv, er = cv2.solvePnPGeneric(obj.reshape(-1, 1, 3), xn.reshape(-1, 1, 2),
+                                                I3, None, flags=cv2.SOLVEPNP_SQPNP)
+            rvecs, tvecs = list(rv), list(tv)
         errs = list(np.ravel(er)) if er is not None else [np.nan] * len(rvecs)
     except cv2.error:
         rvecs, tvecs = [], []
@@ -421,19 +333,33 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
     dof = 2 * n - 6
     cands.sort(key=lambda c: c.rmse_px)
     up = np.asarray(up_axis, np.float64)
+    chosen: int | None
     if len(cands) == 1:
         chosen, decided_by = 0, "unique"
     else:
+        cands = cands[:2]
+        prev = None if ev.previous is None else cv2.Rodrigues(
+            np.asarray(ev.previous[0], np.float64).reshape(3, 1))[0]
+
+        def decide(use_evidence: bool, use_fit: bool) -> tuple[int | None, str]:
+            R2 = np.stack([c.R for c in cands])[None]
+            chi2 = np.array([[c.chi2 for c in cands]])
+            rmse = np.array([[c.rmse_px for c in cands]])
+            pick, why = decide_flips(R2, chi2, dof, gravity=ev.gravity,
+                                     reference_up=ev.reference_up,
+                                     previous=None if prev is None else [prev], up_axis=up,
+                                     rule=rule, rmse_px=rmse, use_evidence=use_evidence,
+                                     use_fit=use_fit)
+            return (int(pick[0]), why[0]) if pick[0] >= 0 else (None, "")
+
         # evidence first (it needs no refinement: flips differ by tens of degrees), then the
         # reprojection on refined candidates
-        chosen, decided_by = _decide(cands, ev, up, chi2_margin, ambiguity_min_deg, dof,
-                                     use_fit=False)
+        chosen, decided_by = decide(True, False)
         if chosen is None:
             cands = sorted((_gauss_newton(obj, img, c, camera, Winv,
                                           iterations=1 if refine else 0)[0]
                             for c in cands), key=lambda c: c.chi2)
-            chosen, decided_by = _decide(cands, ev, up, chi2_margin, ambiguity_min_deg, dof,
-                                         use_evidence=False)
+            chosen, decided_by = decide(False, True)
     if chosen is None:  # undecided: report the better-fitting one, flag it
         chosen, amb, decided_by = 0, True, "none"
     else:
@@ -442,7 +368,7 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
     others = [c for i, c in enumerate(cands) if i != chosen]
     prior = None
     if (ev.gravity is not None and gravity_prior_deg and not amb
-            and tilt_deg(best.R, ev.gravity, up) <= ev.gravity_tol_deg):
+            and tilt_deg(best.R, ev.gravity, up) <= rule.gravity_tol_deg):
         prior = (up, np.asarray(ev.gravity, np.float64), math.radians(gravity_prior_deg))
     # IPPE's solution from exact normalised coordinates is already close to the pixel-space
     # optimum: one Gauss–Newton step gets it (the prior is nearly linear as well)
@@ -452,89 +378,3 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                       amb, others if amb else [], decided_by, [best] + others)
 
 
-def _decide(cands: list[PoseCandidate], ev: PoseEvidence, up_axis: np.ndarray,
-            chi2_margin: float, ambiguity_min_deg: float, dof: int, use_evidence: bool = True,
-            use_fit: bool = True) -> tuple[int | None, str]:
-    """Index of the candidate the evidence supports, and which evidence; (None, '') if none.
-
-    ``cands`` are sorted by χ². ``use_evidence``: gravity, reference up, previous pose;
-    ``use_fit``: the reprojection test and the "close" rule.
-    """
-    a, b = cands[0], cands[1]
-    if not use_evidence:
-        return _decide_fit(a, b, chi2_margin, ambiguity_min_deg, dof)
-    # a candidate whose fit is far worse than the best one is out whatever else is said
-    if all(np.isfinite(c.chi2) for c in cands):
-        fit_ok = [c.chi2 - a.chi2 <= max(9.0 * chi2_margin, 3.0 * a.chi2) for c in cands]
-    else:  # before refinement: RMS reprojection errors (px)
-        fit_ok = [c.rmse_px <= 3.0 * a.rmse_px + 1.0 for c in cands]
-    if ev.gravity is not None:
-        tilts = [tilt_deg(c.R, ev.gravity, up_axis) for c in cands]
-        ok = [t <= ev.gravity_tol_deg and f for t, f in zip(tilts, fit_ok)]
-        if ok[0] != ok[1]:
-            return (0 if ok[0] else 1), "gravity"
-        if ok[0] and ok[1]:  # both roughly flat: the flatter one (the object lies flat)
-            return (0 if tilts[0] <= tilts[1] else 1), "gravity"
-    # a reference up or a previous pose is itself uncertain by a few degrees: when both
-    # candidates agree with it, the closer one wins only by a clear separation
-    if ev.reference_up is not None:
-        ups = [tilt_deg(c.R, -np.asarray(ev.reference_up, np.float64), up_axis) for c in cands]
-        ok = [t <= ev.reference_tol_deg and f for t, f in zip(ups, fit_ok)]
-        if ok[0] != ok[1]:
-            return (0 if ok[0] else 1), "reference"
-        if ok[0] and ok[1] and abs(ups[0] - ups[1]) >= ev.min_separation_deg:
-            return (0 if ups[0] < ups[1] else 1), "reference"
-    if ev.previous is not None:
-        R_prev = cv2.Rodrigues(np.asarray(ev.previous[0], np.float64).reshape(3, 1))[0]
-        ang = [rotation_angle_deg(R_prev, c.R) for c in cands]
-        ok = [t <= ev.previous_tol_deg and f for t, f in zip(ang, fit_ok)]
-        if ok[0] != ok[1]:
-            return (0 if ok[0] else 1), "previous"
-        if ok[0] and ok[1] and abs(ang[0] - ang[1]) >= ev.min_separation_deg:
-            return (0 if ang[0] < ang[1] else 1), "previous"
-    if not use_fit:
-        return None, ""
-    return _decide_fit(a, b, chi2_margin, ambiguity_min_deg, dof)
-
-
-def _decide_fit(a: PoseCandidate, b: PoseCandidate, chi2_margin: float,
-                ambiguity_min_deg: float, dof: int) -> tuple[int | None, str]:
-    # the reprojection decides only when the best fit is consistent with the assumed noise
-    # (else the noise model is wrong for these points and the difference means little)
-    if b.chi2 - a.chi2 >= chi2_margin and a.chi2 <= 3.0 * dof + 4.0:
-        return 0, "reprojection"
-    if rotation_angle_deg(a.R, b.R) < ambiguity_min_deg:
-        return 0, "close"  # the candidates differ less than the pose's own uncertainty
-    return None, ""
-
-
-class PoseHistory:
-    """Recent confident poses per object, for temporal consistency in a stream.
-
-    Keep one per stream; :meth:`previous` gives the evidence for a key (e.g.
-    ``(layout, instance)``), :meth:`update` records a decided pose. Entries older than
-    ``max_age`` frames are forgotten (memory stays bounded by the number of objects seen
-    within that window).
-    """
-
-    def __init__(self, max_age: int = 15):
-        self.max_age = int(max_age)
-        self.frame = 0
-        self._poses: dict[object, tuple[int, np.ndarray, np.ndarray]] = {}
-
-    def next_frame(self) -> None:
-        """Call once per frame, before the poses of that frame."""
-        self.frame += 1
-        if len(self._poses) > 64:
-            self._poses = {k: v for k, v in self._poses.items()
-                           if self.frame - v[0] <= self.max_age}
-
-    def previous(self, key) -> tuple[np.ndarray, np.ndarray] | None:
-        v = self._poses.get(key)
-        if v is None or self.frame - v[0] > self.max_age:
-            return None
-        return v[1], v[2]
-
-    def update(self, key, rvec: np.ndarray, tvec: np.ndarray) -> None:
-        self._poses[key] = (self.frame, np.asarray(rvec, np.float64).copy(),
-                            np.asarray(tvec, np.float64).copy())

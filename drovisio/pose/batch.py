@@ -1,14 +1,14 @@
-"""Pose stage of the dot detector: planar PnP for many bricks at once, with unbiased dot
-centres.
+"""Poses of many bricks at once, in normalised image coordinates (the dot detector's stage).
 
 Everything works in *normalised* image coordinates (x/z, y/z of the OpenCV camera frame):
-the measured dot centres are undistorted once, after which the camera is an ideal pinhole
-and a dot — a circle on a plane — projects to an exact ellipse.
+the measured points are undistorted once, after which the camera is an ideal pinhole (and a
+dot — a circle on a plane — projects to an exact ellipse).
 
-The detector (:mod:`.dots`) takes each brick's two planar solutions from IPPE (OpenCV's, or
-the compiled one of :mod:`.dots_kernels`; SQPnP and :func:`mirror_pose` where three of four
-dots are in a line), then uses, for all bricks and both solutions in one batch (numpy here;
-the same arithmetic compiled in :mod:`.dots_kernels` when numba is there):
+:func:`ippe_batch` gives each brick's two planar solutions (IPPE from a normalised-DLT
+homography; SQPnP and :func:`mirror_pose` serve where three of four points are in a line).
+Then, for all bricks and both solutions in one batch (numpy here; the same arithmetic
+compiled in :mod:`drovisio.detect.dots_kernels` when numba is there — the choice is made
+inside each function, never by a caller):
 
 * :func:`refine_poses`: Levenberg–Marquardt on the reprojection error (after a dot was
   dropped or added);
@@ -38,6 +38,7 @@ __all__ = [
     "conic_center_offsets",
     "gn_step",
     "homography_dlt",
+    "ippe_batch",
     "layout_degeneracy",
     "mirror_pose",
     "pose_covariance",
@@ -45,6 +46,7 @@ __all__ = [
     "pose_from_homography",
     "project_normalized",
     "refine_poses",
+    "rotation_vectors",
 ]
 
 
@@ -102,6 +104,54 @@ def _dlt(P: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.nd
     Hn = Vt[:, -1, :].reshape(B, 3, 3)
     H = np.linalg.inv(Tq) @ Hn @ Tp
     return H, s
+
+
+def ippe_batch(P: np.ndarray, q: np.ndarray, w: np.ndarray, plane_from_brick: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Both planar solutions of many bricks of one layout.
+
+    Args:
+        P: (B, N, 2) the points in the layout's plane frame (z = 0 there).
+        q: (B, N, 2) normalised image points.
+        w: (B, N) 1 = used, 0 = absent (at least 4 used, not degenerate).
+        plane_from_brick: (4, 4) of the layout.
+
+    Returns:
+        (R (B, 2, 3, 3), t (B, 2, 3), cost (B, 2), ok (B,)): ``camera_from_brick``, best
+        first; cost is the sum of squared normalised residuals (as :func:`refine_poses`).
+    """
+    Rpb = np.ascontiguousarray(plane_from_brick[:3, :3], np.float64)
+    tpb = np.ascontiguousarray(plane_from_brick[:3, 3], np.float64)
+    if _k.enabled():
+        R, t, half_cost, ok = _k.ippe(*_f64(P, q, w), Rpb, tpb)
+        return R, t, 2.0 * half_cost, ok
+    import cv2
+
+    B = P.shape[0]
+    R = np.tile(np.eye(3), (B, 2, 1, 1))
+    t = np.zeros((B, 2, 3))
+    cost = np.full((B, 2), np.inf)
+    ok = np.zeros(B, bool)
+    for b in range(B):
+        sel = w[b] > 0
+        Pl = np.concatenate([P[b][sel], np.zeros((int(sel.sum()), 1))], axis=1)
+        try:
+            n, rvs, tvs, err = cv2.solvePnPGeneric(Pl.reshape(-1, 1, 3),
+                                                   q[b][sel].reshape(-1, 1, 2), np.eye(3),
+                                                   None, flags=cv2.SOLVEPNP_IPPE)
+        except cv2.error:
+            n = 0
+        if not n:
+            continue
+        for k in range(2):
+            j = min(k, n - 1)
+            Rcp = cv2.Rodrigues(rvs[j])[0]                # camera_from_plane
+            R[b, k] = Rcp @ Rpb
+            t[b, k] = Rcp @ tpb + np.ravel(tvs[j])
+            # OpenCV's error is the RMS over the 2N coordinates
+            cost[b, k] = 2.0 * float(err[j, 0]) ** 2 * int(sel.sum())
+        ok[b] = True
+    return R, t, cost, ok
 
 
 def homography_dlt(P: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -308,7 +358,14 @@ def _jl_inv(phi: np.ndarray) -> np.ndarray:
 def pose_covariance_from_normal(A: np.ndarray, R: np.ndarray, t: np.ndarray,
                                 rvec: np.ndarray, sigma_norm: np.ndarray) -> np.ndarray:
     """6×6 covariances of (rvec, tvec) from normal matrices JᵀJ (B, 6, 6) of the
-    (left rotation increment, translation) parametrisation, batched."""
+    (left rotation increment, translation) parametrisation, batched.
+
+    Args:
+        A: (B, 6, 6) normal matrices; R, t: the poses; rvec: (B, 3) their rotation vectors.
+        sigma_norm: (B,) standard deviation of one image coordinate, normalised units.
+    """
+    if _k.enabled():
+        return _k.pose_covariance(*_f64(A, rvec, sigma_norm))
     try:
         cov = np.linalg.inv(A + 1e-18 * np.eye(6))
     except np.linalg.LinAlgError:
@@ -318,6 +375,17 @@ def pose_covariance_from_normal(A: np.ndarray, R: np.ndarray, t: np.ndarray,
     M[:, :3, :3] = _jl_inv(rvec)
     M[:, 3:, 3:] = np.eye(3)
     return M @ cov @ M.transpose(0, 2, 1)
+
+
+def rotation_vectors(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (B, 3) of rotations (B, 3, 3) (OpenCV's Rodrigues for a few)."""
+    if _k.enabled():
+        return _k.so3_log(*_f64(R))
+    if R.shape[0] > 6:
+        return so3_log(R)
+    import cv2
+
+    return np.array([cv2.Rodrigues(Rk)[0].ravel() for Rk in R]).reshape(-1, 3)
 
 
 def pose_covariance(X: np.ndarray, w: np.ndarray, R: np.ndarray, t: np.ndarray,
