@@ -238,8 +238,8 @@ class Camera:
         pts = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
-        rvec = np.asarray(rvec, np.float64).reshape(3, 1)
-        tvec = np.asarray(tvec, np.float64).reshape(3, 1)
+        rvec = np.ascontiguousarray(np.asarray(rvec, np.float64).reshape(3, 1))
+        tvec = np.ascontiguousarray(np.asarray(tvec, np.float64).reshape(3, 1))
         if self.is_fisheye:
             px, _ = cv2.fisheye.projectPoints(pts, rvec, tvec, self.K, self.dist)
         else:
@@ -254,8 +254,8 @@ class Camera:
         pts = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
         if pts.shape[0] == 0:
             return np.zeros((0, 2)), np.zeros((0, 6))
-        rvec = np.asarray(rvec, np.float64).reshape(3, 1)
-        tvec = np.asarray(tvec, np.float64).reshape(3, 1)
+        rvec = np.ascontiguousarray(np.asarray(rvec, np.float64).reshape(3, 1))
+        tvec = np.ascontiguousarray(np.asarray(tvec, np.float64).reshape(3, 1))
         if self.is_fisheye:
             # columns: fx fy cx cy k1..k4 | rvec | tvec | alpha
             px, J = cv2.fisheye.projectPoints(pts, rvec, tvec, self.K, self.dist)

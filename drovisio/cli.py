@@ -129,6 +129,11 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
                    help="write the calibration report (errors, rejected views, verdict) here")
     p.add_argument("--out", required=True, metavar="CAMERA.yaml",
                    help="camera file to write (OpenCV FileStorage form)")
+    p.add_argument("--model", default="plumb_bob",
+                   choices=("auto", "plumb_bob", "rational", "fisheye"),
+                   help="lens model: plumb_bob (OpenCV's 5 coefficients, default), rational "
+                        "(8), fisheye (Kannala-Brandt, 4: lenses of 120 deg and more), or auto "
+                        "(chosen on held-out views; the report says why)")
     p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
                    help="calibration images, or folders of them")
 

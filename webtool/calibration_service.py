@@ -340,6 +340,9 @@ class CalibrationService:
             self.auto_capture = bool(data.get("auto_capture", True))
             self.show_result = bool(data.get("show_result", False))
             self.used_camera = data.get("used_camera")
+            lens = data.get("lens_model", "plumb_bob")
+            if lens in ("auto", "plumb_bob", "rational", "fisheye"):
+                sess.set_model(lens)
             self._after_session_change()
         self._recover_orphans()
         self._save()
@@ -401,6 +404,7 @@ class CalibrationService:
             data = {"schema": SESSION_SCHEMA, "id": self.session_id, "created": self.created,
                     "saved": time.time(), "source": self.source_key,
                     "auto_capture": self.auto_capture, "show_result": self.show_result,
+                    "lens_model": self.session.config.solve.model,
                     "used_camera": self.used_camera, "session": self.session.state()}
             atomic_write_bytes(self.folder / "session.json",
                                json.dumps(_clean(data), indent=1).encode())
@@ -697,6 +701,14 @@ class CalibrationService:
             self.auto_capture = bool(on)
         self._save()
 
+    def set_lens_model(self, model: str) -> dict:
+        """The page's lens choice: solve again with it (when there is enough to solve)."""
+        self.session.set_model(model)
+        self._save()
+        if len(self.session.views) >= self.session.config.solve.min_views:
+            self._maybe_solve()
+        return {"lens_model": model}
+
     def capture(self) -> dict:
         """Keep the current camera frame (the manual Capture button)."""
         with self._frame_cond:
@@ -989,6 +1001,9 @@ class CalibrationService:
                        "frame_seq": self._frame_seq,
                        "image_size": list(sess.image_size or self._frame_size or (640, 480))},
             "auto_capture": self.auto_capture,
+            "lens": {"model": sess.config.solve.model,
+                     "solved_with": res.camera.model if res is not None else None,
+                     "choice": res.model_choice if res is not None else None},
             "feedback": {k: v for k, v in self._feedback.items() if not k.startswith("_")},
             "generation": self._gen,
             "views": self._view_rows(),

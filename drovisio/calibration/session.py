@@ -297,6 +297,21 @@ class CalibrationSession:
         with self._lock:
             self._rejected.append({"file": name, "reason": reason})
 
+    def set_model(self, model: str) -> None:
+        """The lens model of the next solves (``auto``, ``plumb_bob``, ``rational`` or
+        ``fisheye``); a result of another model is no longer current."""
+        from dataclasses import replace
+
+        from drovisio.calibration.solve import MODELS
+
+        if model != "auto" and model not in MODELS:
+            raise CalibrationError(f"unknown lens model {model!r}: use auto, plumb_bob, "
+                                   "rational or fisheye")
+        with self._lock:
+            if self.config.solve.model != model:
+                self.config.solve = replace(self.config.solve, model=model)
+                self._generation += 1
+
     def remove_view(self, view_id: int) -> bool:
         with self._lock:
             n = len(self._views)

@@ -35,6 +35,7 @@ from drovisio.calibration.geometry import (
 from drovisio.calibration.uncertainty import (
     grid_jacobians,
     image_grid,
+    param_names,
     schur_information,
     sigma_max,
     view_jacobian,
@@ -147,17 +148,19 @@ def suggest_next_pose(camera: Camera, board: BoardSpec, coverage: Coverage | Non
             the corner noise variance of the solve. Without them the hint follows coverage.
         roi: Image region the uncertainty is judged on (None: all of it).
         grid_step_px: Spacing of the evaluation grid.
-        free: Mask (9,) of the estimated intrinsics (default: all nine).
+        free: Mask (P,) of the estimated intrinsics (default: all of the camera's model).
     """
     have_model = bool(views) and bool(fits) and sigma2 is not None and len(views) >= 3
     if not have_model:
         return _coverage_hint(camera, board, coverage)
-    free = np.ones(9, bool) if free is None else np.asarray(free, bool)
-    jac = [view_jacobian(v.object_points, f.rvec, f.tvec, camera.K, camera.dist)[:2]
+    free = (np.ones(len(param_names(camera.model)), bool) if free is None
+            else np.asarray(free, bool))
+    jac = [view_jacobian(v.object_points, f.rvec, f.tvec, camera)[:2]
            for v, f in zip(views, fits)]
     S0 = schur_information(jac, free)
     xs, ys = image_grid(camera.width, camera.height, grid_step_px)
     Jg = grid_jacobians(camera, xs, ys)[_roi_mask(xs, ys, roi)][:, :, free]
+    Jg = Jg[np.all(np.isfinite(Jg), axis=(1, 2))]
     current = _p95(Jg, S0, sigma2)
     obj = board.object_points()
     best = None
@@ -169,7 +172,7 @@ def suggest_next_pose(camera: Camera, board: BoardSpec, coverage: Coverage | Non
                     continue
                 T, tp, _ = cand
                 rvec = _rvec(T)
-                A, B, _ = view_jacobian(obj, rvec, T[:3, 3], camera.K, camera.dist)
+                A, B, _ = view_jacobian(obj, rvec, T[:3, 3], camera)
                 S = S0 + schur_information([(A, B)], free)
                 p95 = _p95(Jg, S, sigma2)
                 # prefer simpler placements on near-ties (2 %)

@@ -2,15 +2,16 @@
 
 Model and covariance
 --------------------
-The solve minimises the squared reprojection error over the nine intrinsics
-θ = (fx, fy, cx, cy, k1, k2, p1, p2, k3) and six extrinsics e_i = (rvec_i, tvec_i) per view.
+The solve minimises the squared reprojection error over the intrinsics θ of the lens model
+(:func:`param_names`: fx, fy, cx, cy and 5 Brown, 8 rational or 4 fisheye coefficients) and
+six extrinsics e_i = (rvec_i, tvec_i) per view.
 With J_i = [A_i | B_i] the Jacobian of view i's residuals with respect to (θ, e_i), the
 information about θ *after the extrinsics have been solved for* is the Schur complement
 
     S = Σ_i A_iᵀA_i − A_iᵀB_i (B_iᵀB_i)⁻¹ B_iᵀA_i,
 
 and Σ_θ = σ² S⁻¹ with σ² = SSR / (2·N_corners − n_free − 6·n_views), the corner noise variance
-estimated from the residuals. This is the joint (9 × 9, correlations included) covariance of the
+estimated from the residuals. This is the joint (P × P, correlations included) covariance of the
 intrinsics, marginalised over all board poses — its diagonal is what OpenCV's
 ``calibrateCameraExtended`` reports as standard deviations. Parameters held fixed (e.g. k3 = 0)
 have zero variance: the map is then *conditioned* on that choice, which is honest only when
@@ -24,7 +25,7 @@ q, p = (x, y, 1) in the camera frame (a point at any distance on that ray: with 
 held fixed, the projection depends only on the direction, so the distance drops out), and
 propagate linearly:
 
-    Σ_q = J_q Σ_θ J_qᵀ,   J_q = ∂π(p; θ)/∂θ   (2 × 9),
+    Σ_q = J_q Σ_θ J_qᵀ,   J_q = ∂π(p; θ)/∂θ   (2 × P),
 
 reporting σ(q) = √λ_max(Σ_q), the 1-σ uncertainty in the worst image direction, pixels.
 
@@ -48,34 +49,51 @@ import numpy as np
 
 from drovisio.camera import Camera
 
-__all__ = ["PARAM_NAMES", "view_jacobian", "schur_information", "covariance_from_information",
+__all__ = ["PARAM_NAMES", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
            "UncertaintyMap", "image_grid", "grid_jacobians", "sigma_max",
            "projection_uncertainty", "model_difference_px"]
 
-PARAM_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+def param_names(model: str = "plumb_bob") -> tuple[str, ...]:
+    """The intrinsics a calibration of ``model`` estimates, in the order of its vectors."""
+    base = ("fx", "fy", "cx", "cy")
+    if model == "fisheye":
+        return base + ("k1", "k2", "k3", "k4")
+    if model == "rational_polynomial":
+        return base + ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+    return base + ("k1", "k2", "p1", "p2", "k3")
 
 
-def _dist5(dist: np.ndarray) -> np.ndarray:
-    d = np.zeros(5)
-    dd = np.asarray(dist, float).ravel()[:5]
-    d[: dd.size] = dd
-    return d
+PARAM_NAMES = param_names("plumb_bob")
 
 
-def view_jacobian(object_points: np.ndarray, rvec, tvec, K: np.ndarray, dist: np.ndarray
+def param_values(camera: Camera) -> np.ndarray:
+    """The camera's intrinsics in :func:`param_names` order (missing coefficients 0)."""
+    n = len(param_names(camera.model)) - 4
+    d = np.zeros(n)
+    d[: min(n, camera.dist.size)] = camera.dist[:n]
+    return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *d])
+
+
+def view_jacobian(object_points: np.ndarray, rvec, tvec, camera: Camera
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Residual Jacobians of one view.
+    """Residual Jacobians of one view through ``camera``'s lens model.
 
     Returns:
-        (A (2N, 9) w.r.t. the intrinsics in :data:`PARAM_NAMES` order, B (2N, 6) w.r.t.
+        (A (2N, P) w.r.t. the intrinsics in :func:`param_names` order, B (2N, 6) w.r.t.
         (rvec, tvec), projections (N, 2)).
     """
     obj = np.asarray(object_points, np.float64).reshape(-1, 1, 3)
-    px, jac = cv2.projectPoints(obj, np.asarray(rvec, float).reshape(3, 1),
-                                np.asarray(tvec, float).reshape(3, 1), np.asarray(K, float),
-                                _dist5(dist))
+    r = np.ascontiguousarray(np.asarray(rvec, float).reshape(3, 1))
+    t = np.ascontiguousarray(np.asarray(tvec, float).reshape(3, 1))
+    if camera.is_fisheye:
+        # columns: fx fy cx cy k1..k4 | rvec | tvec | alpha (skew, held at 0)
+        px, jac = cv2.fisheye.projectPoints(obj, r, t, camera.K, camera.dist)
+        jac = np.asarray(jac, float)
+        return jac[:, 0:8], jac[:, 8:14], np.asarray(px, float).reshape(-1, 2)
+    d = param_values(camera)[4:]
+    px, jac = cv2.projectPoints(obj, r, t, camera.K, d)
     jac = np.asarray(jac, float)
-    return jac[:, 6:15], jac[:, 0:6], np.asarray(px, float).reshape(-1, 2)
+    return jac[:, 6:10 + d.size], jac[:, 0:6], np.asarray(px, float).reshape(-1, 2)
 
 
 def schur_information(jacobians: list[tuple[np.ndarray, np.ndarray]], free: np.ndarray
@@ -97,8 +115,8 @@ def schur_information(jacobians: list[tuple[np.ndarray, np.ndarray]], free: np.n
 
 
 def covariance_from_information(S: np.ndarray, sigma2: float, free: np.ndarray) -> np.ndarray:
-    """Σ_θ (9 × 9) = σ² S⁻¹ on the free parameters, zeros on the fixed ones."""
-    cov = np.zeros((9, 9))
+    """Σ_θ (P × P) = σ² S⁻¹ on the free parameters, zeros on the fixed ones."""
+    cov = np.zeros((free.size, free.size))
     idx = np.flatnonzero(free)
     # scale to unit diagonal before inverting: fx (~500) and k3 (~0.1) differ by 10⁴
     d = np.sqrt(np.clip(np.diag(S), 1e-300, None))
@@ -160,18 +178,23 @@ def image_grid(width: int, height: int, step: float = 16.0) -> tuple[np.ndarray,
 
 
 def grid_jacobians(camera: Camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
-    """∂π/∂θ (G, 2, 9) for the viewing rays of ``camera`` through the grid points (row-major)."""
+    """∂π/∂θ (G, 2, P) for the viewing rays of ``camera`` through the grid points
+    (row-major); NaN where the lens sees no ray."""
     gx, gy = np.meshgrid(xs, ys)
     px = np.stack([gx.ravel(), gy.ravel()], axis=1)
     xy = camera.normalize(px)
-    p = np.concatenate([xy, np.ones((len(xy), 1))], axis=1).reshape(-1, 1, 3)
-    _, jac = cv2.projectPoints(p, np.zeros((3, 1)), np.zeros((3, 1)), camera.K,
-                               _dist5(camera.dist))
-    return np.asarray(jac, float)[:, 6:15].reshape(-1, 2, 9)
+    P = len(param_names(camera.model))
+    out = np.full((len(px), 2, P), np.nan)
+    ok = np.all(np.isfinite(xy), axis=1)
+    if ok.any():
+        p = np.concatenate([xy[ok], np.ones((int(ok.sum()), 1))], axis=1)
+        A, _, _ = view_jacobian(p, np.zeros(3), np.zeros(3), camera)
+        out[ok] = A.reshape(-1, 2, P)
+    return out
 
 
 def sigma_max(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """√λ_max of J Σ Jᵀ for a stack of (G, 2, 9) Jacobians → (G,)."""
+    """√λ_max of J Σ Jᵀ for a stack of (G, 2, P) Jacobians → (G,) (NaN rows give NaN)."""
     M = J @ cov  # (G, 2, n)
     a = np.sum(M[:, 0, :] * J[:, 0, :], axis=1)
     b = np.sum(M[:, 0, :] * J[:, 1, :], axis=1)

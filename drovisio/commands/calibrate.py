@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     from drovisio.calibration.board import BoardSpecError, parse_board
     from drovisio.calibration.report import build_report, format_summary
     from drovisio.calibration.session import CalibrationSession, SessionConfig
-    from drovisio.calibration.solve import CalibrationError
+    from drovisio.calibration.solve import CalibrationError, SolveOptions
     from drovisio.camera_file import save_camera
     from drovisio.fileio import check_output_path
 
@@ -147,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
     n = len(images)
     width = len(str(n))
 
-    session = CalibrationSession(board, config=SessionConfig(camera_name=out.stem or "camera"))
+    session = CalibrationSession(board, config=SessionConfig(
+        camera_name=out.stem or "camera", solve=SolveOptions(model=args.model)))
     frames = []  # (path name, FrameResult)
     n_read = 0
     for i, path in enumerate(images, 1):
@@ -230,6 +231,8 @@ def run(args: argparse.Namespace) -> int:
     if report_path is not None:
         _write_json_atomic(report_path, report)
     print(format_summary(report), file=sys.stderr)
+    if result.model_choice is not None:
+        print(f"lens model: {result.model_choice['reason']}", file=sys.stderr)
     print(f"wrote {out} (OpenCV) and {ros} (ROS camera_info)"
           + (f", report {report_path}" if report_path else ""), file=sys.stderr)
     return 0

@@ -49,6 +49,15 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     assert "RMS reprojection error" in page.text_content("#rms")
     assert "root mean square" in page.text_content("#rms-def")
     page.wait_for_function("document.getElementById('uncertainty-map').naturalWidth > 0")
+    assert page.text_content("#lens-result").startswith("Lens model: normal lens")
+
+    # the lens choice: "choose for me" solves again and says why it kept the normal model
+    page.select_option("#lens", "auto")
+    page.wait_for_function(
+        "document.getElementById('lens-result').textContent.includes('held-out RMS')",
+        timeout=30000)
+    assert "kept plumb_bob" in page.text_content("#lens-result")
+    assert page.locator("#params tbody tr").count() == 9
 
     with page.expect_download() as dl:
         page.click("#download-opencv")

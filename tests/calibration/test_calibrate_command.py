@@ -128,3 +128,32 @@ def test_bad_board_spec_and_output(render_dir, tmp_path, capsys):
     assert rc == 2 and "COLSxROWS" in err
     rc, err = _run(capsys, *BOARD, "--out", str(tmp_path), str(render_dir))
     assert rc == 2 and "is a folder" in err
+
+
+def test_model_auto_on_the_real_views_says_why(opencv_files, tmp_path, capsys):
+    out, rep = tmp_path / "cam.yaml", tmp_path / "report.json"
+    rc, err = _run(capsys, "--board", "chessboard:9x6", "--square", "0.025", "--model", "auto",
+                   "--report", str(rep), "--out", str(out), str(opencv_files[0].parent))
+    assert rc == 0
+    assert "lens model: kept plumb_bob: held-out RMS plumb_bob 0." in err
+    r = json.loads(rep.read_text())
+    assert r["camera"]["model"] == "plumb_bob" and r["model_choice"]["chosen"] == "plumb_bob"
+    assert load_camera(out).model == "plumb_bob"
+
+
+def test_model_fisheye_writes_a_fisheye_camera_file(tmp_path, capsys):
+    from drovisio.calibration.synthetic import render_calibration_views
+    from drovisio.camera import Camera
+
+    truth = Camera.from_fov(960, 720, 140.0, dist=[0.02, -0.01, 0.003, -0.0005],
+                            model="fisheye")
+    for v in render_calibration_views(truth, 10, seed=4, ss=2):
+        cv2.imwrite(str(tmp_path / v.name), v.image)
+    out = tmp_path / "out" / "fish.yaml"
+    out.parent.mkdir()
+    rc, err = _run(capsys, "--board", "chessboard:9x6", "--square", "0.03", "--model",
+                   "fisheye", "--out", str(out), str(tmp_path))
+    assert rc == 0, err
+    for f in (out, out.parent / "fish.ros.yaml"):
+        cam = load_camera(f)
+        assert cam.model == "fisheye" and abs(cam.fx / truth.fx - 1) < 0.003

@@ -387,3 +387,29 @@ def test_writes_work_with_the_token(make_client):
     assert c.get("/calibration?token=tok-123").status_code == 200  # sets the cookie
     assert c.post(f"{API}/auto", json={"on": False}).status_code == 200
     assert c.get(f"{API}/state").json()["auto_capture"] is False
+
+
+def test_lens_model_choice_solves_again_and_says_why(make_client):
+    c = make_client(no_camera)
+    upload(c, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(10)])
+    assert c.post(f"{API}/solve").status_code == 202
+    s = wait_state(c, lambda s: s["solve"]["has_result"] and s["solve"]["current"])
+    assert s["lens"] == {"model": "plumb_bob", "solved_with": "plumb_bob", "choice": None}
+    r = c.post(f"{API}/lens", json={"model": "auto"})
+    assert r.status_code == 200 and r.json() == {"lens_model": "auto"}
+    s = wait_state(c, lambda s: s["solve"]["current"] and s["lens"]["choice"] is not None,
+                   timeout=30)
+    assert s["lens"]["model"] == "auto" and s["lens"]["choice"]["chosen"] == "plumb_bob"
+    assert "held-out RMS" in s["lens"]["choice"]["reason"]
+    rep = c.get(f"{API}/result").json()
+    assert rep["camera"]["model"] == "plumb_bob" and rep["model_choice"]["chosen"] == "plumb_bob"
+    c.post(f"{API}/lens", json={"model": "fisheye"})
+    s = wait_state(c, lambda s: s["solve"]["current"] and s["lens"]["solved_with"] == "fisheye",
+                   timeout=30)
+    rep = c.get(f"{API}/result").json()
+    assert set(rep["std"]) == {"fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"}
+    assert len(rep["camera"]["dist"]) == 4
+    # the choice is kept with the session
+    assert json.loads((session_dir(c) / "session.json").read_text())["lens_model"] == "fisheye"
+    for bad in ({"model": "kannala"}, {"model": "auto", "x": 1}, {}):
+        assert c.post(f"{API}/lens", json=bad).status_code == 422

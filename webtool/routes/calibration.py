@@ -50,6 +50,10 @@ class AutoBody(Body):
     on: bool
 
 
+class LensBody(Body):
+    model: Literal["auto", "plumb_bob", "rational", "fisheye"]
+
+
 class SessionBody(Body):
     board: Annotated[str, Field(min_length=1, max_length=80)] | None = None
     square_m: Annotated[float, Field(gt=0)] | None = None   # metres; the board checks more
@@ -95,6 +99,11 @@ def delete_view(svc: Calibration, view_id: ViewId) -> dict:
 @router.post("/upload")
 def upload(svc: Calibration, files: Annotated[list[UploadFile], File()]) -> dict:
     return svc.upload([(f.filename or "", f.file) for f in files])
+
+
+@router.post("/lens")
+def lens(svc: Calibration, body: LensBody) -> dict:
+    return svc.set_lens_model(body.model)
 
 
 @router.post("/solve", status_code=202)

@@ -211,6 +211,10 @@
         const e = document.createElement("li"); e.textContent = r; return e;
       }));
     }
+    const lens = $("lens");
+    if (s.lens && document.activeElement !== lens && lens.value !== s.lens.model) {
+      lens.value = s.lens.model;
+    }
     const solve = $("solve");
     const sv = s.solve;
     const enough = p.views >= p.solve_needs;
@@ -277,10 +281,18 @@
   }
 
   // ------------------------------------------------------------------------ result
-  const PARAMS = [["fx", "focal length x", "px"], ["fy", "focal length y", "px"],
-    ["cx", "image centre x", "px"], ["cy", "image centre y", "px"], ["k1", "radial k1", ""],
-    ["k2", "radial k2", ""], ["p1", "tangential p1", ""], ["p2", "tangential p2", ""],
-    ["k3", "radial k3", ""]];
+  const BASE_PARAMS = [["fx", "focal length x", "px"], ["fy", "focal length y", "px"],
+    ["cx", "image centre x", "px"], ["cy", "image centre y", "px"]];
+  // distortion coefficients of each lens model, in the camera file's order
+  const DIST_NAMES = {
+    plumb_bob: ["k1", "k2", "p1", "p2", "k3"],
+    rational_polynomial: ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"],
+    fisheye: ["k1", "k2", "k3", "k4"],
+  };
+  const distLabel = (k) => (k[0] === "p" ? `tangential ${k}` : `radial ${k}`);
+  const LENS_NAMES = { plumb_bob: "normal lens (5 coefficients)",
+    rational_polynomial: "wide lens (rational, 8 coefficients)",
+    fisheye: "fisheye (Kannala–Brandt, 4 coefficients)" };
 
   async function renderResult(s) {
     const sec = $("result");
@@ -315,8 +327,14 @@
     box.replaceChildren(...parts);
 
     const cam = rep.camera;
+    const model = cam.model || "plumb_bob";
+    const names = DIST_NAMES[model] || DIST_NAMES.plumb_bob;
+    const PARAMS = BASE_PARAMS.concat(names.map((k) => [k, distLabel(k), ""]));
     const vals = { fx: cam.fx, fy: cam.fy, cx: cam.cx, cy: cam.cy };
-    ["k1", "k2", "p1", "p2", "k3"].forEach((k, i) => { vals[k] = cam.dist[i]; });
+    names.forEach((k, i) => { vals[k] = cam.dist[i]; });
+    const choice = rep.model_choice;
+    setText("lens-result", `Lens model: ${LENS_NAMES[model] || model}.`
+      + (choice ? ` ${choice.reason}.` : ""));
     const std = rep.std || {};
     const fixed = rep.fixed || {};
     const rows = PARAMS.map(([k, label, unit]) => {
@@ -355,6 +373,11 @@
     status("capture-status", "Capturing…");
     try { const r = await call("POST", "/capture"); status("capture-status", r.message); }
     catch (e) { status("capture-status", e.message, true); }
+  });
+  $("lens").addEventListener("change", async (ev) => {
+    status("lens-status", "Solving again with this lens model…");
+    try { await call("POST", "/lens", { model: ev.target.value }); status("lens-status", ""); }
+    catch (e) { status("lens-status", e.message, true); }
   });
   $("solve").addEventListener("click", async () => {
     const st = $("solve-status");
