@@ -91,6 +91,7 @@ class Command:
     example: str  # shown under "Example:" in `drovisio NAME --help`
     add_arguments: Callable[[argparse.ArgumentParser], None]
     target: str = ""  # "module:function"; default drovisio.commands.<name>:run
+    spelled: str = ""  # how users type it, when not its name (``calibrate board``)
 
     @property
     def entry_point(self) -> str:
@@ -136,6 +137,16 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
                         "(chosen on held-out views; the report says why)")
     p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
                    help="calibration images, or folders of them")
+
+
+def _add_calibrate_board(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pdf", required=True, metavar="BOARD.pdf", help="PDF file to write")
+    p.add_argument("--board", default="chessboard:9x6", metavar="KIND:COLSxROWS",
+                   help="chessboard:9x6 (default) or charuco:7x5 (inner corners)")
+    p.add_argument("--paper", default="A4", choices=("A4", "A3", "Letter"),
+                   help="paper size (default A4); the board is as large as fits")
+    p.add_argument("--square", type=positive_float, metavar="METRES",
+                   help="side of one square on paper (default: the largest whole mm that fits)")
 
 
 def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
@@ -289,12 +300,25 @@ COMMANDS: dict[str, Command] = {
         Command(
             name="calibrate",
             summary="calibrate a camera from chessboard images",
-            description="Calibrate the pinhole camera and its Brown distortion (k1 k2 p1 p2 k3) "
-                        "from views of a chessboard. Writes the camera file and, with --report, "
-                        "the RMS reprojection error, per-view errors, rejected views and a verdict.",
+            description="Calibrate the camera and its lens model (--model) from views of a "
+                        "chessboard or ChArUco board. Writes the camera file and, with --report, "
+                        "the RMS reprojection error, per-view errors, rejected views and corners, "
+                        "and a verdict. To print a board first: drovisio calibrate board --pdf "
+                        "board.pdf [--board chessboard:9x6] [--paper A4|A3|Letter].",
             example="drovisio calibrate --board chessboard:9x6 --square 0.025 \\\n"
                     "    --report report.json --out camera.yaml calib_images/",
             add_arguments=_add_calibrate,
+        ),
+        Command(
+            name="calibrate-board",
+            spelled="calibrate board",
+            summary="",
+            description="Write a true-scale PDF of a calibration board to print, with a 100 mm "
+                        "ruler to check the print; measure a printed square and give it to "
+                        "--square when calibrating.",
+            example="drovisio calibrate board --pdf board.pdf --board chessboard:9x6 --paper A4",
+            add_arguments=_add_calibrate_board,
+            target="drovisio.commands.calibrate:print_board",
         ),
         Command(
             name="run",
@@ -381,7 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     for cmd in COMMANDS.values():
         p = sub.add_parser(
             cmd.name,
-            help=cmd.summary,
+            prog=f"{PROG} {cmd.spelled or cmd.name}",
+            help=cmd.summary or argparse.SUPPRESS,
             description=cmd.description,
             epilog=f"Example:\n  {cmd.example}",
             formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -441,6 +466,10 @@ def _quiet_stdout() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:2] == ["calibrate", "board"] and any(
+            a in ("--pdf", "-h", "--help") or a.startswith("--pdf=") for a in argv[2:]):
+        argv = ["calibrate-board", *argv[2:]]     # printing the board, not calibrating
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors: return, don't exit
@@ -448,7 +477,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
-    label = f"{PROG} {args.command}"
+    label = f"{PROG} {COMMANDS[args.command].spelled or args.command}"
     debug = args.debug or os.environ.get("DROVISIO_DEBUG", "") not in ("", "0")
     from drovisio.errors import InputError, WriteError
 

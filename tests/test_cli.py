@@ -24,7 +24,18 @@ MINIMAL_ARGS = {
 
 
 def test_table_lists_exactly_the_design_commands():
-    assert list(cli.COMMANDS) == ALL_COMMANDS
+    assert [n for n, c in cli.COMMANDS.items() if c.summary] == ALL_COMMANDS
+    # besides them, one action spelled as two words: printing the calibration board
+    assert [c.spelled for c in cli.COMMANDS.values() if not c.summary] == ["calibrate board"]
+
+
+def test_calibrate_board_is_an_action_of_calibrate(capsys):
+    assert cli.main(["calibrate", "board", "--help"]) == 0
+    assert capsys.readouterr().out.startswith("usage: drovisio calibrate board")
+    # without --pdf, "board" is an image folder like any other
+    a = cli.build_parser().parse_args(["calibrate", "board", "--board", "chessboard:9x6",
+                                       "--square", "0.025", "--out", "c.yaml"])
+    assert a.command == "calibrate" and a.images == ["board"]
 
 
 def test_top_level_help_lists_all_commands(capsys):

@@ -246,3 +246,25 @@ def _maybe_report(path: Path | None, session, build_report) -> None:
         print(f"report written to {path}", file=sys.stderr)
     except OSError as e:   # the calibration failed already: say both
         _err(str(e))
+
+
+def print_board(args: argparse.Namespace) -> int:
+    """``drovisio calibrate board``: the board as a true-scale PDF."""
+    from drovisio.calibration.board import BoardSpecError, parse_board
+    from drovisio.calibration.printout import board_pdf
+    from drovisio.fileio import check_output_path
+
+    try:
+        board = parse_board(args.board, args.square or 0.025)
+    except BoardSpecError as e:
+        raise InputError(str(e)) from None
+    out = check_output_path(args.pdf, "--pdf", {})
+    info = board_pdf(board, out, args.paper,
+                     None if args.square is None else args.square * 1000.0)
+    w, h = info["board_mm"]
+    print(f"wrote {out}: {board.spec()} on {info['paper']} "
+          f"({'landscape' if info['landscape'] else 'portrait'}), squares of "
+          f"{info['square_mm']:g} mm, board {w:g} x {h:g} mm. Print at 100 % and check the "
+          "100 mm ruler; then calibrate with --square set to a square as measured (in metres).",
+          file=sys.stderr)
+    return 0

@@ -17,10 +17,9 @@ dependency). Its user unit is the PDF point (1/72 in) with no scaling, so a code
 
 from __future__ import annotations
 
-import io
 import os
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,14 +34,12 @@ from drovisio.layout import (
     parse_layout,
     save_layout,
 )
+from drovisio.printing import A3_MM, A4_MM, MM_TO_PT, Page, num, pdf_bytes
 
 __all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "SavedDesign", "build_layout", "save_design",
            "export_glb", "SheetItem", "sheet_items", "sheet_pages",
            "print_sheet_pdf", "print_sheet_svg", "mesh_stl_bytes"]
 
-MM_TO_PT = 72.0 / 25.4
-A4_MM = (210.0, 297.0)
-A3_MM = (297.0, 420.0)
 PAGE_MARGIN_MM = 12.0
 HEADER_MM = 30.0
 GAP_MM = 4.0
@@ -302,14 +299,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
     return items
 
 
-@dataclass
-class _Page:
-    width: float  # mm
-    height: float
-    ops: list[tuple] = field(default_factory=list)
-
-
-def _header(page: _Page, title: str, note: str, number: int, total_hint: str) -> float:
+def _header(page: Page, title: str, note: str, number: int, total_hint: str) -> float:
     x0 = PAGE_MARGIN_MM
     y = PAGE_MARGIN_MM + 5
     page.ops.append(("text", x0, y, 13, title, True))
@@ -333,7 +323,7 @@ def _header(page: _Page, title: str, note: str, number: int, total_hint: str) ->
     return y + 13
 
 
-def _draw_item(page: _Page, it: SheetItem, x: float, y: float) -> None:
+def _draw_item(page: Page, it: SheetItem, x: float, y: float) -> None:
     """Draw an item whose cut box's top-left corner is at (x, y) mm."""
     s = it.size * 1000
     mg = it.margin * 1000
@@ -369,7 +359,7 @@ def _draw_item(page: _Page, it: SheetItem, x: float, y: float) -> None:
 
 
 def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
-                dot_sets: int = 1) -> list[_Page]:
+                dot_sets: int = 1) -> list[Page]:
     """Lay the items out on pages (A4 portrait; an item too big for A4 gets an A3 page, or a
     page of its own size)."""
     items = sheet_items(doc, instances, dot_sets)
@@ -380,15 +370,15 @@ def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
     note = (f"Cut along the dashed lines. Codes: {dictionary}, glue each one flat with its "
             "top edge as written under it." if dictionary else
             "Cut along the dashed lines (or use the discs as painting templates).")
-    pages: list[_Page] = []
+    pages: list[Page] = []
 
-    def new_page(w: float, h: float) -> tuple[_Page, float]:
-        p = _Page(w, h)
+    def new_page(w: float, h: float) -> tuple[Page, float]:
+        p = Page(w, h)
         y = _header(p, title, note, len(pages) + 1, "")
         pages.append(p)
         return p, y
 
-    page: _Page | None = None
+    page: Page | None = None
     x = y = row_h = 0.0
     for it in items:
         box = it.size * 1000 + 2 * it.margin * 1000
@@ -436,120 +426,11 @@ def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
 # ---- PDF
 
 
-def _pdf_str(text: str) -> bytes:
-    raw = text.encode("cp1252", errors="replace")
-    return b"(" + raw.replace(b"\\", b"\\\\").replace(b"(", b"\\(").replace(b")", b"\\)") + b")"
-
-
-def _f(v: float) -> str:
-    s = f"{v:.4f}".rstrip("0").rstrip(".")
-    return s if s not in ("-0", "") else "0"
-
-
-def _text_width_pt(text: str, size: float, bold: bool) -> float:
-    # Helvetica's average advance is about 0.5 em (0.55 bold); good enough to centre labels.
-    return len(text) * size * (0.55 if bold else 0.5)
-
-
-def _pdf_page_content(p: _Page) -> bytes:
-    H = p.height * MM_TO_PT
-    out: list[str] = []
-
-    def X(x):
-        return _f(x * MM_TO_PT)
-
-    def Y(y):
-        return _f(H - y * MM_TO_PT)
-
-    def style(fill, stroke, dash, lw):
-        s = []
-        if fill is not None:
-            s.append(f"{_f(fill[0])} {_f(fill[1])} {_f(fill[2])} rg")
-        if stroke is not None:
-            s.append(f"{_f(stroke[0])} {_f(stroke[1])} {_f(stroke[2])} RG")
-            s.append(f"{_f(lw * MM_TO_PT)} w")
-            s.append(f"[{' '.join(_f(d * MM_TO_PT) for d in dash)}] 0 d" if dash else "[] 0 d")
-        return s
-
-    def paint(fill, stroke):
-        return "B" if fill is not None and stroke is not None else ("f" if fill is not None
-                                                                   else "S")
-
-    for op in p.ops:
-        kind = op[0]
-        if kind == "rect":
-            _, x, y, w, h, fill, stroke, dash, lw = op
-            out += style(fill, stroke, dash, lw)
-            out.append(f"{X(x)} {_f(H - (y + h) * MM_TO_PT)} {_f(w * MM_TO_PT)} "
-                       f"{_f(h * MM_TO_PT)} re {paint(fill, stroke)}")
-        elif kind == "circle":
-            _, cx, cy, r, fill, stroke, dash, lw = op
-            out += style(fill, stroke, dash, lw)
-            k = 0.5522847498 * r
-            pts = [(cx + r, cy), (cx + r, cy + k, cx + k, cy + r, cx, cy + r),
-                   (cx - k, cy + r, cx - r, cy + k, cx - r, cy),
-                   (cx - r, cy - k, cx - k, cy - r, cx, cy - r),
-                   (cx + k, cy - r, cx + r, cy - k, cx + r, cy)]
-            out.append(f"{X(pts[0][0])} {Y(pts[0][1])} m")
-            for c in pts[1:]:
-                out.append(f"{X(c[0])} {Y(c[1])} {X(c[2])} {Y(c[3])} {X(c[4])} {Y(c[5])} c")
-            out.append("h " + paint(fill, stroke))
-        elif kind == "line":
-            _, x1, y1, x2, y2, stroke, lw, dash = op
-            out += style(None, stroke, dash, lw)
-            out.append(f"{X(x1)} {Y(y1)} m {X(x2)} {Y(y2)} l S")
-        elif kind == "text":
-            x, y, size, text, bold = op[1:6]
-            anchor = op[6] if len(op) > 6 else "start"
-            w = _text_width_pt(text, size, bold)
-            xp = x * MM_TO_PT - (w if anchor == "end" else w / 2 if anchor == "middle" else 0)
-            out.append("0 0 0 rg")
-            out.append(f"BT /{'F2' if bold else 'F1'} {_f(size)} Tf {_f(xp)} {Y(y)} Td "
-                       + _pdf_str(text).decode("latin-1") + " Tj ET")
-    return ("\n".join(out) + "\n").encode("latin-1")
-
-
 def print_sheet_pdf(doc: DesignDocument, instances: list[int] | None = None,
                     dot_sets: int = 1) -> bytes:
     """The print sheet as PDF bytes (true scale; see the module docstring)."""
-    pages = sheet_pages(doc, instances, dot_sets)
-    objs: list[bytes] = []
-
-    def add(body: bytes) -> int:
-        objs.append(body)
-        return len(objs)
-
-    catalog = add(b"")  # placeholder, filled below
-    pages_id = add(b"")
-    f1 = add(b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica "
-             b"/Encoding /WinAnsiEncoding >>")
-    f2 = add(b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica-Bold "
-             b"/Encoding /WinAnsiEncoding >>")
-    kids = []
-    for p in pages:
-        content = _pdf_page_content(p)
-        cid = add(f"<< /Length {len(content)} >>\nstream\n".encode() + content + b"endstream")
-        pid = add((f"<< /Type /Page /Parent {pages_id} 0 R /MediaBox [0 0 "
-                   f"{_f(p.width * MM_TO_PT)} {_f(p.height * MM_TO_PT)}] /Resources << /Font "
-                   f"<< /F1 {f1} 0 R /F2 {f2} 0 R >> >> /Contents {cid} 0 R >>").encode())
-        kids.append(pid)
-    objs[catalog - 1] = f"<< /Type /Catalog /Pages {pages_id} 0 R >>".encode()
-    objs[pages_id - 1] = (f"<< /Type /Pages /Kids [{' '.join(f'{k} 0 R' for k in kids)}] "
-                          f"/Count {len(kids)} >>").encode()
-    buf = io.BytesIO()
-    buf.write(b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n")
-    offsets = []
-    for i, body in enumerate(objs, start=1):
-        offsets.append(buf.tell())
-        buf.write(f"{i} 0 obj\n".encode() + body + b"\nendobj\n")
-    xref = buf.tell()
-    buf.write(f"xref\n0 {len(objs) + 1}\n0000000000 65535 f \n".encode())
-    for off in offsets:
-        buf.write(f"{off:010d} 00000 n \n".encode())
-    buf.write((f"trailer\n<< /Size {len(objs) + 1} /Root {catalog} 0 R /Info << /Title "
-               f"{_pdf_str('Drovisio markers - ' + doc.name).decode('latin-1')} /Producer "
-               f"(Drovisio marker designer) >> >>\nstartxref\n{xref}\n%%EOF\n").encode("latin-1"))
-    return buf.getvalue()
+    return pdf_bytes(sheet_pages(doc, instances, dot_sets), title="Drovisio markers - " + doc.name,
+                     producer="Drovisio marker designer")
 
 
 # ---- SVG
@@ -569,12 +450,12 @@ def print_sheet_svg(doc: DesignDocument, page: int = 1, instances: list[int] | N
         raise DesignError(f"the print sheet has {len(pages)} page(s); page {page} does not "
                           "exist")
     p = pages[page - 1]
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{_f(p.width)}mm" '
-           f'height="{_f(p.height)}mm" viewBox="0 0 {_f(p.width)} {_f(p.height)}" '
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{num(p.width)}mm" '
+           f'height="{num(p.height)}mm" viewBox="0 0 {num(p.width)} {num(p.height)}" '
            f'data-pages="{len(pages)}">',
            f'<title>{_xml("Drovisio markers - " + doc.name)} (page {page} of '
            f'{len(pages)})</title>',
-           f'<rect x="0" y="0" width="{_f(p.width)}" height="{_f(p.height)}" fill="#fff"/>']
+           f'<rect x="0" y="0" width="{num(p.width)}" height="{num(p.height)}" fill="#fff"/>']
 
     def col(c):
         return "none" if c is None else "#" + "".join(f"{int(round(v * 255)):02x}" for v in c)
@@ -582,9 +463,9 @@ def print_sheet_svg(doc: DesignDocument, page: int = 1, instances: list[int] | N
     def stroke_attrs(stroke, dash, lw):
         if stroke is None:
             return ""
-        s = f' stroke="{col(stroke)}" stroke-width="{_f(lw)}"'
+        s = f' stroke="{col(stroke)}" stroke-width="{num(lw)}"'
         if dash:
-            s += f' stroke-dasharray="{" ".join(_f(d) for d in dash)}"'
+            s += f' stroke-dasharray="{" ".join(num(d) for d in dash)}"'
         return s
 
     for op in p.ops:
@@ -592,22 +473,22 @@ def print_sheet_svg(doc: DesignDocument, page: int = 1, instances: list[int] | N
         if kind == "rect":
             _, x, y, w, h, fill, stroke, dash, lw = op
             cls = ' class="code"' if fill == (0, 0, 0) and abs(w - h) < 1e-9 else ""
-            out.append(f'<rect{cls} x="{_f(x)}" y="{_f(y)}" width="{_f(w)}" height="{_f(h)}" '
+            out.append(f'<rect{cls} x="{num(x)}" y="{num(y)}" width="{num(w)}" height="{num(h)}" '
                        f'fill="{col(fill)}"{stroke_attrs(stroke, dash, lw)}'
                        + (' shape-rendering="crispEdges"' if fill is not None else "") + "/>")
         elif kind == "circle":
             _, cx, cy, r, fill, stroke, dash, lw = op
-            out.append(f'<circle cx="{_f(cx)}" cy="{_f(cy)}" r="{_f(r)}" fill="{col(fill)}"'
+            out.append(f'<circle cx="{num(cx)}" cy="{num(cy)}" r="{num(r)}" fill="{col(fill)}"'
                        f'{stroke_attrs(stroke, dash, lw)}/>')
         elif kind == "line":
             _, x1, y1, x2, y2, stroke, lw, dash = op
-            out.append(f'<line x1="{_f(x1)}" y1="{_f(y1)}" x2="{_f(x2)}" y2="{_f(y2)}"'
+            out.append(f'<line x1="{num(x1)}" y1="{num(y1)}" x2="{num(x2)}" y2="{num(y2)}"'
                        f'{stroke_attrs(stroke, dash, lw)}/>')
         elif kind == "text":
             x, y, size, text, bold = op[1:6]
             anchor = op[6] if len(op) > 6 else "start"
-            out.append(f'<text x="{_f(x)}" y="{_f(y)}" font-family="Helvetica, Arial, '
-                       f'sans-serif" font-size="{_f(size * 25.4 / 72)}"'
+            out.append(f'<text x="{num(x)}" y="{num(y)}" font-family="Helvetica, Arial, '
+                       f'sans-serif" font-size="{num(size * 25.4 / 72)}"'
                        + (' font-weight="bold"' if bold else "")
                        + (f' text-anchor="{anchor}"' if anchor != "start" else "")
                        + f">{_xml(text)}</text>")

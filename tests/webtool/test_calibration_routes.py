@@ -413,3 +413,18 @@ def test_lens_model_choice_solves_again_and_says_why(make_client):
     assert json.loads((session_dir(c) / "session.json").read_text())["lens_model"] == "fisheye"
     for bad in ({"model": "kannala"}, {"model": "auto", "x": 1}, {}):
         assert c.post(f"{API}/lens", json=bad).status_code == 422
+
+
+def test_board_pdf_of_the_session_board(make_client):
+    import pymupdf
+
+    c = make_client(no_camera)
+    for paper, size in (("A4", (297.0, 210.0)), ("A3", (420.0, 297.0)),
+                        ("Letter", (279.4, 215.9))):
+        r = c.get(f"{API}/board.pdf", params={"paper": paper})
+        assert r.status_code == 200 and r.headers["content-type"] == "application/pdf"
+        assert f"chessboard-9x6-{paper}.pdf" in r.headers["content-disposition"]
+        page = pymupdf.open(stream=r.content, filetype="pdf")[0]
+        assert (round(page.rect.width * 25.4 / 72, 1), round(page.rect.height * 25.4 / 72, 1)) \
+            == size
+    assert c.get(f"{API}/board.pdf", params={"paper": "A5"}).status_code == 422

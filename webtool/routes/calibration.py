@@ -15,6 +15,10 @@ POST     /solve                       solve in the background and show the resul
 GET      /result[?download=1]         the report (parameters ± σ, RMS, uncertainty, verdict…)
 GET      /uncertainty.png             the projection-uncertainty map as an image
 GET      /camera-file?format=F        the camera file: opencv (YAML, default), ros or json
+GET      /board.pdf?paper=P           this session's board to print, true scale (A4, A3,
+                                      Letter), with a 100 mm ruler
+POST     /lens  {"model": M}          lens model of the solves: auto, plumb_bob, rational,
+                                      fisheye
 POST     /use                         make the result this server's camera (settings.camera)
 POST     /session  {board, square_m}  start a new session (the old one stays on disk)
 =======  ===========================  =========================================================
@@ -132,6 +136,17 @@ def camera_file(svc: Calibration,
     data, name = svc.camera_file(format)
     media = "application/json" if format == "json" else "application/x-yaml"
     return Response(data, media_type=media,
+                    headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"'})
+
+
+@router.get("/board.pdf")
+def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
+    from drovisio.calibration.printout import board_pdf_bytes
+
+    board = svc.session.board
+    data, _ = board_pdf_bytes(board, paper)
+    name = f"{board.kind}-{board.cols}x{board.rows}-{paper}.pdf"
+    return Response(data, media_type="application/pdf",
                     headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"'})
 
 
