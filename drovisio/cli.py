@@ -149,6 +149,22 @@ def _add_calibrate_board(p: argparse.ArgumentParser) -> None:
                    help="side of one square on paper (default: the largest whole mm that fits)")
 
 
+def _add_calibrate_mount(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    p.add_argument("--layout", action="append", metavar="LAYOUT.json",
+                   help="layout of the code lying flat (default: the shipped landing pad and "
+                        "dricks)")
+    p.add_argument("--aligned", action="store_true",
+                   help="the code's x axis points toward the drone's nose: measure the pan too")
+    p.add_argument("--offset", nargs=3, type=finite_float, default=(0.0, 0.0, 0.0),
+                   metavar=("FORWARD", "RIGHT", "DOWN"),
+                   help="the camera's centre from the body origin, metres (measured with a "
+                        "tape; default 0 0 0)")
+    p.add_argument("--out", required=True, metavar="MOUNT.json", help="mount file to write")
+    p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
+                   help="pictures from the drone's camera, the drone standing level")
+
+
 def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
     """The pipeline's options, shared by ``run`` and ``serve`` (one process on the drone)."""
     p.add_argument("--layout", required=not serving, action="append", metavar="LAYOUT.json",
@@ -321,6 +337,18 @@ COMMANDS: dict[str, Command] = {
             target="drovisio.commands.calibrate:print_board",
         ),
         Command(
+            name="calibrate-mount",
+            spelled="calibrate mount",
+            summary="",
+            description="Measure the camera mount (tilt, roll, and pan with --aligned) from "
+                        "pictures of a shipped code lying flat (the landing pad is best) in "
+                        "front of the drone standing level, and write the mount file.",
+            example="drovisio calibrate mount --camera camera.yaml --aligned --offset 0.08 0 "
+                    "0.05 \\\n    --out mount.json pad_pictures/",
+            add_arguments=_add_calibrate_mount,
+            target="drovisio.commands.calibrate:measure_mount_command",
+        ),
+        Command(
             name="run",
             summary="run the positioning pipeline headless (on the drone)",
             description="Read frames from a source, detect bricks, estimate and track their "
@@ -470,6 +498,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv[:2] == ["calibrate", "board"] and any(
             a in ("--pdf", "-h", "--help") or a.startswith("--pdf=") for a in argv[2:]):
         argv = ["calibrate-board", *argv[2:]]     # printing the board, not calibrating
+    elif argv[:2] == ["calibrate", "mount"] and "--board" not in argv:
+        argv = ["calibrate-mount", *argv[2:]]     # the mount, not the lens
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors: return, don't exit

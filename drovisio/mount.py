@@ -228,6 +228,45 @@ class Mount:
                 **({"note": self.note} if self.note else {})}
 
 
+BODY_FROM_ALIGNED_BRICK = np.diag([1.0, -1.0, -1.0])
+"""A brick lying flat with its x axis toward the drone's nose: brick (x forward, y left, z up)
+→ body FRD (x forward, y right, z down)."""
+
+
+def measure_mount(camera_from_brick: list[np.ndarray], aligned: bool = False) -> dict:
+    """The mount's angles from poses of a code lying flat in view of the drone standing level.
+
+    Gravity in the camera frame is the brick's "down": it gives the tilt and the roll whatever
+    the brick's heading (the pan turns about gravity). With the brick's x axis along the
+    drone's nose (``aligned``) the pan follows too. Several poses (frames, bricks) are
+    averaged on the rotation group.
+
+    Args:
+        camera_from_brick: 4×4 poses of bricks lying flat (OpenCV camera frame).
+        aligned: The bricks' x axes point toward the drone's nose.
+
+    Returns:
+        ``{"tilt_deg", "roll_deg", "pan_deg" (None unless aligned), "spread_deg" (largest
+        angle between a single pose's estimate and the mean), "n"}``.
+    """
+    if not camera_from_brick:
+        raise MountError("no code lying flat was found in view: put a shipped code flat on "
+                         "the ground in front of the drone")
+    Rs = [BODY_FROM_ALIGNED_BRICK @ np.asarray(T, np.float64)[:3, :3].T
+          for T in camera_from_brick]
+    if not aligned:   # the heading is unknown: each estimate's pan to 0 (about gravity)
+        Rs = [rot_z(-np.radians(angles_of(transform(R, (0, 0, 0)))["pan_deg"])) @ R
+              for R in Rs]
+    U, _, Vt = np.linalg.svd(sum(Rs))          # the chordal mean of the rotations
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    spread = max(float(np.degrees(np.arccos(np.clip((np.trace(R.T @ Ri) - 1) / 2, -1, 1))))
+                 for Ri in Rs)
+    a = angles_of(transform(R, (0.0, 0.0, 0.0)))
+    return {"tilt_deg": a["tilt_deg"], "roll_deg": a["roll_deg"],
+            "pan_deg": a["pan_deg"] if aligned else None, "spread_deg": spread,
+            "n": len(Rs)}
+
+
 def down_camera_mount() -> Mount:
     """Camera looking straight down, image top toward the drone's front, at the body origin."""
     return Mount.from_angles(0.0, note="camera looking down, image top forward")

@@ -25,8 +25,9 @@ MINIMAL_ARGS = {
 
 def test_table_lists_exactly_the_design_commands():
     assert [n for n, c in cli.COMMANDS.items() if c.summary] == ALL_COMMANDS
-    # besides them, one action spelled as two words: printing the calibration board
-    assert [c.spelled for c in cli.COMMANDS.values() if not c.summary] == ["calibrate board"]
+    # besides them, actions of calibrate spelled as two words: the board to print, the mount
+    assert [c.spelled for c in cli.COMMANDS.values() if not c.summary] == [
+        "calibrate board", "calibrate mount"]
 
 
 def test_calibrate_board_is_an_action_of_calibrate(capsys):
