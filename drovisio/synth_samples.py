@@ -7,6 +7,8 @@
 * ``calibration/`` — 20 chessboard views (9×6 inner corners, 25 mm squares) as a field session
   would take them: first near the image centre, then toward the edges and corners, tilted;
   ``truth.json`` holds each view's ``camera_from_board`` and true corner pixels.
+* ``missions/`` — a short simulated mission (three bricks of the shipped wall), recorded for
+  the live page's replay;
 * ``approach/`` — ``approach.mp4``: a drone descending from 2 m onto a row of five dricks
   (codes on pyramids, a centre code, colour dots), 10 s at 15 fps, camera tilted 20° forward
   under the drone; ``truth.jsonl`` (per frame: time, ``camera_from_world``, each brick's true
@@ -184,6 +186,22 @@ def write_approach_session(out: Path, camera: Camera) -> None:
     (out / "scene.json").write_text(json.dumps({"fps": FPS, "frames": n, **meta}, indent=1))
 
 
+def write_demo_mission(out: Path) -> None:
+    """A short simulated mission (the shipped wall, first three bricks), recorded for the
+    live page's replay panel (``drovisio serve`` lists ``missions/`` by default)."""
+    from drovisio.mission.check import check_rules
+    from drovisio.mission.record import write_recording
+    from drovisio.mission.scenario import load_scenario, shipped_scenario
+    from drovisio.mission.sim import SimParams, simulate
+
+    scn = load_scenario(shipped_scenario("wall-2-courses"))
+    scn = scn.subset(scn.order[:3])
+    tr = simulate(scn, (), SimParams(seed=0))
+    write_recording(tr, out / "wall-first-3-bricks",
+                    extra={"rules": {r.rule: r.held for r in check_rules(tr)}})
+    _progress("  demo mission recorded")
+
+
 def main(out_dir: str | Path | None = None) -> int:
     """Write all sample sessions into ``out_dir`` (default: the repo's sample_sessions/)."""
     out = Path(out_dir) if out_dir is not None else sample_sessions_dir()
@@ -193,6 +211,7 @@ def main(out_dir: str | Path | None = None) -> int:
     _progress(f"Writing sample sessions into {out}")
     write_calibration_session(out / "calibration", camera)
     write_approach_session(out / "approach", camera)
+    write_demo_mission(out / "missions")
     _progress("Done.")
     return 0
 

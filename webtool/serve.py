@@ -93,14 +93,17 @@ def _check_inputs(args: argparse.Namespace) -> None:
         load_mount(args.mount)
 
 
-def run(args: argparse.Namespace) -> int:
-    import uvicorn
+def _sample_missions() -> Path | None:
+    """The shipped demo mission's folder (the replay panel's default), if installed."""
+    from drovisio.resources import sample_sessions_dir
 
-    from webtool.access import install_log_redaction
-    from webtool.app import create_app
+    d = sample_sessions_dir() / "missions"
+    return d if d.is_dir() else None
 
-    _check_inputs(args)
-    settings = Settings(
+
+def settings_from(args: argparse.Namespace) -> Settings:
+    """The app's settings from ``drovisio serve``'s arguments."""
+    return Settings(
         host=args.host,
         port=args.port,
         source=args.source,
@@ -113,8 +116,19 @@ def run(args: argparse.Namespace) -> int:
         record=Path(args.record) if getattr(args, "record", None) else None,
         send_held_targets=bool(getattr(args, "send_held_targets", False)),
         max_age=getattr(args, "max_age", 0.5),
-        replay_dir=Path(args.replay_dir) if getattr(args, "replay_dir", None) else None,
+        replay_dir=(Path(args.replay_dir) if getattr(args, "replay_dir", None)
+                    else _sample_missions()),
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from webtool.access import install_log_redaction
+    from webtool.app import create_app
+
+    _check_inputs(args)
+    settings = settings_from(args)
     app = create_app(settings)
     src = settings.source_label
     print("\n".join(open_lines(settings)), flush=True)

@@ -73,3 +73,12 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     page.wait_for_function("document.getElementById('replay-state').textContent === 'TAKE_OFF'")
     page.wait_for_timeout(1000)  # let the 3D view draw the seek, for the screenshot
     page.screenshot(path=str(tmp_path / "replay.png"), full_page=True)
+
+
+def test_without_recordings_the_panel_says_how_to_make_one(page, live_server_factory, tmp_path):
+    base = live_server_factory(Settings(replay_dir=tmp_path))
+    page.goto(base + "/live")
+    page.wait_for_function(
+        "document.getElementById('replay-msg').textContent.startsWith('No recordings yet')")
+    assert "drovisio mission simulate" in _text(page, "replay-msg")
+    assert page.locator("#replay-load").is_disabled()

@@ -88,3 +88,17 @@ def test_load_play_seek_speed(client):
     t = st["t"]
     time.sleep(0.3)
     assert client.get("/api/replay/state").json()["t"] == t
+
+
+def test_serve_replays_the_shipped_demo_mission_by_default():
+    from drovisio import cli
+    from webtool.serve import settings_from
+
+    settings = settings_from(cli.build_parser().parse_args(["serve"]))
+    assert settings.replay_dir is not None and settings.replay_dir.name == "missions"
+    with TestClient(create_app(settings), base_url=LOCAL) as c:
+        runs = c.get("/api/replay/runs").json()["runs"]
+        assert [(r["name"], r["ok"], r["bricks"]) for r in runs] == [
+            ("wall-first-3-bricks", True, 3)]
+        st = c.post("/api/replay/load", json={"name": "wall-first-3-bricks"}).json()
+        assert st["loaded"] and st["bricks_total"] == 3 and st["duration"] > 30

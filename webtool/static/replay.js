@@ -2,6 +2,8 @@
   "use strict";
   const $ = (id) => document.getElementById(id);
   let dragging = false, timer = null, sceneAsked = false;
+  const HOWTO = "No recordings yet: make one with “drovisio mission simulate wall-2-courses " +
+    "--record missions/demo”, then start “drovisio serve --replay-dir missions”.";
   const fmtT = (t) => (t === null || t === undefined) ? "–" : Number(t).toFixed(1) + " s";
 
   async function api(path, body) {
@@ -52,9 +54,13 @@
         o.textContent = r.name + " — " + r.scenario + ", " + r.bricks + " brick(s), " + fmtT(r.duration_s) + ", " + r.outcome;
         sel.appendChild(o);
       });
-      if (!sel.options.length) sel.innerHTML = '<option value="">(no recording in ' + js.folder + ')</option>';
+      if (!sel.options.length) {
+        sel.innerHTML = '<option value="">(none)</option>';
+        $("replay-msg").textContent = HOWTO;
+        $("replay-load").disabled = true;
+      }
     } catch (e) {
-      $("replay-msg").textContent = "No recordings: " + e.message;
+      $("replay-msg").textContent = HOWTO;
       $("replay-load").disabled = true;
     }
   }
