@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -48,25 +49,22 @@ def positive_int(text: str) -> int:
     return v
 
 
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (v > 0 and v != float("inf")):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
-    return v
-
-
 def finite_float(text: str) -> float:
     """argparse type: a finite number."""
     try:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if v != v or v in (float("inf"), float("-inf")):
+    if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{text} must be a finite number")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    v = finite_float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
     return v
 
 
@@ -99,9 +97,11 @@ class Command:
 
 
 def _add_bench(p: argparse.ArgumentParser) -> None:
+    from drovisio.commands.bench import BENCHMARKS  # light: names and one-line summaries
+
     p.add_argument("benchmark", metavar="NAME",
-                   help="which benchmark: renderer (exactness of the synthetic renderer), aruco "
-                        "(code bricks), dots (colour-dot bricks), pipeline (latency, memory)")
+                   help="which benchmark: " + "; ".join(f"{k} ({v})"
+                                                        for k, v in BENCHMARKS.items()))
     p.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="...",
                    help="options of that benchmark (drovisio bench NAME --help)")
 

@@ -14,6 +14,7 @@ from drovisio.errors import InputError
 BENCHMARKS = {
     "aruco": "code bricks: corners, recall, pose accuracy, speed against plain OpenCV",
     "dots": "colour-dot bricks: recall, accuracy, speed, memory",
+    "lens": "both detectors and the calibration through a 150° fisheye lens",
     "pipeline": "the live pipeline: latency, frame rate, memory",
     "renderer": "exactness of the synthetic renderer",
 }

@@ -47,7 +47,13 @@ from drovisio.layout import (
     aruco_dictionary_size,
     aruco_family,
 )
-from drovisio.pose import AmbiguityRule, PoseEvidence, PoseHistory, solve_brick_pose
+from drovisio.pose import (
+    AmbiguityRule,
+    PoseEvidence,
+    PoseHistory,
+    reference_up,
+    solve_brick_pose,
+)
 
 __all__ = [
     "ArucoBrickDetector",
@@ -379,21 +385,16 @@ class ArucoBrickDetector:
             if res is not None:
                 results[key] = res
         # second pass: undecided bricks, with the "up" of the decided ones in this frame
-        decided = [r[0] for r in results.values()
-                   if not r[0].ambiguous and r[0].decided_by in ("gravity", "reprojection",
-                                                                   "unique", "previous")
-                   and len(r[1]) >= 1]
-        if decided and any(r[0].ambiguous for r in results.values()):
-            ups = np.array([cv2.Rodrigues(d.rvec.reshape(3, 1))[0][:, 2] for d in decided])
-            up = np.median(ups, axis=0)
-            if np.linalg.norm(up) > 0.5:
-                up = up / np.linalg.norm(up)
-                for key, (res, group) in list(results.items()):
-                    if res.ambiguous:
-                        res2 = self._solve(group, PoseEvidence(
-                            gravity=g, reference_up=up, previous=self._previous(key)))
-                        if res2 is not None:
-                            results[key] = res2
+        if any(r[0].ambiguous for r in results.values()):
+            done = [r[0] for r in results.values() if not r[0].ambiguous]
+            up = reference_up(np.array([cv2.Rodrigues(d.rvec.reshape(3, 1))[0] for d in done]),
+                              [d.decided_by for d in done]) if done else None
+            for key, (res, group) in list(results.items()):
+                if up is not None and res.ambiguous:
+                    res2 = self._solve(group, PoseEvidence(
+                        gravity=g, reference_up=up, previous=self._previous(key)))
+                    if res2 is not None:
+                        results[key] = res2
         self.last_codes = codes
         self.last_results = {key: r[0] for key, r in results.items()}
         out: list[BrickPose] = []

@@ -70,6 +70,7 @@ from drovisio.pose import (
     alternative_plausible,
     canonical_half_turn,
     decide_flips,
+    reference_up,
 )
 from drovisio.pose.batch import (
     conic_center_offsets,
@@ -355,7 +356,7 @@ class DotDetector:
         return qn[0], J @ blobs.cov @ J.transpose(0, 2, 1)
 
     # ------------------------------------------------------------------------------ detect
-    def detect(self, image_bgr, gravity: Sequence[float] | None = None,
+    def detect(self, image_bgr, gravity: Sequence[float] | np.ndarray | None = None,
                state: DotsState | None = None) -> list[BrickPose]:
         """Find the bricks in one frame.
 
@@ -842,16 +843,12 @@ class DotDetector:
         choose, why = decide_flips(R2, chi2, dof, gravity=gravity, previous=prev,
                                    rule=cfg.ambiguity)
         undecided = choose < 0
-        firm = np.array([w in ("gravity", "reprojection", "previous") for w in why])
-        if undecided.any() and firm.any():
-            up = np.median(R2[ar[firm], choose[firm], :, 2], axis=0)
-            if np.linalg.norm(up) > 0.5:
-                u = np.flatnonzero(undecided)
-                c2, w2 = decide_flips(R2[u], chi2[u], dof[u], gravity=gravity,
-                                      reference_up=up / np.linalg.norm(up),
-                                      previous=None if prev is None else [prev[k] for k in u],
-                                      rule=cfg.ambiguity)
-                choose[u] = c2
+        up = reference_up(R2[ar, np.maximum(choose, 0)], why) if undecided.any() else None
+        if up is not None:
+            u = np.flatnonzero(undecided)
+            choose[u], _ = decide_flips(R2[u], chi2[u], dof[u], gravity=gravity,
+                                        reference_up=up, rule=cfg.ambiguity,
+                                        previous=None if prev is None else [prev[k] for k in u])
         ambiguous = choose < 0
         choose = np.where(ambiguous, 0, choose)      # undecided: the better fit, flagged
         Rc, tc = R2[ar, choose], t2[ar, choose]
@@ -1002,7 +999,7 @@ def _detector_for(camera: Camera, layouts: Sequence[MarkerLayout], config: DotsC
 
 
 def detect_dots(image_bgr, camera: Camera, layouts: Sequence[MarkerLayout],
-                gravity: Sequence[float] | None = None, state: DotsState | None = None, *,
+                gravity: Sequence[float] | np.ndarray | None = None, state: DotsState | None = None, *,
                 config: DotsConfig | None = None) -> list[BrickPose]:
     """Find colour-dot bricks in one frame and estimate their poses.
 

@@ -20,6 +20,7 @@ from drovisio.pose.ambiguity import (
     alternative_plausible,
     canonical_half_turn,
     decide_flips,
+    reference_up,
 )
 from drovisio.pose.measures import is_planar, rotation_angle_deg, tilt_deg, yaw_about_axis_deg
 from drovisio.pose.solve import PoseCandidate, PoseResult, solve_brick_pose
@@ -35,6 +36,7 @@ __all__ = [
     "canonical_half_turn",
     "decide_flips",
     "is_planar",
+    "reference_up",
     "rotation_angle_deg",
     "solve_brick_pose",
     "tilt_deg",

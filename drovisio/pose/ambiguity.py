@@ -41,6 +41,7 @@ __all__ = [
     "alternative_plausible",
     "canonical_half_turn",
     "decide_flips",
+    "reference_up",
 ]
 
 
@@ -240,6 +241,22 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
             for b in veto.nonzero()[0].tolist():
                 why[b] = ""
     return choice, why
+
+
+FIRM_REASONS = frozenset({"gravity", "reprojection", "previous", "unique"})
+"""Decisions firm enough for their brick's up to speak for the undecided bricks of a frame."""
+
+
+def reference_up(R: np.ndarray, reasons: Sequence[str]) -> np.ndarray | None:
+    """The "up" of a frame: the median z axis (unit, camera frame) of the chosen rotations
+    (n, 3, 3) whose decision was firm (:data:`FIRM_REASONS`); None when none was, or when
+    they disagree too much to have a direction."""
+    firm = [k for k, why in enumerate(reasons) if why in FIRM_REASONS]
+    if not firm:
+        return None
+    up = np.median(np.asarray(R, np.float64)[firm, :, 2], axis=0)
+    n = float(np.linalg.norm(up))
+    return up / n if n > 0.5 else None
 
 
 def canonical_half_turn(R: np.ndarray) -> np.ndarray:

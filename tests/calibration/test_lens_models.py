@@ -6,14 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from drovisio.bench.lens import FISHEYE_150 as FISHEYE
 from drovisio.calibration.session import CalibrationSession, SessionConfig
 from drovisio.calibration.solve import CalibrationError, SolveOptions, ViewInput, solve
 from drovisio.calibration.synthetic import DEFAULT_BOARD, render_calibration_views
 from drovisio.calibration.uncertainty import model_difference_px
 from drovisio.camera import Camera
-
-FISHEYE = Camera.from_fov(1280, 960, 150.0, dist=[0.03, -0.012, 0.004, -0.0008],
-                          model="fisheye", name="fisheye-150")
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +60,8 @@ def test_real_views_keep_the_five_coefficient_model(opencv_images, opencv_board)
     assert r.camera.model == "plumb_bob" and r.model_choice["chosen"] == "plumb_bob"
     held = r.model_choice["held_out_rms_px"]
     assert 0.1 < held["plumb_bob"] < 0.3
-    assert held["plumb_bob"] <= 0.9 * held["rational_polynomial"] + 0.02 + 1e-9 or \
-        held["rational_polynomial"] > 0.9 * held["plumb_bob"]
+    # measured: plumb_bob 0.182, rational 0.185, fisheye 0.195 px — no model does better
+    assert held["plumb_bob"] < min(held["rational_polynomial"], held["fisheye"])
     assert r.model_choice["reason"].startswith("kept plumb_bob: held-out RMS plumb_bob 0.")
 
 
