@@ -20,6 +20,8 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.cli import positive_int
+from drovisio.errors import InputError
 
 __all__ = ["FISHEYE_150", "detection_errors", "calibration_errors", "main"]
 
@@ -118,10 +120,14 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="drovisio bench lens", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default="detect,calibrate", help="detect, calibrate or both")
-    p.add_argument("--scenes", type=int, default=40, help="scenes per detector (default 40)")
-    p.add_argument("--views", type=int, default=20, help="calibration views (default 20)")
+    p.add_argument("--scenes", type=positive_int, default=40,
+                   help="scenes per detector (default 40)")
+    p.add_argument("--views", type=positive_int, default=20,
+                   help="calibration views (default 20, at least 3)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args(argv)
+    if args.views < 3:
+        raise InputError(f"--views {args.views}: a calibration needs at least 3 views")
     parts = {x.strip() for x in args.parts.split(",")}
     rep: dict = {"camera": "fisheye 150°, 1280x960, k = 0.03 -0.012 0.004 -0.0008"}
     print(f"drovisio bench lens — {rep['camera']}")
