@@ -58,6 +58,7 @@ __all__ = [
     "MountError",
     "MountFile",
     "down_camera_mount",
+    "ground_footprint",
     "load_mount",
     "ned_from_body",
 ]
@@ -265,6 +266,57 @@ def measure_mount(camera_from_brick: list[np.ndarray], aligned: bool = False) ->
     return {"tilt_deg": a["tilt_deg"], "roll_deg": a["roll_deg"],
             "pan_deg": a["pan_deg"] if aligned else None, "spread_deg": spread,
             "n": len(Rs)}
+
+
+def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
+                     max_range_m: float = 30.0) -> dict:
+    """Where the camera sees flat ground, the drone level at ``height_m`` above it.
+
+    The image border is sampled (``per_edge`` pixels per side) and each viewing ray (the
+    camera's own lens model) is met with the ground plane ``z_body = height_m`` (FRD: z down).
+    A ray at or above the horizon is cut at ``max_range_m``.
+
+    Returns:
+        ``{"polygon": [[forward, right], ...] (m, body frame), "centre": [f, r] or None (where
+        the optical axis meets the ground), "below": bool (the point straight under the body
+        origin is in view), "nearest_m", "farthest_m" (ground distance of the footprint from
+        under the drone)}``.
+    """
+    w, h = camera.size
+    t = np.linspace(0.0, 1.0, per_edge, endpoint=False)
+    border = np.concatenate([
+        np.stack([t * (w - 1), np.zeros_like(t)], 1),
+        np.stack([np.full_like(t, w - 1.0), t * (h - 1)], 1),
+        np.stack([(1 - t) * (w - 1), np.full_like(t, h - 1.0)], 1),
+        np.stack([np.zeros_like(t), (1 - t) * (h - 1)], 1)])
+    R, c = mount.body_from_camera[:3, :3], mount.body_from_camera[:3, 3]
+
+    def meet(rays_cam: np.ndarray) -> np.ndarray:
+        d = rays_cam @ R.T
+        down = height_m - c[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(d[:, 2] > 1e-9, down / d[:, 2], np.inf)
+        horiz = np.linalg.norm(d[:, :2], axis=1)
+        s = np.minimum(s, np.where(horiz > 1e-12, max_range_m / np.maximum(horiz, 1e-12),
+                                   np.inf))
+        return c[:2] + d[:, :2] * s[:, None]
+
+    poly = meet(camera.rays(border))
+    axis = R[:, 2]
+    centre = None
+    if axis[2] > 1e-9:
+        centre = (c[:2] + axis[:2] * (height_m - c[2]) / axis[2]).tolist()
+    # straight below the body origin: in view when it projects inside the image
+    below_cam = mount.camera_from_body @ np.array([0.0, 0.0, height_m, 1.0])
+    inside = False
+    if below_cam[2] > 1e-9:
+        uv = camera.project(below_cam[None, :3])[0]
+        inside = bool(0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1)
+    dist = np.linalg.norm(poly, axis=1)
+    return {"polygon": np.round(poly, 4).tolist(),
+            "centre": None if centre is None else [round(float(v), 4) for v in centre],
+            "below": inside, "nearest_m": 0.0 if inside else round(float(dist.min()), 3),
+            "farthest_m": round(float(dist.max()), 3)}
 
 
 def down_camera_mount() -> Mount:

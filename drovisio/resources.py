@@ -2,8 +2,9 @@
 mission scenarios, and the web tool's templates and static files.
 
 They are installed with the package (``pyproject.toml`` maps the repository's top-level
-``marker_layouts/``, ``sample_sessions/`` and ``templates/`` folders into the packages
-``drovisio.marker_layouts``, ``drovisio.sample_sessions`` and ``webtool.templates``) and found
+``marker_layouts/``, ``sample_sessions/``, ``docs/`` and ``templates/`` folders into the
+packages ``drovisio.marker_layouts``, ``drovisio.sample_sessions``, ``drovisio.docs`` and
+``webtool.templates``) and found
 through :mod:`importlib.resources`, so a wheel works like a checkout. In an editable install
 (``make install``) these are the checkout's own folders.
 """
@@ -15,6 +16,7 @@ from importlib.resources import files
 from pathlib import Path
 
 __all__ = [
+    "docs_dir",
     "layouts_dir",
     "sample_sessions_dir",
     "scenarios_dir",
@@ -42,6 +44,11 @@ def sample_sessions_dir() -> Path:
 def scenarios_dir() -> Path:
     """The shipped mission scenarios (``*.yaml``)."""
     return _dir("drovisio.mission.scenarios")
+
+
+def docs_dir() -> Path:
+    """The field guide (``field-guide.md``) and its screenshots (``images/``)."""
+    return _dir("drovisio.docs")
 
 
 def templates_dir() -> Path:

@@ -27,7 +27,8 @@ from drovisio.synth import (
     transform,
 )
 
-__all__ = ["SceneSpec", "random_scene", "render_random", "gravity_in_camera"]
+__all__ = ["SceneSpec", "gravity_in_camera", "level_drone_over_code", "random_scene",
+           "render_random"]
 
 
 @dataclass
@@ -190,3 +191,29 @@ def render_random(seed: int, spec: SceneSpec, camera: Camera | None = None,
     """:func:`random_scene` then :func:`drovisio.synth.render`."""
     scene, fx = random_scene(seed, spec, camera)
     return render(scene, fx, ss=ss)
+
+
+def level_drone_over_code(body_from_camera: np.ndarray, layout, heading_deg: float,
+                          brick_yaw_deg: float, height_m: float = 1.0, seed: int = 0,
+                          camera: Camera | None = None) -> RenderResult:
+    """The drone standing level, its body origin ``height_m`` above the ground and heading
+    ``heading_deg``; a brick of ``layout`` lying flat where the optical axis meets the ground,
+    turned ``brick_yaw_deg`` from the nose (0: its x axis toward the nose). What measuring the
+    mount sees (:mod:`drovisio.calibration.mount`).
+
+    Args:
+        body_from_camera: The mount (4×4, body FRD from OpenCV camera).
+        camera: The camera (default: the drone webcam).
+    """
+    h = np.radians(heading_deg)
+    world_from_body = transform(rot_z(h) @ np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, height_m])
+    world_from_camera = world_from_body @ np.asarray(body_from_camera, np.float64)
+    axis = world_from_camera[:3, 2]
+    c = world_from_camera[:3, 3]
+    hit = c + axis * (-c[2] / axis[2])
+    brick = BrickInstance(layout=layout, instance=0, world_from_brick=transform(
+        rot_z(h + np.radians(brick_yaw_deg)), [hit[0], hit[1], 0.01]))
+    scene = Scene(camera=camera or Camera.drone_webcam(),
+                  camera_from_world=np.linalg.inv(world_from_camera),
+                  ground=Ground(kind="gravel", seed=seed), bricks=[brick])
+    return render(scene, ss=3)

@@ -8,10 +8,9 @@ import pytest
 
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector
-from drovisio.geometry import rot_z, transform
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.mount import Mount, MountError, measure_mount
-from drovisio.synth import BrickInstance, Ground, Scene, render
+from drovisio.scenes import level_drone_over_code
 
 # the shipped landing pad: five codes over 0.6 m of a flat plate (one 0.30 m code)
 LAYOUT = load_layout(shipped_layouts_dir() / "landing-pad.json")
@@ -19,19 +18,8 @@ LAYOUT = load_layout(shipped_layouts_dir() / "landing-pad.json")
 
 def _shot(mount: Mount, heading_deg: float, brick_yaw_deg: float, height: float = 1.0,
           seed: int = 0):
-    """The drone level at ``height`` (body origin), heading ``heading_deg``; a brick on the
-    ground where the optical axis meets it, turned ``brick_yaw_deg`` from the nose."""
-    h = np.radians(heading_deg)
-    world_from_body = transform(rot_z(h) @ np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, height])
-    world_from_camera = world_from_body @ mount.body_from_camera
-    axis = world_from_camera[:3, 2]
-    c = world_from_camera[:3, 3]
-    hit = c + axis * (-c[2] / axis[2])                  # where the axis meets the ground
-    brick = BrickInstance(layout=LAYOUT, instance=0, world_from_brick=transform(
-        rot_z(h + np.radians(brick_yaw_deg)), [hit[0], hit[1], 0.01]))
-    scene = Scene(camera=Camera.drone_webcam(), camera_from_world=np.linalg.inv(
-        world_from_camera), ground=Ground(kind="gravel", seed=seed), bricks=[brick])
-    return render(scene, ss=3)
+    return level_drone_over_code(mount.body_from_camera, LAYOUT, heading_deg, brick_yaw_deg,
+                                 height, seed)
 
 
 @pytest.mark.parametrize("tilt, pan, roll", [(20.0, 0.0, 0.0), (35.0, 4.0, -3.0),

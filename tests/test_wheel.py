@@ -7,11 +7,11 @@ from __future__ import annotations
 import os
 import shutil
 import socket
-import zipfile
 import subprocess
 import sys
 import time
 import urllib.request
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -60,13 +60,13 @@ def test_the_wheel_holds_every_module_and_no_other(installed):
             for p in (REPO / top).rglob("*.py") if "__pycache__" not in p.parts}
     assert {n for n in packed if n.startswith(("drovisio/", "webtool/"))
             and not n.startswith(("drovisio/marker_layouts/", "drovisio/sample_sessions/",
-                                  "webtool/templates/"))} == here
+                                  "drovisio/docs/", "webtool/templates/"))} == here
 
 
 def test_the_wheel_holds_the_data_and_not_the_checkout(installed):
     d, ctx = installed
     for expr in ("r.layouts_dir()", "r.sample_sessions_dir()", "r.templates_dir()",
-                 "r.static_dir()", "r.scenarios_dir()"):
+                 "r.static_dir()", "r.scenarios_dir()", "r.docs_dir()"):
         where = Path(_where(ctx, expr))
         assert "site-packages" in str(where) and REPO not in where.parents, (expr, where)
         assert any(where.iterdir())

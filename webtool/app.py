@@ -20,7 +20,7 @@ from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
 from webtool.access import AccessMiddleware
 from webtool.errors import install_error_handlers
-from webtool.routes import calibration, designer, health, live, pages, replay
+from webtool.routes import calibration, designer, health, live, mount, pages, replay
 from webtool.services import lifespan
 from webtool.settings import Settings
 
@@ -89,6 +89,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         from webtool.calibration_service import camera_in_use
 
         settings.camera = camera_in_use(settings)
+    if settings.mount is None and settings.source is not None:
+        # likewise the mount saved on the mount page (the sample session keeps its own)
+        from webtool.mount_service import mount_in_use
+
+        settings.mount = mount_in_use(settings)
     app = FastAPI(
         title="Drovisio web tool",
         version=drovisio_version(),
@@ -104,7 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(pages.router)
     app.include_router(health.router)
-    for area in (calibration, designer, live, replay):
+    for area in (calibration, designer, live, mount, replay):
         app.include_router(area.router)
         if hasattr(area, "viewer_router"):
             app.include_router(area.viewer_router)

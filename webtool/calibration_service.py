@@ -53,6 +53,7 @@ from drovisio.calibration.session import CalibrationSession, FrameResult, Sessio
 from drovisio.calibration.verdict import Verdict
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera, save_camera
+from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
 from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file
 from drovisio.sources import PlaybackReader, Reader, list_folder, reader_for
@@ -271,6 +272,9 @@ class CalibrationService:
         self.auto_capture = True
         self.show_result = False
         self.used_camera: str | None = None
+        # printers scale pages: the square size is asked for (measured) before the first solve
+        # of a camera's session; the sample's board is known
+        self.square_measured = settings.source is None
         self._open_session()
 
     # ----------------------------------------------------------------------- session files
@@ -339,6 +343,8 @@ class CalibrationService:
             self.created = float(data.get("created", time.time()))
             self.auto_capture = bool(data.get("auto_capture", True))
             self.show_result = bool(data.get("show_result", False))
+            self.square_measured = bool(data.get("square_measured",
+                                                 self.settings.source is None))
             self.used_camera = data.get("used_camera")
             lens = data.get("lens_model", "plumb_bob")
             if lens in ("auto", "plumb_bob", "rational", "fisheye"):
@@ -361,6 +367,7 @@ class CalibrationService:
             self.created = time.time()
             self.auto_capture = True
             self.show_result = False
+            self.square_measured = self.settings.source is None
             self.used_camera = None
             self._after_session_change()
             self.images_dir.mkdir(parents=True, exist_ok=True)
@@ -404,6 +411,7 @@ class CalibrationService:
             data = {"schema": SESSION_SCHEMA, "id": self.session_id, "created": self.created,
                     "saved": time.time(), "source": self.source_key,
                     "auto_capture": self.auto_capture, "show_result": self.show_result,
+                    "square_measured": self.square_measured,
                     "lens_model": self.session.config.solve.model,
                     "used_camera": self.used_camera, "session": self.session.state()}
             atomic_write_bytes(self.folder / "session.json",
@@ -701,6 +709,21 @@ class CalibrationService:
             self.auto_capture = bool(on)
         self._save()
 
+    def set_square(self, square_m: float) -> dict:
+        """The square size measured on the print (metres): kept views stay, solved again."""
+        try:
+            parse_board(self.session.board.spec(), square_m)
+        except BoardSpecError as e:
+            raise InputError(f"square_m: {e}") from None
+        self.session.set_square(square_m)
+        with self._lock:
+            self.square_measured = True
+            self._gen += 1
+        self._save()
+        if len(self.session.views) >= self.session.config.solve.min_views:
+            self._maybe_solve()
+        return {"square_mm": round(self.session.board.square * 1000, 3), "square_measured": True}
+
     def set_lens_model(self, model: str) -> dict:
         """The page's lens choice: solve again with it (when there is enough to solve)."""
         self.session.set_model(model)
@@ -993,6 +1016,7 @@ class CalibrationService:
                         "board": sess.board.spec(), "square_mm": round(sess.board.square * 1000,
                                                                       3),
                         "cols": sess.board.cols, "rows": sess.board.rows,
+                        "square_measured": self.square_measured,
                         "created": self.created, "source": self._source_label or (
                             "sample session (no camera)" if self.settings.source is None
                             else f"camera {self.settings.source}"),

@@ -3,8 +3,8 @@
 :class:`DesignerScene` is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port,
 started when the page asks for it, stopped with the app; browsers reach it through the app at
 ``/designer/3d/``, under the access token) that shows the mesh, the brick axes and the markers
-(codes with their real pattern as a texture, dots in their colour) and carries a small panel
-(what a click does, undo/redo, the selected marker, the checks).
+(codes with their real pattern as a texture, dots in their colour). The controls are the
+page's own (one set): viser's panel stays empty and folded.
 
 Clicks: viser reports a click on the mesh as a world-frame ray. The world frame of the scene
 is the brick frame; the mesh is drawn under a frame node posed ``brick_from_mesh``, so the
@@ -17,17 +17,14 @@ the pointer) and clicked to select them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from drovisio.designer.model import (
-    MODES,
     DesignDocument,
     DesignError,
 )
-from webtool.designer_service import MODE_LABELS
 from webtool.viser_base import ViserScene
 
 if TYPE_CHECKING:
@@ -35,7 +32,6 @@ if TYPE_CHECKING:
 
 __all__ = ["DesignerScene"]
 
-_LABEL_MODES = {v: k for k, v in MODE_LABELS.items()}
 
 
 class DesignerScene(ViserScene):
@@ -51,120 +47,27 @@ class DesignerScene(ViserScene):
         self._marker_handles: list = []
         self._marker_keys: list = []
         self._extra_handles: list = []
-        self._syncing = False
         self.mesh_handle = None
         self.axes = None
 
     def setup(self) -> None:
         self.model = self.server.scene.add_frame("/model", show_axes=False)
-        self._build_gui()
-
-    # ---- gui
-
-    def _build_gui(self) -> None:
-        gui = self.server.gui
-        gui.add_markdown("**Click on the model to:**")
-        self.mode_buttons = gui.add_button_group("Click", [MODE_LABELS[m] for m in MODES])
-
-        @self.mode_buttons.on_click
-        def _(event) -> None:
-            if event.client is None:
-                return
-            mode = _LABEL_MODES.get(event.target.value)
-            if mode:
-                self.session.edit(lambda d: d.set_mode(mode),
-                                  f"A click on the model now does: {MODE_LABELS[mode]}.")
-
-        self.mode_text = gui.add_markdown("")
-        undo = gui.add_button("Undo")
-        redo = gui.add_button("Redo")
-
-        @undo.on_click
-        def _(event) -> None:
-            self.session.edit(lambda d: d.undo(), "Undone.")
-
-        @redo.on_click
-        def _(event) -> None:
-            self.session.edit(lambda d: d.redo(), "Redone.")
-
-        with gui.add_folder("Selected marker"):
-            self.sel_text = gui.add_markdown("Nothing selected.")
-            self.sel_size = gui.add_number("Size (mm)", initial_value=65.0, min=1.0,
-                                           max=2000.0, step=1.0)
-            turn = gui.add_button("Turn 90°")
-            centre = gui.add_button("Centre on its face")
-            delete = gui.add_button("Delete", color="red")
-
-        @self.sel_size.on_update
-        def _(event) -> None:
-            if event.client is None or self._syncing:
-                return
-            i = self.session.doc.selected
-            if i is not None:
-                v = float(event.target.value)
-                self.session.edit(lambda d: d.set_marker(i, size=v / 1000.0), "Resized.")
-
-        def on_selected(action: str) -> Callable:
-            def cb(event) -> None:
-                i = self.session.doc.selected
-                if i is None:
-                    return
-                try:
-                    if action == "turn":
-                        self.session.edit(lambda d: d.rotate_marker(i, 90.0), "Turned by 90°.")
-                    elif action == "centre":
-                        self.session.edit(lambda d: d.centre_marker(i), "Centred on its face.")
-                    else:
-                        self.session.edit(lambda d: d.delete_marker(i), "Deleted.")
-                except DesignError as e:
-                    self.session.message = str(e)
-            return cb
-
-        turn.on_click(on_selected("turn"))
-        centre.on_click(on_selected("centre"))
-        delete.on_click(on_selected("delete"))
-        self.checks_text = gui.add_markdown("")
 
     # ---- scene
 
     def sync(self, session: DesignerService) -> None:
-        """Bring the scene and the panel in line with the document (called under the
+        """Bring the scene in line with the document (called under the
         session lock after every change)."""
         doc = session.doc
-        self._syncing = True
-        try:
-            if doc.mesh_version != self._mesh_version:
-                self._mesh_version = doc.mesh_version
-                self._rebuild_mesh(doc)
-            B = doc.brick_from_mesh
-            from viser import transforms as vtf
+        if doc.mesh_version != self._mesh_version:
+            self._mesh_version = doc.mesh_version
+            self._rebuild_mesh(doc)
+        B = doc.brick_from_mesh
+        from viser import transforms as vtf
 
-            self.model.wxyz = vtf.SO3.from_matrix(B[:3, :3]).wxyz
-            self.model.position = tuple(float(v) for v in B[:3, 3])
-            self._sync_markers(doc)
-            self.mode_buttons.value = MODE_LABELS.get(doc.mode, MODE_LABELS["code"])
-            self.mode_text.content = f"Now: **{MODE_LABELS.get(doc.mode, doc.mode)}**. " + \
-                (session.message or "")
-            sel = doc.selected
-            if sel is not None and sel < len(doc.markers):
-                m = doc.markers[sel]
-                self.sel_text.content = f"**{doc.marker_label(sel)}**, {m.size * 1000:g} mm"
-                self.sel_size.value = round(m.size * 1000, 3)
-            else:
-                self.sel_text.content = "Nothing selected (choose 'Select / move' and click a " \
-                                        "marker)."
-            findings = session.findings()
-            n_err = sum(f.severity == "error" for f in findings)
-            n_warn = sum(f.severity == "warning" for f in findings)
-            if not doc.has_mesh:
-                self.checks_text.content = ""
-            elif n_err or n_warn:
-                self.checks_text.content = (f"**Checks:** {n_err} error(s), {n_warn} warning(s): "
-                                            "see 'Checks' in the page, with one-click fixes.")
-            else:
-                self.checks_text.content = "**Checks:** no problems." if doc.markers else ""
-        finally:
-            self._syncing = False
+        self.model.wxyz = vtf.SO3.from_matrix(B[:3, :3]).wxyz
+        self.model.position = tuple(float(v) for v in B[:3, 3])
+        self._sync_markers(doc)
 
     def _rebuild_mesh(self, doc: DesignDocument) -> None:
         scene = self.server.scene

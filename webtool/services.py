@@ -4,6 +4,7 @@
 calibration    :class:`webtool.calibration_service.CalibrationService`
 designer       :class:`webtool.designer_service.DesignerService`
 live           :class:`webtool.live_service.LiveService`
+mount          :class:`webtool.mount_service.MountService`
 replay         :class:`webtool.replay_service.ReplayService`
 =============  ======================================================================
 
@@ -32,6 +33,7 @@ SERVICES: dict[str, str] = {
     "calibration": "webtool.calibration_service:CalibrationService",
     "designer": "webtool.designer_service:DesignerService",
     "live": "webtool.live_service:LiveService",
+    "mount": "webtool.mount_service:MountService",
     "replay": "webtool.replay_service:ReplayService",
 }
 _lock = threading.Lock()

@@ -63,6 +63,9 @@ class Settings(BaseModel):
     # repository's marker_layouts/); mesh uploads larger than this are refused before reading.
     designer_layouts_dir: Path | None = None
     designer_max_upload_mb: float = 50.0
+    # Camera mount page (webtool.mount_service): with no --mount, the mount set there is saved
+    # as mount_dir/mount.json (None: $XDG_DATA_HOME or ~/.local/share, then drovisio/mount).
+    mount_dir: Path | None = None
     # Replay panel of the live page (webtool.replay_service): the folder of simulated mission
     # recordings (`drovisio mission simulate ... --record DIR`) it lists; None: no replay.
     replay_dir: Path | None = None

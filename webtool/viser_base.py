@@ -95,11 +95,11 @@ class ViserScene:
                 server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False,
                                            label=self.label)
                 server.scene.set_up_direction(self.up)
-                # the tool's pages have their own controls: viser's developer panel (share,
-                # logo) only takes room on a phone
-                server.gui.configure_theme(control_layout="collapsible", control_width="small",
-                                           show_logo=False, show_share_button=False,
-                                           brand_color=(11, 79, 168))
+                # the tool's pages carry the controls; viser's own panel (scene tree, canvas
+                # and developer settings) starts folded to a thin bar so the scene has the room
+                server.gui.configure_theme(control_width="small", show_logo=False,
+                                           show_share_button=False, brand_color=(11, 79, 168))
+                server.gui.main_panel.minimize()
                 self.server = server
                 self.setup()
         return self

@@ -25,6 +25,15 @@ def _viser_build() -> Path:
     return Path(viser.__file__).resolve().parent / "client" / "build"
 
 
+#: added to viser's page: its toasts (e.g. "software WebGL rendering") cover the embedded
+#: scene and say nothing a site user can act on; on a phone its control panel is a bottom
+#: sheet (scene tree, canvas and developer settings) that covers half the scene, and the
+#: tool's pages carry every control they need (on wider screens it stays folded to a bar)
+_CLIENT_STYLE = (b"<style>.mantine-Notifications-root{display:none!important}"
+                 b'.mantine-Paper-root[style*="position: fixed"][style*="bottom: 0px"]'
+                 b"{display:none!important}</style>")
+
+
 def client_file(path: str) -> tuple[bytes, bytes] | None:
     """(raw, gzipped) of a file of viser's built client, cached."""
     if path in _client_cache:
@@ -37,6 +46,8 @@ def client_file(path: str) -> tuple[bytes, bytes] | None:
     if not f.is_file():
         return None
     raw = f.read_bytes()
+    if f.suffix == ".html":
+        raw = raw.replace(b"</head>", _CLIENT_STYLE + b"</head>", 1)
     _client_cache[path] = (raw, gzip.compress(raw, 6))
     return _client_cache[path]
 

@@ -312,6 +312,16 @@ class CalibrationSession:
                 self.config.solve = replace(self.config.solve, model=model)
                 self._generation += 1
 
+    def set_square(self, square_m: float) -> None:
+        """The board's square size as measured on the print (metres). The views stay: the
+        size scales the board poses only, never the intrinsics; the result is solved again."""
+        from drovisio.calibration.board import parse_board
+
+        with self._lock:
+            if abs(square_m - self.board.square) > 1e-12:
+                self.board = parse_board(self.board.spec(), square_m)
+                self._generation += 1
+
     def remove_view(self, view_id: int) -> bool:
         with self._lock:
             n = len(self._views)

@@ -272,38 +272,32 @@ def print_board(args: argparse.Namespace) -> int:
 
 def measure_mount_command(args: argparse.Namespace) -> int:
     """``drovisio calibrate mount``: the mount from a code lying flat, the drone level."""
+    from drovisio.calibration.mount import measure_from_images
     from drovisio.camera_file import load_camera
-    from drovisio.detect.aruco import ArucoBrickDetector
     from drovisio.fileio import atomic_write_text, check_output_path
     from drovisio.layout import load_layout, shipped_layouts_dir
-    from drovisio.mount import Mount, body_from_camera_angles, measure_mount
+    from drovisio.mount import Mount, body_from_camera_angles
 
     camera = load_camera(args.camera)
     paths = args.layout or [str(p) for p in sorted(shipped_layouts_dir().glob("*.json"))]
-    layouts = [lay for lay in (load_layout(p) for p in paths) if lay.has_codes]
-    if not layouts:
+    layouts = [load_layout(p) for p in paths]
+    if not any(lay.has_codes for lay in layouts):
         raise InputError("--layout: none of these layouts has ArUco codes; measuring the mount "
                          "needs a code lying flat (the shipped landing-pad.json is best)")
     images = collect_images(list(args.images))
     out = check_output_path(args.out, "--out", {f"input {p}": p for p in images})
-    det = ArucoBrickDetector(camera, layouts)
-    poses = []
-    for path in images:
-        try:
-            img, _ = read_image(path)
-            cam, note = camera.for_image(img.shape[1], img.shape[0])
-        except (ImageError, ValueError) as e:
-            print(f"{path.name}: skipped: {e}", file=sys.stderr)
-            continue
-        if cam is not camera:
-            det, camera = ArucoBrickDetector(cam, layouts), cam
-        found = [p for p in det.detect(img) if not p.ambiguous]
-        print(f"{path.name}: {len(found)} code brick(s) lying flat"
-              + (f" ({', '.join(sorted({p.layout for p in found}))})" if found else ""),
-              file=sys.stderr)
-        # the largest in view: its normal is the best known
-        poses += [max(found, key=lambda p: len(p.markers)).camera_from_brick()] if found else []
-    m = measure_mount(poses, aligned=args.aligned)
+
+    def pictures():
+        for path in images:
+            try:
+                yield path.name, read_image(path)[0]
+            except ImageError as e:
+                yield path.name, str(e)
+
+    measured = measure_from_images(pictures(), camera, layouts, aligned=args.aligned)
+    for line in measured.lines:
+        print(line, file=sys.stderr)
+    m = measured.result
     pan = m["pan_deg"] if m["pan_deg"] is not None else 0.0
     note = (f"measured from {m['n']} picture(s) of a code lying flat"
             + ("" if args.aligned else "; pan not measured (set to 0): use --aligned with "

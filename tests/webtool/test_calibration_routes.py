@@ -428,3 +428,34 @@ def test_board_pdf_of_the_session_board(make_client):
         assert (round(page.rect.width * 25.4 / 72, 1), round(page.rect.height * 25.4 / 72, 1)) \
             == size
     assert c.get(f"{API}/board.pdf", params={"paper": "A5"}).status_code == 422
+
+
+def test_the_measured_square_size_scales_the_board_not_the_lens(make_client):
+    # a camera's session (not the sample): the page asks for the square size before solving
+    c = make_client(no_camera, source="/dev/video-test")
+    assert c.get(f"{API}/state").json()["session"]["square_measured"] is False
+    upload(c, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(10)])
+    assert c.post(f"{API}/solve").status_code == 202
+    wait_state(c, lambda s: s["solve"]["has_result"] and s["solve"]["current"])
+    before = c.get(f"{API}/result").json()
+    # the print came out at half the size: the views stay, the lens does not change, every
+    # board is half as far
+    r = c.post(f"{API}/square", json={"square_m": 0.0125})
+    assert r.status_code == 200 and r.json() == {"square_mm": 12.5, "square_measured": True}
+    s = wait_state(c, lambda s: s["solve"]["current"] and not s["solve"]["solving"])
+    assert s["session"]["square_mm"] == 12.5 and s["session"]["square_measured"] is True
+    assert len(s["views"]) == 10
+    after = c.get(f"{API}/result").json()
+    for k in ("fx", "fy", "cx", "cy"):
+        assert abs(after["camera"][k] - before["camera"][k]) < 1e-3 * before["camera"][k], k
+    for a, b in zip(after["per_view"], before["per_view"], strict=True):
+        assert np.allclose(np.asarray(a["tvec"]), 0.5 * np.asarray(b["tvec"]), rtol=1e-3,
+                           atol=1e-5)
+    saved = json.loads((session_dir(c) / "session.json").read_text())
+    assert saved["square_measured"] is True
+    assert saved["session"]["board"]["square_m"] == 0.0125
+    for bad in ({"square_m": 0}, {"square_m": 2}, {"square_m": "x"}, {}, {"square_m": 0.02,
+                                                                         "x": 1}):
+        assert c.post(f"{API}/square", json=bad).status_code == 422, bad
+    assert c.post(f"{API}/square", content=b'{"square_m": NaN}',
+                  headers={"content-type": "application/json"}).status_code == 422

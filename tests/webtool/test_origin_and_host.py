@@ -53,7 +53,8 @@ def socket_routes(app) -> list[str]:
 def test_the_app_has_the_writes_and_sockets_this_test_covers(app):
     writes = write_routes(app)
     assert len(writes) >= 25 and ("POST", "/api/live/target") in writes
-    assert set(socket_routes(app)) == {"/api/live/ws", "/live/3d", "/designer/3d", "/replay/3d"}
+    assert set(socket_routes(app)) == {"/api/live/ws", "/live/3d", "/designer/3d", "/replay/3d",
+                                      "/mount/3d"}
 
 
 def test_every_write_from_another_site_is_refused_even_on_loopback(app):

@@ -17,6 +17,8 @@ GET      /uncertainty.png             the projection-uncertainty map as an image
 GET      /camera-file?format=F        the camera file: opencv (YAML, default), ros or json
 GET      /board.pdf?paper=P           this session's board to print, true scale (A4, A3,
                                       Letter), with a 100 mm ruler
+POST     /square  {"square_m": S}     the square size measured on the print (metres): the
+                                      views stay, the result is solved again
 POST     /lens  {"model": M}          lens model of the solves: auto, plumb_bob, rational,
                                       fisheye
 POST     /use                         make the result this server's camera (settings.camera)
@@ -56,6 +58,10 @@ class AutoBody(Body):
 
 class LensBody(Body):
     model: Literal["auto", "plumb_bob", "rational", "fisheye"]
+
+
+class SquareBody(Body):
+    square_m: Annotated[float, Field(gt=0, le=1)]   # metres, as measured on the print
 
 
 class SessionBody(Body):
@@ -103,6 +109,11 @@ def delete_view(svc: Calibration, view_id: ViewId) -> dict:
 @router.post("/upload")
 def upload(svc: Calibration, files: Annotated[list[UploadFile], File()]) -> dict:
     return svc.upload([(f.filename or "", f.file) for f in files])
+
+
+@router.post("/square")
+def square(svc: Calibration, body: SquareBody) -> dict:
+    return svc.set_square(body.square_m)
 
 
 @router.post("/lens")

@@ -1,11 +1,13 @@
-"""The HTML pages: start page and the three parts of the tool."""
+"""The HTML pages: the start page, the parts of the tool, and the field guide (Help)."""
 
+import re
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
-from fastapi.responses import HTMLResponse
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.templating import Jinja2Templates
 
+from drovisio.resources import docs_dir
 from webtool.routes.deps import get_settings, get_templates
 from webtool.settings import Settings
 
@@ -17,6 +19,8 @@ PAGES = {
     "/calibration": ("calibration.html", "Camera calibration"),
     "/designer": ("designer.html", "Marker designer"),
     "/live": ("live.html", "Live view"),
+    "/mount": ("mount.html", "Camera mount"),
+    "/help": ("help.html", "Field guide"),
 }
 
 Templates = Annotated[Jinja2Templates, Depends(get_templates)]
@@ -48,3 +52,42 @@ def designer(request: Request, templates: Templates, settings: CurrentSettings):
 @router.get("/live")
 def live(request: Request, templates: Templates, settings: CurrentSettings):
     return _render(request, templates, settings, "/live")
+
+
+@router.get("/mount")
+def mount(request: Request, templates: Templates, settings: CurrentSettings):
+    return _render(request, templates, settings, "/mount")
+
+
+_IMAGE_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,80}\.(jpg|png)$")
+_guide_cache: dict[str, tuple[float, str]] = {}
+
+
+def field_guide_html() -> str:
+    """``docs/field-guide.md`` as HTML (CommonMark, raw HTML off), its pictures under
+    ``/help/images/``; cached until the file changes."""
+    from markdown_it import MarkdownIt
+
+    f = docs_dir() / "field-guide.md"
+    mtime = f.stat().st_mtime
+    hit = _guide_cache.get("guide")
+    if hit is None or hit[0] != mtime:
+        html = MarkdownIt("commonmark", {"html": False}).render(f.read_text(encoding="utf-8"))
+        html = html.replace('src="images/', 'src="/help/images/')
+        _guide_cache["guide"] = (mtime, html)
+    return _guide_cache["guide"][1]
+
+
+@router.get("/help")
+def help_page(request: Request, templates: Templates, settings: CurrentSettings):
+    name, title = PAGES["/help"]
+    return templates.TemplateResponse(request, name, {
+        "title": title, "settings": settings, "active": "/help", "guide": field_guide_html()})
+
+
+@router.get("/help/images/{name}")
+def help_image(name: str) -> FileResponse:
+    f = docs_dir() / "images" / name
+    if not _IMAGE_NAME.match(name) or not f.is_file():
+        raise HTTPException(404, "no such picture in the field guide")
+    return FileResponse(f, headers={"Cache-Control": "no-cache"})

@@ -379,7 +379,7 @@
     try { await call("POST", "/lens", { model: ev.target.value }); status("lens-status", ""); }
     catch (e) { status("lens-status", e.message, true); }
   });
-  $("solve").addEventListener("click", async () => {
+  async function solveNow() {
     const st = $("solve-status");
     st.dataset.sticky = "1";
     status("solve-status", "Solving in the background — you can keep capturing.");
@@ -388,6 +388,27 @@
       if (last) { last.solve.show_result = true; }
     } catch (e) { status("solve-status", e.message, true); }
     setTimeout(() => { st.dataset.sticky = ""; }, 4000);
+  }
+  // Printers scale pages: before the first solve of a camera's session, ask for the square
+  // size as measured on the print (the views stay whatever it is).
+  $("solve").addEventListener("click", () => {
+    if (last && !last.session.square_measured) {
+      $("square-mm").value = last.session.square_mm;
+      $("square-form").hidden = false;
+      $("square-mm").focus();
+      status("solve-status", "First the square size, as measured on your print.");
+      return;
+    }
+    solveNow();
+  });
+  $("square-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try {
+      const r = await call("POST", "/square", { square_m: Number($("square-mm").value) / 1000 });
+      if (last) { last.session.square_measured = true; last.session.square_mm = r.square_mm; }
+      $("square-form").hidden = true;
+      await solveNow();
+    } catch (e) { status("solve-status", e.message, true); }
   });
   $("use").addEventListener("click", async () => {
     status("use-status", "Saving…");
