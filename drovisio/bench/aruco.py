@@ -14,8 +14,15 @@ Per frame, in the same run and on the same image:
   thread (``--threads``), so the figure is the work done, not the machine's load; the plain
   detector's three threshold windows would run in parallel on more threads.
 * **recall**: bricks with at least one code fully visible (ray-cast against every mesh),
-  fully inside the image and ≥ 15 px across (square root of its projected area), that are
-  reported with the right layout and instance.
+  fully inside the image and ≥ 14 px across (square root of its projected area), that are
+  reported with the right layout and instance; also by the size of the brick's largest such
+  code (< 20, 20–30, > 30 px).
+* **AprilTag 3** (``--apriltag``, needs ``pupil-apriltags``: ``pip install drovisio[peers]``)
+  on the same grey frames (decimate 1, one thread, distortion left in: detection only): its
+  recall by code size, false bricks and time against the same plain ``detectMarkers``. A
+  brick counts as found when one of its codes' ids is reported. ``--dictionary
+  DICT_APRILTAG_36h11`` gives every layout's codes that dictionary (the same ids), so the
+  two detectors read the same codes.
 * **errors** of every correctly identified brick: *lateral* = norm of the x/y error of tvec
   in the camera frame (mm); *depth* = |Δz| / z (%); *yaw* = rotation about the brick's z axis
   between truth and estimate (swing–twist, degrees); *flip* = total rotation error > 20°.
@@ -29,6 +36,7 @@ Per frame, in the same run and on the same image:
 Example::
 
     drovisio bench aruco --frames 80 --empty 200 --cache /tmp/aruco-frames
+    drovisio bench aruco --dictionary DICT_APRILTAG_36h11 --apriltag --bricks 4 --frames 100
 """
 
 from __future__ import annotations
@@ -46,7 +54,12 @@ from pathlib import Path
 import numpy as np
 
 FLIP_DEG = 20.0
-MIN_CODE_PX = 15.0
+MIN_CODE_PX = 14.0
+#: recall is also reported by the size of a brick's largest countable code (px across)
+SIZE_BINS = ((MIN_CODE_PX, 20.0, "14-20 px"), (20.0, 30.0, "20-30 px"), (30.0, math.inf, ">30 px"))
+#: AprilTag 3's family of each OpenCV AprilTag dictionary
+APRILTAG_FAMILIES = {"DICT_APRILTAG_36h11": "tag36h11", "DICT_APRILTAG_25h9": "tag25h9",
+                     "DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_36h10": "tag36h10"}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -77,6 +90,12 @@ def _parser() -> argparse.ArgumentParser:
                         "is all the work, and other processes on the machine do not count); "
                         "wall: elapsed time")
     p.add_argument("--ss", type=int, default=3, help="renderer supersampling (default 3)")
+    p.add_argument("--dictionary", metavar="DICT",
+                   help="give every layout's codes this dictionary (same ids), e.g. "
+                        "DICT_APRILTAG_36h11 to compare with AprilTag 3")
+    p.add_argument("--apriltag", action="store_true",
+                   help="also run AprilTag 3 (pupil-apriltags; pip install drovisio[peers]) "
+                        "on the same frames: recall by code size, false bricks, time")
     p.add_argument("--cache", type=Path, metavar="DIR",
                    help="keep rendered frames here and reuse them on the next run")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
@@ -170,15 +189,22 @@ def _size_px(c: np.ndarray) -> float:
     return math.sqrt(0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))))
 
 
-def _countable(truth, fr: Frame, w: int, h: int) -> bool:
+def _countable(truth, fr: Frame, w: int, h: int) -> float | None:
+    """The size (px across) of the brick's largest code that counts for recall, or None."""
+    best = None
     for mid, c in truth.code_corners_px.items():
         if fr.visible.get(mid, 0.0) < 1.0:
             continue
         if c.min() < 2 or c[:, 0].max() > w - 3 or c[:, 1].max() > h - 3:
             continue
-        if _size_px(c) >= MIN_CODE_PX:
-            return True
-    return False
+        size = _size_px(c)
+        if size >= MIN_CODE_PX and (best is None or size > best):
+            best = size
+    return best
+
+
+def _size_bin(size: float) -> str:
+    return next(name for lo, hi, name in SIZE_BINS if lo <= size < hi)
 
 
 @dataclass
@@ -196,6 +222,10 @@ class Stats:
     unflagged_flips: int = 0
     ambiguous: int = 0
     poses: int = 0
+    by_size: dict = field(default_factory=dict)
+    """size bin -> [countable, found]"""
+    t_peer: list = field(default_factory=list)
+    """AprilTag 3's time per frame (the row with gravity holds AprilTag's figures)."""
 
 
 def _pct(v: list, q: float) -> float:
@@ -226,10 +256,47 @@ def _errors(st: Stats, poses, fr: Frame, w: int, h: int) -> None:
         st.flips += flip
         st.unflagged_flips += flip and not bp.ambiguous
         st.ambiguous += bool(bp.ambiguous)
+    _recall(st, truth, seen, fr, w, h)
+
+
+def _recall(st: Stats, truth: dict, seen: set, fr: Frame, w: int, h: int) -> None:
     for key, t in truth.items():
-        if _countable(t, fr, w, h):
+        size = _countable(t, fr, w, h)
+        if size is not None:
             st.countable += 1
             st.found += key in seen
+            b = st.by_size.setdefault(_size_bin(size), [0, 0])
+            b[0] += 1
+            b[1] += key in seen
+
+
+def _apriltag_detector(dictionaries: list[str]):
+    """AprilTag 3 for the layouts' codes, or a one-line reason why it cannot run."""
+    fams = sorted({APRILTAG_FAMILIES.get(d, "") for d in dictionaries})
+    if "" in fams:
+        return None, ("AprilTag 3 cannot read " + ", ".join(
+            d for d in dictionaries if d not in APRILTAG_FAMILIES)
+            + ": give --dictionary DICT_APRILTAG_36h11")
+    try:
+        from pupil_apriltags import Detector
+    except ImportError:
+        return None, "AprilTag 3 is not installed: pip install drovisio[peers]"
+    return Detector(families=" ".join(fams), nthreads=1, quad_decimate=1.0, quad_sigma=0.0,
+                    refine_edges=1, decode_sharpening=0.25), None
+
+
+def _peer_errors(st: Stats, tags, fr: Frame, owners: dict, w: int, h: int) -> None:
+    """AprilTag's tags → bricks (one id is enough), false bricks and recall."""
+    truth = {(b.layout, b.instance): b for b in fr.bricks}
+    seen = set()
+    for tag in tags:
+        key = owners.get(int(tag.tag_id))
+        if key is None or key not in truth:
+            st.false += 1
+        else:
+            seen.add(key)
+    st.poses += len(seen)
+    _recall(st, truth, seen, fr, w, h)
 
 
 def _corner_errors(codes, fr: Frame, acc: dict) -> None:
@@ -273,6 +340,21 @@ def main(argv: list[str] | None = None) -> int:
     if not coded:
         print("drovisio bench aruco: no layout with ArUco codes given", file=sys.stderr)
         return 2
+    if args.dictionary:
+        try:
+            coded = [_with_dictionary(lay, args.dictionary) for lay in coded]
+        except (LayoutError, ValueError) as e:
+            print(f"drovisio bench aruco: --dictionary: {e}", file=sys.stderr)
+            return 2
+    peer, why_not = (None, None)
+    if args.apriltag:
+        peer, why_not = _apriltag_detector(sorted({d for lay in coded
+                                                   for d in lay.dictionaries()}))
+        if peer is None:
+            print(f"drovisio bench aruco: --apriltag: {why_not}", file=sys.stderr)
+            return 2
+    owners = {lay.marker_id(k, slot): (lay.name, k) for lay in coded
+              for k in range(lay.instances or 0) for slot in lay.code_dictionaries()}
     cam = Camera.drone_webcam()
     normalized_grid(cam)  # one-off per camera, not part of a frame's time
     det_g = ArucoBrickDetector(cam, coded)
@@ -285,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
         [("empty", 0, args.empty)] if args.empty > 0 else [])
     t_start = time.perf_counter()
     for kind, n_b, count in plan:
-        st_g, st_n = Stats(), Stats()
+        st_g, st_n, st_p = Stats(), Stats(), Stats()
         for fr in _frames(kind, n_b, count, args.seed, coded, args.ss, args.cache):
             gray = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
             tp, to = [], []
@@ -309,7 +391,16 @@ def main(argv: list[str] | None = None) -> int:
             st_n.frames += 1
             _errors(st_n, poses_n, fr, W, H)
             _corner_errors(det_g.detect_codes(gray), fr, corner_acc)
-        rows[(kind, n_b)] = (st_g, st_n)
+            if peer is not None:
+                tp = []
+                for _ in range(max(1, args.repeat)):
+                    t0 = clock()
+                    tags = peer.detect(gray)
+                    tp.append(clock() - t0)
+                st_p.t_peer.append(min(tp))
+                st_p.frames += 1
+                _peer_errors(st_p, tags, fr, owners, W, H)
+        rows[(kind, n_b)] = (st_g, st_n, st_p)
         print(f"  ... {kind} {n_b}: {count} frames done ({time.perf_counter() - t_start:.0f} s)",
               file=sys.stderr)
     report = _report(rows, corner_acc, args)
@@ -317,6 +408,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(report["data"], indent=2) + "\n")
     return 0
+
+
+def _with_dictionary(lay, dictionary: str):
+    """The layout with every code in ``dictionary`` (same ids); named ``NAME@DICT``."""
+    from drovisio.layout import aruco_dictionary_size, parse_layout
+
+    if aruco_dictionary_size(dictionary) < (lay.first_id or 0) + (lay.instances or 0) * (
+            lay.ids_per_instance or 1):
+        raise ValueError(f"{dictionary} has too few codes for {lay.name}'s ids")
+    data = lay.model_dump(mode="json", by_alias=True)
+    data["name"] = f"{lay.name}@{dictionary.removeprefix('DICT_')}"
+    for m in data["markers"]:
+        if m.get("kind") == "aruco":
+            m["dictionary"] = dictionary
+    return parse_layout(data, lay.source or "<layout>")
 
 
 def _fmt(x: float, nd: int = 1) -> str:
@@ -332,7 +438,8 @@ def _report(rows: dict, corner_acc: dict, args) -> dict:
            f"{'yaw p50/p95 deg':>17}{'flips':>7}{'unflag':>7}{'ambig':>7}{'false':>7}")
     lines.append(hdr)
     lines.append("-" * len(hdr))
-    for (kind, n_b), pair in rows.items():
+    for (kind, n_b), triple in rows.items():
+        pair = triple[:2]
         for grav, st in zip(("yes", "no"), pair):
             name = f"{n_b} brick" + ("s" if n_b != 1 else "") if kind == "bricks" else "no brick"
             t_o = statistics.median(pair[0].t_ours) * 1e3 if pair[0].t_ours else float("nan")
@@ -361,9 +468,26 @@ def _report(rows: dict, corner_acc: dict, args) -> dict:
                 "yaw_deg_p50": _pct(st.yaw_deg, 50), "yaw_deg_p95": _pct(st.yaw_deg, 95),
                 "flips": st.flips, "unflagged_flips": st.unflagged_flips,
                 "ambiguous": st.ambiguous, "false_bricks": st.false})
+    # AprilTag 3 on the same frames
+    for (kind, n_b), triple in rows.items():
+        st = triple[2]
+        if not st.frames:
+            continue
+        name = f"{n_b} brick" + ("s" if n_b != 1 else "") if kind == "bricks" else "no brick"
+        t_a = statistics.median(st.t_peer) * 1e3
+        ratio = statistics.median(a / p for a, p in zip(st.t_peer, triple[0].t_plain))
+        rec = f"{st.found}/{st.countable} {100 * st.found / st.countable:.1f}%" \
+            if st.countable else "-"
+        lines.append(f"{name:<10}{'AT3':>5}{st.frames:>7}{_fmt(t_a, 2):>9}"
+                     f"{_fmt(statistics.median(triple[0].t_plain) * 1e3, 2):>9}"
+                     f"{_fmt(ratio, 2):>7}{rec:>13}{'':>67}{st.false:>7}")
+        data["rows"].append({"scene": kind, "bricks": n_b, "method": "apriltag3",
+                             "frames": st.frames, "apriltag_ms_median": t_a,
+                             "ratio_per_frame_median": ratio, "countable": st.countable,
+                             "found": st.found, "false_bricks": st.false})
     # totals over brick scenes
     for gi, grav in enumerate(("yes", "no")):
-        sts = [pair[gi] for (kind, _), pair in rows.items() if kind == "bricks"]
+        sts = [t[gi] for (kind, _), t in rows.items() if kind == "bricks"]
         if not sts:
             continue
         cnt = sum(s.countable for s in sts)
@@ -379,6 +503,21 @@ def _report(rows: dict, corner_acc: dict, args) -> dict:
             f"{_fmt(_pct(yaw, 50), 2):>8}/{_fmt(_pct(yaw, 95), 2):<8}"
             f"{sum(s.flips for s in sts):>7}{sum(s.unflagged_flips for s in sts):>7}"
             f"{sum(s.ambiguous for s in sts):>7}{sum(s.false for s in sts):>7}")
+    # recall by code size, over brick scenes (with gravity; AprilTag 3 when run)
+    methods = [("drovisio", 0)] + ([("apriltag3", 2)] if any(
+        t[2].frames for t in rows.values()) else [])
+    data["recall_by_size"] = {}
+    for mname, i in methods:
+        sts = [t[i] for (kind, _), t in rows.items() if kind == "bricks"]
+        cells = []
+        data["recall_by_size"][mname] = {}
+        for _, _, bname in SIZE_BINS:
+            c = sum(s.by_size.get(bname, [0, 0])[0] for s in sts)
+            f = sum(s.by_size.get(bname, [0, 0])[1] for s in sts)
+            data["recall_by_size"][mname][bname] = {"countable": c, "found": f,
+                                                    "recall": f / c if c else None}
+            cells.append(f"{bname} {f}/{c} {100 * f / c:.1f}%" if c else f"{bname} -")
+        lines.append(f"recall by code size, {mname}: " + ", ".join(cells))
     lines.append("")
     clock = ("CPU time of the thread" if args.clock == "cpu" else "wall-clock time")
     lines.append(f"times: {clock}, median over frames of the fastest of {args.repeat} runs, "
@@ -388,7 +527,8 @@ def _report(rows: dict, corner_acc: dict, args) -> dict:
     lines.append("lateral: x/y error of tvec in the camera frame; depth: |dz|/z; yaw: rotation "
                  "about the brick's z axis; flip: rotation error > 20 deg;")
     lines.append("unflag: flips not flagged ambiguous; recall: bricks with a fully visible code "
-                 ">= 15 px across (sqrt of its area) reported with the right id.")
+                 f">= {MIN_CODE_PX:g} px across (sqrt of its area) reported with the right id; AT3: "
+                 "AprilTag 3 (pupil-apriltags, decimate 1) on the same frames.")
     for name in ("raw", "ours"):
         rad = corner_acc.get(name + "_radial", [])
         sq = corner_acc.get(name + "_sq", [])

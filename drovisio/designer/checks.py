@@ -94,11 +94,37 @@ def _m(x: float) -> str:
 # ------------------------------------------------------------------------------ geometry
 
 
-def max_detection_distance(size_m: float, camera: Camera, kind: str) -> float:
-    """How far (m) a marker of ``size_m`` can be detected head-on: it must span
-    :data:`MIN_CODE_PX` (codes) / :data:`MIN_DOT_PX` (dots) pixels."""
-    f = min(camera.fx, camera.fy)
-    return f * size_m / (MIN_CODE_PX if kind == "aruco" else MIN_DOT_PX)
+def max_detection_distance(size_m: float, camera: Camera, kind: str,
+                           where: str = "centre") -> float:
+    """How far (m) a marker of ``size_m`` can be detected facing the camera: it must span
+    :data:`MIN_CODE_PX` (codes) / :data:`MIN_DOT_PX` (dots) pixels (square root of its area
+    in the image, through the camera's own lens model).
+
+    Args:
+        where: ``"centre"`` of the picture, or its ``"edge"`` (the marker seen at 90 % of the
+            way to the left edge, where a wide or fisheye lens makes things smallest).
+    """
+    need = MIN_CODE_PX if kind == "aruco" else MIN_DOT_PX
+    w, h = camera.size
+    u = (w - 1) / 2 - (0.9 * (w - 1) / 2 if where == "edge" else 0.0)
+    ray = camera.rays(np.array([[u, (h - 1) / 2]]))[0]
+    # the marker faces the camera across the ray: two axes perpendicular to it
+    a = np.cross(ray, [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(ray, a)
+    half = 0.5 * size_m
+    square = np.array([-a - b, a - b, a + b, -a + b]) * half
+
+    def span(d: float) -> float:
+        px = camera.project(ray * d + square)
+        x, y = px[:, 0], px[:, 1]
+        return math.sqrt(0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))))
+
+    lo, hi = 1e-3, 1e4            # span falls with distance: bisection in log space
+    for _ in range(60):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if span(mid) >= need else (lo, mid)
+    return lo
 
 
 def _plane_coords(m: DesignMarker, origin: np.ndarray, r: np.ndarray, u: np.ndarray):
@@ -500,10 +526,13 @@ def _check_range(doc: DesignDocument, camera: Camera) -> list[Finding]:
         d = max_detection_distance(size, camera, kind)
         name = "Codes" if kind == "aruco" else "Dots"
         px = MIN_CODE_PX if kind == "aruco" else MIN_DOT_PX
+        edge = max_detection_distance(size, camera, kind, where="edge")
+        at_edge = (f" At the edge of this {camera.model.replace('_', ' ')} lens's picture: "
+                   f"about {_m(edge)}." if edge < 0.85 * d else "")
         base = (f"{name} of {_mm(size)}: seen up to about {_m(d)} away with this camera "
                 f"({camera.name}, {camera.width}x{camera.height}, fx = {f:.0f} px; a "
                 f"{'code' if kind == 'aruco' else 'dot'} must span at least {px:g} pixels; "
-                "less when seen at an angle).")
+                "less when seen at an angle)." + at_edge)
         if d < WORKING_DISTANCE_M:
             need = WORKING_DISTANCE_M * px / f
             out.append(Finding("range-short", "warning", base + f" That is closer than the "

@@ -149,8 +149,17 @@ class _NoCamera:
         raise OSError("/dev/video-test: no such device")
 
 
-def test_the_square_size_is_asked_before_a_cameras_first_solve(page, live_server_factory,
-                                                                 tmp_path):
+@pytest.mark.parametrize("size", ["phone", "laptop"])
+def test_the_square_size_is_asked_before_a_cameras_first_solve(browser, live_server_factory,
+                                                                 tmp_path, size):
+    context = _context(browser, size)
+    try:
+        _square_size_asked(context.new_page(), live_server_factory, tmp_path)
+    finally:
+        context.close()
+
+
+def _square_size_asked(page, live_server_factory, tmp_path) -> None:
     settings = Settings(calibration_dir=tmp_path / "cal", source="/dev/video-test")
     app = create_app(settings)
     app.state.calibration = CalibrationService(settings, source_factory=_NoCamera())

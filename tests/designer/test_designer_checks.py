@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from drovisio.camera import Camera
@@ -108,7 +109,13 @@ def test_detection_distance_estimate(designed):
     d_code = max_detection_distance(0.065, cam, "aruco")
     d_dot = max_detection_distance(0.02, cam, "dot")
     f = min(cam.fx, cam.fy)
-    assert d_code == pytest.approx(f * 0.065 / 15) and d_dot == pytest.approx(f * 0.02 / 6)
+    # through the lens model: at the centre the pinhole figure, to the lens's distortion
+    assert d_code == pytest.approx(f * 0.065 / 15, rel=0.01)
+    assert d_dot == pytest.approx(f * 0.02 / 6, rel=0.01)
+    # a code seen at that distance spans the 15 px (projected with the camera's own model)
+    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * 0.0325
+    px = cam.project(np.column_stack([corners, np.full(4, d_code)]))
+    assert np.sqrt(np.prod(np.ptp(px, axis=0))) == pytest.approx(15, rel=1e-3)
     msgs = [x.message for x in check_design(designed, cam) if x.key == "range"]
     assert any(f"up to about {d_code:.1f} m" in m and "15 pixels" in m for m in msgs)
     assert any(f"up to about {d_dot:.1f} m" in m and "6 pixels" in m for m in msgs)
@@ -135,3 +142,18 @@ def test_bad_fix_is_refused(designed):
         apply_fix(designed, {"op": "format_disk"})
     with pytest.raises(DesignError):
         apply_fix(designed, {"op": "set_color", "marker": 99, "color": "red"})
+
+
+def test_detection_distance_follows_a_fisheye_lens():
+    from drovisio.bench.lens import FISHEYE_150
+
+    cam = FISHEYE_150
+    centre = max_detection_distance(0.065, cam, "aruco")
+    edge = max_detection_distance(0.065, cam, "aruco", where="edge")
+    assert centre == pytest.approx(min(cam.fx, cam.fy) * 0.065 / 15, rel=0.02)
+    # an equidistant fisheye keeps the radial scale and stretches the tangential one by
+    # theta / sin(theta): a code near the edge spans more pixels than at the centre (a
+    # pinhole model would say far more: 1/cos^2 and 1/cos; the lens's k1..k4 add 4 %)
+    ray = cam.rays(np.array([[0.05 * (cam.width - 1), (cam.height - 1) / 2]]))[0]
+    theta = np.arccos(ray[2])
+    assert edge / centre == pytest.approx(np.sqrt(theta / np.sin(theta)), rel=0.06)
