@@ -68,6 +68,14 @@ def positive_float(text: str) -> float:
     return v
 
 
+def nonnegative_float(text: str) -> float:
+    """argparse type: a finite number ≥ 0."""
+    v = finite_float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number, 0 or more")
+    return v
+
+
 def port_number(text: str) -> int:
     """argparse type: a TCP port, 1 to 65535."""
     v = positive_int(text)
@@ -299,6 +307,44 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
                          help="output folder (default: sample_sessions/ of this checkout)")
 
 
+def _add_study(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="study_action", metavar="ACTION", required=True)
+    fmt = argparse.RawDescriptionHelpFormatter
+    r = sub.add_parser(
+        "run", help="run a study and write its report",
+        description="Run the thesis's evaluation (chapter 6) on renders or recordings: every "
+                    "step through Drovisio, plain OpenCV and AprilTag 3 (if installed), the "
+                    "frame rate against the number of bricks, memory over a run; writes "
+                    "report.html (figures 6.2-6.11 embedded), frames.jsonl and summary.json.",
+        epilog="Example:\n  drovisio study run --out study/              # the thesis's "
+               "protocol, rendered\n  drovisio study run --quick --out study-quick/\n"
+               "  drovisio study run --protocol my_brick.yaml --out my_brick_study/",
+        formatter_class=fmt)
+    r.add_argument("--protocol", metavar="PROTOCOL.yaml",
+                   help="protocol file (default: the thesis's protocol, rendered)")
+    r.add_argument("--out", required=True, metavar="DIR", help="folder for the report")
+    r.add_argument("--quick", action="store_true",
+                   help="fewer steps and frames: a two-minute look")
+    r.add_argument("--frames", type=positive_int, metavar="N",
+                   help="frames per step (default: the protocol's; 8 rendered, 3 quick)")
+    r.add_argument("--methods", metavar="LIST",
+                   help="comma-separated: drovisio-codes, drovisio-codes-image, "
+                        "drovisio-dots, drovisio-dots-image, opencv, apriltag3 (default: all)")
+    r.add_argument("--memory-seconds", type=nonnegative_float, metavar="S",
+                   help="length of each method's memory run (default 20, quick 3; the "
+                        "thesis ran 1800)")
+    e = sub.add_parser(
+        "example", help="write a recorded-style example (videos, images, protocol)",
+        description="Write renders as recordings (videos and a folder of images) with the "
+                    "protocol that gives their truth: the shape of a study of your own "
+                    "recordings.",
+        epilog="Example:\n  drovisio study example --out my_study/\n"
+               "  drovisio study run --protocol my_study/protocol.yaml --out my_study/report",
+        formatter_class=fmt)
+    e.add_argument("--out", required=True, metavar="DIR", help="folder to write")
+    e.add_argument("--frames", type=positive_int, metavar="N", help="frames per step (6)")
+
+
 COMMANDS: dict[str, Command] = {
     c.name: c
     for c in [
@@ -384,6 +430,17 @@ COMMANDS: dict[str, Command] = {
                         "(the evaluation study).",
             example="drovisio bench aruco --frames 50\n  drovisio bench dots --help",
             add_arguments=_add_bench,
+        ),
+        Command(
+            name="study",
+            summary="is it accurate enough for my brick? the evaluation study and its report",
+            description="The thesis's evaluation (chapter 6) on renders or on your own "
+                        "recordings, Drovisio beside plain OpenCV and AprilTag 3: box plots of "
+                        "each pose error, frame rate against the number of bricks, memory "
+                        "over a run, in one HTML report.",
+            example="drovisio study run --out study/\n  drovisio study run --quick --out "
+                    "study-quick/\n  drovisio study example --out my_study/",
+            add_arguments=_add_study,
         ),
         Command(
             name="mission",
@@ -507,6 +564,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
+    args.argv_tail = argv[2:] if args.command == "study" else argv[1:]
     label = f"{PROG} {COMMANDS[args.command].spelled or args.command}"
     debug = args.debug or os.environ.get("DROVISIO_DEBUG", "") not in ("", "0")
     from drovisio.errors import InputError, WriteError

@@ -63,6 +63,7 @@ __all__ = [
     "aruco_dictionaries",
     "aruco_dictionary_id",
     "aruco_dictionary_size",
+    "with_dictionary",
     "aruco_code_bits",
     "aruco_family",
     "square_corners",
@@ -1314,3 +1315,27 @@ def list_shipped_layouts() -> list[Path]:
     """The shipped layout files, sorted by name."""
     d = shipped_layouts_dir()
     return sorted(d.glob("*.json")) if d.is_dir() else []
+
+
+def with_dictionary(layout: MarkerLayout, dictionary: str) -> MarkerLayout:
+    """The layout with every code in ``dictionary`` (same ids), named ``NAME@DICT`` (without
+    the ``DICT_`` prefix): the same brick for a detector that reads another family, e.g.
+    AprilTag 3 and ``DICT_APRILTAG_36h11``.
+
+    Raises:
+        LayoutError: unknown dictionary, or too few codes in it for the layout's ids.
+    """
+    try:
+        size = aruco_dictionary_size(dictionary)
+    except ValueError as e:
+        raise LayoutError(str(e)) from None
+    need = (layout.first_id or 0) + (layout.instances or 0) * (layout.ids_per_instance or 1)
+    if size < need:
+        raise LayoutError(f"{dictionary} has {size} codes, {layout.name} needs ids up to "
+                          f"{need - 1}")
+    data = layout.model_dump(mode="json", by_alias=True)
+    data["name"] = f"{layout.name}@{dictionary.removeprefix('DICT_')}"
+    for m in data["markers"]:
+        if m.get("kind") == "aruco":
+            m["dictionary"] = dictionary
+    return parse_layout(data, layout.source or "<layout>")

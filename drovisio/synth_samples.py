@@ -7,6 +7,9 @@
 * ``calibration/`` — 20 chessboard views (9×6 inner corners, 25 mm squares) as a field session
   would take them: first near the image centre, then toward the edges and corners, tilted;
   ``truth.json`` holds each view's ``camera_from_board`` and true corner pixels.
+* ``study/`` — a recorded-style study (renders written as videos and a folder of images, with
+  ``protocol.yaml`` giving each step's set-up): ``drovisio study run --protocol
+  sample_sessions/study/protocol.yaml --out report/``;
 * ``missions/`` — a short simulated mission (three bricks of the shipped wall), recorded for
   the live page's replay;
 * ``approach/`` — ``approach.mp4``: a drone descending from 2 m onto a row of five dricks
@@ -212,6 +215,9 @@ def main(out_dir: str | Path | None = None) -> int:
     write_calibration_session(out / "calibration", camera)
     write_approach_session(out / "approach", camera)
     write_demo_mission(out / "missions")
+    from drovisio.study.example import write_recorded_example
+
+    write_recorded_example(out / "study", frames=6)
     _progress("Done.")
     return 0
 

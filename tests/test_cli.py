@@ -12,7 +12,7 @@ import pytest
 
 from drovisio import cli
 
-ALL_COMMANDS = ["detect", "calibrate", "run", "serve", "bench", "mission", "synth"]
+ALL_COMMANDS = ["detect", "calibrate", "run", "serve", "bench", "study", "mission", "synth"]
 
 # Minimal valid arguments per command (what DESIGN.md requires), for dispatch tests.
 MINIMAL_ARGS = {

@@ -365,7 +365,7 @@ def client(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("web")
     app = create_app(Settings(calibration_dir=d / "cal", designer_layouts_dir=d,
-                              replay_dir=d))
+                              replay_dir=d, mount_dir=d / "mount"))
     c = TestClient(app, base_url="http://127.0.0.1:8080", raise_server_exceptions=False)
     # a model to edit, so that the designer's edit routes do real work
     c.post("/api/designer/open", json={"example": "mesh:drick.stl"})
@@ -379,11 +379,12 @@ JSON_ROUTES = [
     "/api/designer/defaults", "/api/designer/layout", "/api/designer/fix",
     "/api/designer/save", "/api/calibration/auto", "/api/calibration/session",
     "/api/replay/load", "/api/replay/seek", "/api/replay/speed", "/api/live/target",
+    "/api/mount/preview", "/api/calibration/square", "/api/calibration/lens",
 ]
 FIELDS = ["example", "units", "action", "angle_deg", "mode", "origin", "direction", "index",
           "size_mm", "color", "slot", "rotate_deg", "nudge_mm", "centre", "code_size_mm",
           "name", "first_id", "instances", "symmetry", "op", "marker", "overwrite", "on",
-          "board", "square_m", "path", "t", "x", "spec"]
+          "board", "square_m", "path", "t", "x", "spec", "angles", "height_m", "model"]
 weird_numbers = st.sampled_from([float("nan"), float("inf"), -float("inf"), 1e308, -1e308,
                                  1e-300, 0.0, -0.0, 2 ** 63, -1])
 field_values = json_values | weird_numbers | st.lists(weird_numbers, max_size=4)

@@ -27,6 +27,10 @@ def test_sessions_are_small_and_complete():
     assert all((SAMPLES / "calibration" / v["file"]).exists() for v in truth["views"])
     mount = json.loads((SAMPLES / "approach" / "mount.json").read_text())
     np.testing.assert_allclose(mount["body_from_camera"], synth_samples.body_from_camera())
+    from drovisio.study.protocol import load_protocol
+
+    study = load_protocol(SAMPLES / "study" / "protocol.yaml")
+    assert all((SAMPLES / "study" / s.source).exists() for s in study.steps if s.source)
 
 
 def test_calibration_views_show_the_board_where_truth_says():

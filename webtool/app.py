@@ -20,7 +20,7 @@ from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
 from webtool.access import AccessMiddleware
 from webtool.errors import install_error_handlers
-from webtool.routes import calibration, designer, health, live, mount, pages, replay
+from webtool.routes import calibration, designer, health, live, mount, pages, replay, study
 from webtool.services import lifespan
 from webtool.settings import Settings
 
@@ -109,7 +109,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(pages.router)
     app.include_router(health.router)
-    for area in (calibration, designer, live, mount, replay):
+    for area in (calibration, designer, live, mount, replay, study):
         app.include_router(area.router)
         if hasattr(area, "viewer_router"):
             app.include_router(area.viewer_router)

@@ -5,6 +5,7 @@ calibration    :class:`webtool.calibration_service.CalibrationService`
 designer       :class:`webtool.designer_service.DesignerService`
 live           :class:`webtool.live_service.LiveService`
 mount          :class:`webtool.mount_service.MountService`
+study          :class:`webtool.study_service.StudyService`
 replay         :class:`webtool.replay_service.ReplayService`
 =============  ======================================================================
 
@@ -34,6 +35,7 @@ SERVICES: dict[str, str] = {
     "designer": "webtool.designer_service:DesignerService",
     "live": "webtool.live_service:LiveService",
     "mount": "webtool.mount_service:MountService",
+    "study": "webtool.study_service:StudyService",
     "replay": "webtool.replay_service:ReplayService",
 }
 _lock = threading.Lock()

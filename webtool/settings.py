@@ -66,6 +66,10 @@ class Settings(BaseModel):
     # Camera mount page (webtool.mount_service): with no --mount, the mount set there is saved
     # as mount_dir/mount.json (None: $XDG_DATA_HOME or ~/.local/share, then drovisio/mount).
     mount_dir: Path | None = None
+    # Study page (webtool.study_service): the reports of `drovisio study run --out` kept here,
+    # and those started from the page (None: $XDG_DATA_HOME or ~/.local/share, then
+    # drovisio/study).
+    study_dir: Path | None = None
     # Replay panel of the live page (webtool.replay_service): the folder of simulated mission
     # recordings (`drovisio mission simulate ... --record DIR`) it lists; None: no replay.
     replay_dir: Path | None = None

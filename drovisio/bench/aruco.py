@@ -57,9 +57,6 @@ FLIP_DEG = 20.0
 MIN_CODE_PX = 14.0
 #: recall is also reported by the size of a brick's largest countable code (px across)
 SIZE_BINS = ((MIN_CODE_PX, 20.0, "14-20 px"), (20.0, 30.0, "20-30 px"), (30.0, math.inf, ">30 px"))
-#: AprilTag 3's family of each OpenCV AprilTag dictionary
-APRILTAG_FAMILIES = {"DICT_APRILTAG_36h11": "tag36h11", "DICT_APRILTAG_25h9": "tag25h9",
-                     "DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_36h10": "tag36h10"}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -272,17 +269,20 @@ def _recall(st: Stats, truth: dict, seen: set, fr: Frame, w: int, h: int) -> Non
 
 def _apriltag_detector(dictionaries: list[str]):
     """AprilTag 3 for the layouts' codes, or a one-line reason why it cannot run."""
+    from drovisio.study.methods import APRILTAG_FAMILIES
+
     fams = sorted({APRILTAG_FAMILIES.get(d, "") for d in dictionaries})
     if "" in fams:
         return None, ("AprilTag 3 cannot read " + ", ".join(
             d for d in dictionaries if d not in APRILTAG_FAMILIES)
             + ": give --dictionary DICT_APRILTAG_36h11")
     try:
-        from pupil_apriltags import Detector
+        import pupil_apriltags  # noqa: F401
     except ImportError:
         return None, "AprilTag 3 is not installed: pip install drovisio[peers]"
-    return Detector(families=" ".join(fams), nthreads=1, quad_decimate=1.0, quad_sigma=0.0,
-                    refine_edges=1, decode_sharpening=0.25), None
+    from drovisio.study.methods import apriltag_detector
+
+    return apriltag_detector(" ".join(fams)), None
 
 
 def _peer_errors(st: Stats, tags, fr: Frame, owners: dict, w: int, h: int) -> None:
@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     from drovisio.camera import Camera
     from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
     from drovisio.detect.corners import normalized_grid
-    from drovisio.layout import LayoutError, load_layouts, shipped_layouts_dir
+    from drovisio.layout import LayoutError, load_layouts, shipped_layouts_dir, with_dictionary
 
     cv2.setNumThreads(max(1, args.threads))
     clock = time.thread_time if args.clock == "cpu" else time.perf_counter
@@ -342,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.dictionary:
         try:
-            coded = [_with_dictionary(lay, args.dictionary) for lay in coded]
+            coded = [with_dictionary(lay, args.dictionary) for lay in coded]
         except (LayoutError, ValueError) as e:
             print(f"drovisio bench aruco: --dictionary: {e}", file=sys.stderr)
             return 2
@@ -408,21 +408,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(report["data"], indent=2) + "\n")
     return 0
-
-
-def _with_dictionary(lay, dictionary: str):
-    """The layout with every code in ``dictionary`` (same ids); named ``NAME@DICT``."""
-    from drovisio.layout import aruco_dictionary_size, parse_layout
-
-    if aruco_dictionary_size(dictionary) < (lay.first_id or 0) + (lay.instances or 0) * (
-            lay.ids_per_instance or 1):
-        raise ValueError(f"{dictionary} has too few codes for {lay.name}'s ids")
-    data = lay.model_dump(mode="json", by_alias=True)
-    data["name"] = f"{lay.name}@{dictionary.removeprefix('DICT_')}"
-    for m in data["markers"]:
-        if m.get("kind") == "aruco":
-            m["dictionary"] = dictionary
-    return parse_layout(data, lay.source or "<layout>")
 
 
 def _fmt(x: float, nd: int = 1) -> str:

@@ -61,7 +61,8 @@ def _wait_3d(frame) -> None:
 @pytest.mark.parametrize("size", ["phone", "laptop"])
 def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, size):
     settings = Settings(calibration_dir=tmp_path / "cal", mount_dir=tmp_path / "mount",
-                        designer_layouts_dir=tmp_path / "layouts", sample_seconds_per_view=0.4)
+                        designer_layouts_dir=tmp_path / "layouts", study_dir=tmp_path / "study",
+                        sample_seconds_per_view=0.4)
     base = live_server_factory(create_app(settings))
     context = _context(browser, size)
     try:
@@ -126,13 +127,20 @@ def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, si
         _no_sideways_scroll(page, size)
         _shot(page, f"live-{size}")
 
+        page.goto(base + "/study")
+        page.wait_for_function("document.getElementById('study-reports').textContent"
+                               ".includes('No report yet')")
+        assert page.locator("#study-start").is_enabled()
+        _no_sideways_scroll(page, size)
+        _shot(page, f"study-{size}")
+
         # the guide itself, with the pictures just taken
         page.goto(base + "/help")
         assert page.locator("h1").first.inner_text() == "Field guide"
         page.wait_for_function("[...document.images].every(i => i.complete)")
         widths = dict(page.eval_on_selector_all(
             "article img", "is => is.map(i => [i.getAttribute('src'), i.naturalWidth])"))
-        assert len(widths) == 10
+        assert len(widths) == 12
         for src, w in widths.items():
             name = src.rsplit("/", 1)[-1]
             this_size, other = name.endswith(f"-{size}.jpg"), (IMAGES / name).is_file()

@@ -7,10 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drovisio.bench.aruco import Frame, _countable, _size_px, _visibility, _with_dictionary
+from drovisio.bench.aruco import Frame, _countable, _size_px, _visibility
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector, ArucoParams
-from drovisio.layout import aruco_code_bits, aruco_dictionary_id, load_layouts, shipped_layouts_dir
+from drovisio.layout import (
+    aruco_code_bits,
+    aruco_dictionary_id,
+    load_layouts,
+    shipped_layouts_dir,
+    with_dictionary,
+)
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import render
 
@@ -22,7 +28,7 @@ TAG36H11 = "DICT_APRILTAG_36h11"
 def layouts():
     base = load_layouts([shipped_layouts_dir() / "drick-aruco-centre.json",
                          shipped_layouts_dir() / "drick-aruco-pyramids.json"])
-    return [_with_dictionary(lay, TAG36H11) for lay in base]
+    return [with_dictionary(lay, TAG36H11) for lay in base]
 
 
 @pytest.fixture(scope="module")

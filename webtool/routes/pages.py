@@ -20,6 +20,7 @@ PAGES = {
     "/designer": ("designer.html", "Marker designer"),
     "/live": ("live.html", "Live view"),
     "/mount": ("mount.html", "Camera mount"),
+    "/study": ("study.html", "Study"),
     "/help": ("help.html", "Field guide"),
 }
 
@@ -57,6 +58,11 @@ def live(request: Request, templates: Templates, settings: CurrentSettings):
 @router.get("/mount")
 def mount(request: Request, templates: Templates, settings: CurrentSettings):
     return _render(request, templates, settings, "/mount")
+
+
+@router.get("/study")
+def study(request: Request, templates: Templates, settings: CurrentSettings):
+    return _render(request, templates, settings, "/study")
 
 
 _IMAGE_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,80}\.(jpg|png)$")

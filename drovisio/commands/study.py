@@ -1,0 +1,86 @@
+"""``drovisio study run|example``: the evaluation study (:mod:`drovisio.study`)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from drovisio.errors import InputError
+
+__all__ = ["run"]
+
+
+_last = [-1]
+
+
+def _bar(frac: float, msg: str, width: int = 28) -> None:
+    """A bar redrawn in place on a terminal; a line per 5 % into a log."""
+    n = int(round(frac * width))
+    if sys.stderr.isatty():
+        sys.stderr.write(f"\r[{'#' * n}{'.' * (width - n)}] {100 * frac:3.0f}% {msg[:60]:<60}")
+    elif int(frac * 20) != _last[0]:
+        _last[0] = int(frac * 20)
+        sys.stderr.write(f"[{'#' * n}{'.' * (width - n)}] {100 * frac:3.0f}% {msg}\n")
+    sys.stderr.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.study_action == "example":
+        return _example(args)
+    return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    import yaml
+
+    from drovisio.fileio import check_output_path
+    from drovisio.study.protocol import default_protocol, load_protocol
+    from drovisio.study.report import write_report
+    from drovisio.study.run import run_study
+
+    if args.protocol:
+        protocol = load_protocol(args.protocol)
+        base = Path(args.protocol).resolve().parent
+        text = Path(args.protocol).read_text(encoding="utf-8")
+    else:
+        protocol = default_protocol(quick=args.quick, frames=args.frames)
+        base = Path.cwd()
+        text = yaml.safe_dump(protocol.model_dump(mode="json", by_alias=True),
+                              sort_keys=False, allow_unicode=True)
+    if args.frames and args.protocol:
+        protocol = protocol.model_copy(update={"steps": [
+            s.model_copy(update={"frames": args.frames}) for s in protocol.steps]})
+    out = check_output_path(args.out, "--out", {})
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} is a file; give a folder for the report")
+    memory = args.memory_seconds if args.memory_seconds is not None else (
+        3.0 if args.quick else 20.0)
+    methods = [m.strip() for m in args.methods.split(",")] if args.methods else None
+    print(f"study {protocol.name!r}: {len(protocol.steps)} steps, "
+          f"{sum(s.frames for s in protocol.steps)} frames", file=sys.stderr)
+    res = run_study(protocol, base, methods=methods, memory_seconds=memory,
+                    speed_bricks=(1, 5, 10) if args.quick else (1, 2, 5, 10, 20),
+                    speed_frames=2 if args.quick else 3, progress=_bar)
+    sys.stderr.write("\n")
+    command = "drovisio study run " + " ".join(shlex.quote(a) for a in args.argv_tail)
+    data = write_report(res, out, command, text)
+    for m, why in res.left_out.items():
+        print(f"left out: {m}: {why}", file=sys.stderr)
+    for s in res.skipped:
+        print(f"skipped: {s}", file=sys.stderr)
+    print(f"wrote {out / 'report.html'} ({len(data['figures'])} figures, {data['frames']} "
+          f"frames, {res.seconds:.0f} s), {out / 'frames.jsonl'}, {out / 'summary.json'}",
+          file=sys.stderr)
+    return 0
+
+
+def _example(args: argparse.Namespace) -> int:
+    from drovisio.study.example import write_recorded_example
+
+    out = Path(args.out)
+    p = write_recorded_example(out, frames=args.frames or 6)
+    print(f"wrote {p} and its recordings; run: drovisio study run --protocol {p} --out "
+          f"{out / 'report'}", file=sys.stderr)
+    return 0

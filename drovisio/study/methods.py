@@ -1,0 +1,222 @@
+"""The methods compared, on the same frames: Drovisio (codes; dots), plain OpenCV
+(``ArucoDetector`` with default parameters, then ``solvePnP``) and AprilTag 3
+(``pupil-apriltags``, the ``peers`` extra).
+
+Every method gets the frame and the camera and answers ``camera_from_brick`` of the bricks it
+found (Drovisio also its ``ambiguous`` flag). Drovisio is run twice: given gravity as a
+drone's autopilot gives it (the brick's down in the camera frame, 1° attitude error), and on
+the image alone like the others. Plain OpenCV and AprilTag 3 pose a brick from
+all its detected codes' corners at once with ``solvePnP``'s default (iterative) solver, the
+lens's distortion given to it (OpenCV 5's ``SOLVEPNP_IPPE`` turned the two-code brick, whose
+codes lie on a plane 2 cm above the brick's origin, upside down: 180° off, measured); AprilTag 3 does not model distortion, so its frames are undistorted first
+(``cv2.undistort``, same K) and its corners, which count pixel centres from 0.5 (the top-left
+pixel's corner is 0), are moved by −0.5 px into OpenCV's convention (pixel centres at
+integers).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["METHODS", "Method", "apriltag_detector", "method_reason"]
+
+#: AprilTag 3's family of each OpenCV AprilTag dictionary
+APRILTAG_FAMILIES = {"DICT_APRILTAG_36h11": "tag36h11", "DICT_APRILTAG_25h9": "tag25h9",
+                     "DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_36h10": "tag36h10"}
+#: AprilTag 3's corners minus OpenCV's for the same pixels (measured on renders in the tests)
+APRILTAG_PIXEL_OFFSET = 0.5
+
+Estimator = Callable[[np.ndarray, np.ndarray | None],
+                     list[tuple[str, int | None, np.ndarray, bool]]]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A method of the study."""
+
+    name: str
+    label: str
+    colour: str
+    applies: Callable[[object], str | None]
+    """``layout -> None`` when it can read the layout, else why not (one line)."""
+    make: Callable[[object, list], Estimator]
+    """``(camera, layouts) -> estimate(image_bgr, gravity)``."""
+    gravity: bool = False
+    """Given the drone's gravity (the others get None)."""
+    accuracy_only: bool = False
+    """Left out of the speed and memory runs (the same detector as another method)."""
+
+
+def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, np.ravel(t)
+    return T
+
+
+# ------------------------------------------------------------------------------ Drovisio
+def _drovisio_codes(camera, layouts) -> Estimator:
+    from drovisio.detect.aruco import ArucoBrickDetector
+
+    det = ArucoBrickDetector(camera, layouts)
+
+    def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
+        return [(p.layout, p.instance, p.camera_from_brick(), bool(p.ambiguous))
+                for p in det.detect(img, gravity=g)]
+    return estimate
+
+
+def _drovisio_dots(camera, layouts) -> Estimator:
+    from drovisio.detect.dots import DotDetector
+
+    det = DotDetector(camera, layouts)
+
+    def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
+        return [(p.layout, p.instance, p.camera_from_brick(), bool(p.ambiguous))
+                for p in det.detect(img, gravity=g)]
+    return estimate
+
+
+def _needs_codes(layout) -> str | None:
+    return None if layout.has_codes else "the layout has no codes"
+
+
+def _needs_dots(layout) -> str | None:
+    return None if layout.has_dots else "the layout has no colour dots"
+
+
+# ------------------------------------------------------------------------ plain OpenCV
+def _pnp_bricks(camera_K, dist, layouts, found: dict[int, np.ndarray]):
+    """Pose every brick from its found codes' corners (ids → (4, 2) px)."""
+    import cv2
+
+    out = []
+    for lay in layouts:
+        corners_m = lay.code_corners_m()
+        for k in range(lay.instances or 0):
+            obj, img = [], []
+            for slot, c in corners_m.items():
+                mid = lay.marker_id(k, slot)
+                if mid in found:
+                    obj.append(c)
+                    img.append(found[mid])
+            if not obj:
+                continue
+            o = np.concatenate(obj).astype(np.float64)
+            i = np.concatenate(img).astype(np.float64)
+            ok, rvec, tvec = cv2.solvePnP(o, i, camera_K, dist)   # OpenCV's default flags
+            if ok:
+                out.append((lay.name, k, _pose(cv2.Rodrigues(rvec)[0], tvec), False))
+    return out
+
+
+def _opencv(camera, layouts) -> Estimator:
+    import cv2
+
+    from drovisio.layout import aruco_dictionary_id
+
+    dets = []
+    for d in sorted({dd for lay in layouts for dd in lay.dictionaries()}):
+        dets.append(cv2.aruco.ArucoDetector(
+            cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(d)),
+            cv2.aruco.DetectorParameters()))
+    K, dist = camera.K, camera.dist
+
+    def estimate(img, g=None):
+        found: dict[int, np.ndarray] = {}
+        for det in dets:
+            corners, ids, _ = det.detectMarkers(img)
+            if ids is not None:
+                for c, i in zip(corners, np.ravel(ids)):
+                    found[int(i)] = np.asarray(c, np.float64).reshape(4, 2)
+        return _pnp_bricks(K, dist, layouts, found)
+    return estimate
+
+
+def _opencv_applies(layout) -> str | None:
+    if not layout.has_codes:
+        return "the layout has no codes"
+    if layout.has_dots and not layout.has_codes:
+        return "the layout has no codes"
+    return None
+
+
+# -------------------------------------------------------------------------- AprilTag 3
+def _apriltag_applies(layout) -> str | None:
+    if not layout.has_codes:
+        return "the layout has no codes"
+    other = sorted(set(layout.dictionaries()) - set(APRILTAG_FAMILIES))
+    if other:
+        return f"AprilTag 3 reads AprilTag families only, this layout has {', '.join(other)}"
+    try:
+        import pupil_apriltags  # noqa: F401
+    except ImportError:
+        return "AprilTag 3 is not installed: pip install drovisio[peers]"
+    return None
+
+
+_APRILTAG_DETECTORS: dict[str, object] = {}
+
+
+def apriltag_detector(families: str):
+    """AprilTag 3 (decimate 1, one thread) for ``families`` ("tag36h11 ..."), one per family
+    set for the process: pupil-apriltags can crash the process when a detector is freed
+    while another is alive."""
+    from pupil_apriltags import Detector
+
+    det = _APRILTAG_DETECTORS.get(families)
+    if det is None:
+        det = _APRILTAG_DETECTORS[families] = Detector(
+            families=families, nthreads=1, quad_decimate=1.0, quad_sigma=0.0, refine_edges=1,
+            decode_sharpening=0.25)
+    return det
+
+
+def _apriltag(camera, layouts) -> Estimator:
+    import cv2
+
+    fams = " ".join(sorted({APRILTAG_FAMILIES[d] for lay in layouts
+                            for d in lay.dictionaries()}))
+    det = apriltag_detector(fams)
+    K = camera.K
+    maps = None
+    if camera.model == "fisheye":
+        maps = cv2.fisheye.initUndistortRectifyMap(K, camera.dist, np.eye(3), K,
+                                                   camera.size, cv2.CV_16SC2)
+    else:
+        maps = cv2.initUndistortRectifyMap(K, camera.dist, np.eye(3), K, camera.size,
+                                           cv2.CV_16SC2)
+
+    def estimate(img, g=None):
+        gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+        und = cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR)
+        found = {}
+        for tag in det.detect(und):
+            # AprilTag's corners wind the other way round from OpenCV's (top-right, top-left,
+            # bottom-left, bottom-right of the upright code: measured on renders)
+            c = np.asarray(tag.corners, np.float64)[[1, 0, 3, 2]] - APRILTAG_PIXEL_OFFSET
+            found[int(tag.tag_id)] = c
+        return _pnp_bricks(K, np.zeros(5), layouts, found)
+    return estimate
+
+
+METHODS: dict[str, Method] = {
+    "drovisio-codes": Method("drovisio-codes", "Drovisio (codes)", "#0b4fa8", _needs_codes,
+                             _drovisio_codes, gravity=True),
+    "drovisio-codes-image": Method("drovisio-codes-image", "Drovisio (codes), image only",
+                                   "#6fa8dc", _needs_codes, _drovisio_codes,
+                                   accuracy_only=True),
+    "drovisio-dots": Method("drovisio-dots", "Drovisio (dots)", "#c0392b", _needs_dots,
+                            _drovisio_dots, gravity=True),
+    "drovisio-dots-image": Method("drovisio-dots-image", "Drovisio (dots), image only",
+                                  "#e6a19a", _needs_dots, _drovisio_dots, accuracy_only=True),
+    "opencv": Method("opencv", "plain OpenCV", "#7f8c8d", _opencv_applies, _opencv),
+    "apriltag3": Method("apriltag3", "AprilTag 3", "#e67e22", _apriltag_applies, _apriltag),
+}
+
+
+def method_reason(name: str, layout) -> str | None:
+    """None when ``name`` can read ``layout``, else why not."""
+    return METHODS[name].applies(layout)

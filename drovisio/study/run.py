@@ -1,0 +1,248 @@
+"""Run a study: every step's frames through every method that can read its layout, the
+speed and memory runs, the figures and the report.
+
+Used by ``drovisio study run`` (and the web tool's Study page). Progress goes to a callback
+(the CLI prints a bar on stderr); a step that cannot be read (a missing video, too few
+frames) is skipped with its reason and the study goes on.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drovisio.errors import InputError
+from drovisio.study.protocol import FIGURES, Protocol
+
+__all__ = ["StudyResult", "resolve_layouts", "run_study"]
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass
+class StudyResult:
+    protocol: Protocol
+    records: list[dict] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    not_applicable: dict[str, dict[str, str]] = field(default_factory=dict)
+    left_out: dict[str, str] = field(default_factory=dict)
+    """Methods left out of the whole study, with why and how to add them."""
+    speed: list[dict] = field(default_factory=list)
+    memory: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def resolve_layouts(protocol: Protocol, base: Path) -> dict:
+    """name → layout (shipped names, or paths relative to the protocol; a dictionary
+    override applied)."""
+    from drovisio.layout import LayoutError, load_layout, shipped_layouts_dir, with_dictionary
+
+    out = {}
+    for ref in protocol.layouts:
+        shipped = shipped_layouts_dir() / f"{ref.layout}.json"
+        path = shipped if shipped.is_file() else Path(ref.layout)
+        if not path.is_absolute() and not shipped.is_file():
+            path = base / path
+        try:
+            lay = load_layout(path)
+            out[ref.name] = with_dictionary(lay, ref.dictionary) if ref.dictionary else lay
+        except (LayoutError, OSError) as e:
+            raise InputError(f"layouts: {ref.name}: {e}") from None
+    return out
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except OSError:  # not Linux: the peak is the best there is
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _imu_gravity(camera_from_brick: np.ndarray, seed: int, step: int, k: int) -> np.ndarray:
+    """Gravity as a drone's autopilot gives it: the brick (lying on the ground) down in the
+    camera frame, turned by a 1° attitude error (drawn per frame)."""
+    import cv2
+
+    rng = np.random.default_rng([seed, step, k, 7])
+    axis = rng.normal(size=3)
+    err = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(rng.normal(0.0, 1.0)))[0]
+    return err @ (camera_from_brick[:3, :3] @ np.array([0.0, 0.0, -1.0]))
+
+
+def _pick(found, layout) -> tuple[np.ndarray | None, bool]:
+    for name, inst, T, ambiguous in found:
+        if name == layout.name and (inst in (0, None)):
+            return T, ambiguous
+    return None, False
+
+
+def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
+              memory_seconds: float = 20.0, speed_bricks=(1, 2, 5, 10, 20),
+              speed_frames: int = 3, progress: Progress | None = None) -> StudyResult:
+    """Run ``protocol`` (paths relative to ``base``).
+
+    Args:
+        methods: Names from :data:`drovisio.study.methods.METHODS` (default: all).
+        memory_seconds: Length of the memory run of each method (Fig. 6.11; 0: none).
+        speed_bricks: Brick counts of the frame-rate run (Fig. 6.10; empty: none).
+    """
+    from drovisio.camera import Camera
+    from drovisio.camera_file import load_camera
+    from drovisio.study.analysis import frame_errors
+    from drovisio.study.frames import step_frames
+    from drovisio.study.methods import METHODS
+
+    t_start = time.perf_counter()
+    say = progress or (lambda f, m: None)
+    res = StudyResult(protocol)
+    names = methods or list(METHODS)
+    unknown = [m for m in names if m not in METHODS]
+    if unknown:
+        raise InputError(f"--methods: unknown {', '.join(unknown)}; choose from "
+                         f"{', '.join(METHODS)}")
+    camera = (load_camera(base / protocol.camera if not Path(protocol.camera).is_absolute()
+                          else protocol.camera) if protocol.camera else Camera.drone_webcam())
+    layouts = resolve_layouts(protocol, base)
+    try:
+        import pupil_apriltags  # noqa: F401
+    except ImportError:
+        if "apriltag3" in names:
+            res.left_out["apriltag3"] = ("AprilTag 3 is not installed: pip install "
+                                         "drovisio[peers] (or pip install pupil-apriltags)")
+    estimators: dict[tuple[str, str], Callable] = {}
+    for lname, lay in layouts.items():
+        for m in names:
+            why = METHODS[m].applies(lay)
+            if why is None:
+                estimators[(lname, m)] = METHODS[m].make(camera, [lay])
+            else:
+                res.not_applicable.setdefault(lname, {})[m] = why
+    total = sum(s.frames for s in protocol.steps)
+    done = 0
+    for i, step in enumerate(protocol.steps):
+        lay = layouts[step.layout]
+        turned = step.vary[-1] if step.vary in ("rot_x", "rot_y") else None
+        symmetric = getattr(lay, "symmetry", "none") not in (None, "none")
+        say(done / max(1, total) * 0.8, f"Fig. {step.figure} {step.layout} {step.label}")
+        try:
+            for k, fr in enumerate(step_frames(step, lay, camera, protocol.seed * 100_003 + i,
+                                               base)):
+                g_imu = _imu_gravity(fr.camera_from_brick, protocol.seed, i, k)
+                for m in names:
+                    est = estimators.get((step.layout, m))
+                    if est is None:
+                        continue
+                    t0 = time.perf_counter()
+                    g = g_imu if METHODS[m].gravity else None
+                    T, ambiguous = _pick(est(fr.image, g), lay)
+                    dt = time.perf_counter() - t0
+                    res.records.append({
+                        "step": i, "figure": step.figure, "layout": step.layout,
+                        "vary": step.vary, "value": step.value, "method": m, "frame": fr.name,
+                        "recorded": step.source is not None, "found": T is not None,
+                        "ambiguous": ambiguous,
+                        "time_ms": 1000 * dt,
+                        "errors": None if T is None else frame_errors(
+                            T, fr.camera_from_brick, symmetric, turned)})
+                done += 1
+        except InputError as e:
+            res.skipped.append(f"step {i + 1} (Fig. {step.figure}, {step.layout}, "
+                               f"{step.label}): {e}")
+            done += step.frames
+    if speed_bricks:
+        say(0.8, "frame rate against the number of bricks")
+        res.speed = _speed(layouts, names, estimators, camera, speed_bricks, speed_frames,
+                           protocol.seed)
+    if memory_seconds > 0:
+        res.memory = _memory(layouts, names, estimators, camera, memory_seconds, say)
+    res.seconds = time.perf_counter() - t_start
+    say(1.0, "done")
+    return res
+
+
+def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray]:
+    from drovisio.scenes import SceneSpec, random_scene
+    from drovisio.synth import render
+
+    spec = SceneSpec(layouts=[lay], n_bricks=n, distance=(1.2, 1.8),
+                     instances=max(n, min(lay.instances or n, 20)))
+    out = []
+    for k in range(count):
+        scene, fx = random_scene(seed + 1000 * n + k, spec, camera)
+        out.append(render(scene, fx, ss=2).image)
+    return out
+
+
+def _speed(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
+    import cv2
+
+    from drovisio.study.methods import METHODS
+
+    cv2.setNumThreads(1)
+    out = []
+    for lname, lay in layouts.items():
+        ms = [m for m in names if (lname, m) in estimators and not METHODS[m].accuracy_only]
+        if not ms:
+            continue
+        for n in bricks:
+            n_eff = min(n, lay.instances or n)
+            frames = _scene_frames(lay, camera, n_eff, count, seed)
+            for m in ms:
+                est = estimators[(lname, m)]
+                est(frames[0], None)                # warm (compiled kernels, caches)
+                times = []
+                for img in frames:
+                    best = float("inf")
+                    for _ in range(3):
+                        t0 = time.thread_time()
+                        est(img, None)
+                        best = min(best, time.thread_time() - t0)
+                    times.append(best)
+                med = float(np.median(times))
+                out.append({"method": m, "layout": lname, "bricks": n_eff,
+                            "ms": 1000 * med, "fps": 1.0 / max(med, 1e-6)})
+    return out
+
+
+def _memory(layouts, names, estimators, camera, seconds, say) -> dict:
+    import gc
+
+    from drovisio.study.methods import METHODS
+
+    out: dict[str, list[tuple[float, float]]] = {}
+    for m in names:
+        lname = next((ln for ln in layouts if (ln, m) in estimators), None)
+        if lname is None or METHODS[m].accuracy_only:
+            continue
+        frames = _scene_frames(layouts[lname], camera, 5, 4, 77)
+        est = estimators[(lname, m)]
+        for img in frames:
+            est(img, None)                          # warm-up before the baseline
+        gc.collect()
+        series = [(0.0, _rss_mb())]
+        t0 = last = time.perf_counter()
+        k = 0
+        while time.perf_counter() - t0 < seconds:
+            est(frames[k % len(frames)], None)
+            k += 1
+            now = time.perf_counter()
+            if now - last >= max(0.25, seconds / 200):
+                series.append((now - t0, _rss_mb()))
+                last = now
+        series.append((time.perf_counter() - t0, _rss_mb()))
+        out[m] = series
+        say(0.9, f"memory: {m} ({k} frames in {seconds:g} s)")
+    return out
+
+
+def figure_ids(result: StudyResult) -> list[str]:
+    """The thesis figures this study's records can draw."""
+    return [f for f in FIGURES if any(r["figure"] == f for r in result.records)]

@@ -1,0 +1,103 @@
+"""The Study page's service: the study reports of the data folder, and a study of the shipped
+recorded-style protocol started from the page, in the background, with its progress.
+
+Reports live in ``study_dir/<name>/`` (``report.html``, ``summary.json``, ``frames.jsonl``,
+the figures), as ``drovisio study run --out`` writes them.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import time
+from pathlib import Path
+
+from drovisio.resources import sample_sessions_dir, user_data_dir
+from webtool.errors import ServiceError
+
+__all__ = ["StudyService"]
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,120}$")
+
+
+class StudyService:
+    """See the module doc.
+
+    Args:
+        settings: The web tool's settings (``study_dir``).
+    """
+
+    def __init__(self, settings) -> None:
+        self.settings = settings
+        self.folder = Path(settings.study_dir) if settings.study_dir else user_data_dir("study")
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self.progress = {"running": False, "fraction": 0.0, "message": "", "error": None,
+                         "report": None}
+
+    def reports(self) -> list[dict]:
+        """The reports in the folder, newest first."""
+        out = []
+        if self.folder.is_dir():
+            for d in self.folder.iterdir():
+                f = d / "summary.json"
+                if not (d / "report.html").is_file() or not f.is_file():
+                    continue
+                try:
+                    s = json.loads(f.read_text(encoding="utf-8"))
+                except (OSError, ValueError):
+                    continue
+                out.append({"name": d.name, "protocol": s.get("protocol"),
+                            "frames": s.get("frames"), "seconds": s.get("seconds"),
+                            "skipped": len(s.get("skipped") or []),
+                            "written": f.stat().st_mtime})
+        return sorted(out, key=lambda r: -r["written"])
+
+    def report_file(self, name: str, file: str) -> Path:
+        if not _NAME.match(name) or not re.match(r"^(report\.html|fig-6\.\d+\.png)$", file):
+            raise ServiceError("no such report", 404)
+        f = self.folder / name / file
+        if not f.is_file():
+            raise ServiceError("no such report", 404)
+        return f
+
+    def start(self) -> dict:
+        """Run the shipped recorded-style protocol into a new report folder."""
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                raise ServiceError("a study is already running: wait for it to finish", 409)
+            name = time.strftime("%Y%m%d-%H%M%S") + "-sample"
+            self.progress = {"running": True, "fraction": 0.0, "message": "starting",
+                             "error": None, "report": None, "name": name}
+            self._thread = threading.Thread(target=self._run, args=(name,), daemon=True,
+                                            name="study")
+            self._thread.start()
+            return dict(self.progress)
+
+    def _run(self, name: str) -> None:
+        from drovisio.study.protocol import load_protocol
+        from drovisio.study.report import write_report
+        from drovisio.study.run import run_study
+
+        def say(frac: float, msg: str) -> None:
+            self.progress.update(fraction=round(0.95 * frac, 3), message=msg)
+
+        try:
+            path = sample_sessions_dir() / "study" / "protocol.yaml"
+            protocol = load_protocol(path)
+            res = run_study(protocol, path.parent, memory_seconds=2.0, speed_bricks=(1, 5),
+                            speed_frames=1, progress=say)
+            out = self.folder / name
+            write_report(res, out, f"drovisio study run --protocol {path} --out {out}",
+                         path.read_text(encoding="utf-8"))
+            self.progress.update(fraction=1.0, message="done", report=name)
+        except Exception as e:  # noqa: BLE001 - shown on the page, in one line
+            self.progress.update(error=f"{type(e).__name__}: {e}")
+        finally:
+            self.progress["running"] = False
+
+    def close(self) -> None:
+        th = self._thread
+        if th is not None:
+            th.join(0.1)
