@@ -164,3 +164,18 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     if tried:
         terminalreporter.write_line("fuzz inputs tried: " + ", ".join(
             f"{k} {v}" for k, v in sorted(tried.items())))
+
+
+@pytest.fixture
+def no_apriltag(monkeypatch):
+    """As if pupil-apriltags (the peers extra) were not installed."""
+    import builtins
+
+    real = builtins.__import__
+
+    def without(name, *a, **kw):
+        if name == "pupil_apriltags":
+            raise ImportError(name)
+        return real(name, *a, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", without)

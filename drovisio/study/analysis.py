@@ -9,7 +9,7 @@ the markers; x, y in their plane):
   rotation vector in the camera frame, its components (signed, degrees);
 * and the benchmarks' own measures, so both can be compared on the same frames:
   ``lateral_mm`` (norm of the x/y error), ``depth_pct`` and ``yaw_deg`` (about the brick's z
-  axis, swing–twist) as ``drovisio bench aruco`` / ``dots`` compute them.
+  axis) exactly as ``drovisio bench aruco`` (codes) or ``dots`` (dots) compute them.
 
 A layout with a symmetry (the thesis's red-blue-red dots: a half turn) is scored against the
 nearer of the truth and its half-turned twin.
@@ -37,13 +37,15 @@ def _half_turn_z() -> np.ndarray:
 
 
 def frame_errors(T_est: np.ndarray, T_true: np.ndarray, symmetric: bool = False,
-                 turned: str | None = None) -> dict:
+                 turned: str | None = None, kind: str = "codes") -> dict:
     """Errors of ``camera_from_brick`` ``T_est`` against ``T_true`` (4×4 each).
 
     Args:
         symmetric: The layout looks the same after a half turn about its z axis.
         turned: ``"x"`` or ``"y"`` for a step that turns the brick about that camera axis
             (``rot_xy_deg`` is then the error about it).
+        kind: ``"codes"`` or ``"dots"``: whose benchmark's measures (``drovisio bench aruco``
+            or ``dots``) ``lateral_mm``, ``depth_pct`` and ``yaw_deg`` are.
     """
     import cv2
 
@@ -58,7 +60,13 @@ def frame_errors(T_est: np.ndarray, T_true: np.ndarray, symmetric: bool = False,
     dt = T_est[:3, 3] - T_true[:3, 3]
     rv = cv2.Rodrigues(R_est @ R_true.T)[0].ravel()
     rot = np.degrees(rv)
-    yaw = yaw_about_axis_deg(R_true, R_est)
+    if kind == "dots":
+        from drovisio.bench.dots import DotTruth, _pose_errors
+
+        truth = DotTruth("", T_true.tolist(), [], [], [])
+        yaw = _pose_errors(truth, T_est[:3, :3], T_est[:3, 3], symmetric)["yaw_deg"]
+    else:
+        yaw = yaw_about_axis_deg(R_true, R_est)
     out = {"x_cm": 100 * float(dt[0]), "y_cm": 100 * float(dt[1]),
            "xy_cm": 100 * float(math.hypot(dt[0], dt[1])),
            "z_pct": 100 * abs(float(dt[2])) / float(T_true[2, 3]),

@@ -58,12 +58,13 @@ def _world_from_brick(step: Step, camera_from_world: np.ndarray, height: float =
     ax = {"x": R_cw[0], "y": R_cw[1], "z": R_cw[2]}       # camera axes in the world
     T = np.eye(4)
     T[2, 3] = height
+    value = float(step.value or 0.0)
     if step.vary == "offset_x":
-        T[:3, 3] += step.value * ax["x"]
+        T[:3, 3] += value * ax["x"]
     elif step.vary == "offset_y":
-        T[:3, 3] += step.value * ax["y"]
+        T[:3, 3] += value * ax["y"]
     elif step.vary.startswith("rot_"):
-        T[:3, :3] = _rot(ax[step.vary[-1]], step.value)
+        T[:3, :3] = _rot(ax[step.vary[-1]], value)
     return T
 
 
@@ -118,6 +119,9 @@ def _recorded(step: Step, base: Path) -> Iterator[StepFrame]:
 
     src = Path(step.source or "")
     src = src if src.is_absolute() else base / src
+    if step.value is None:
+        raise InputError(f"{src}: value: no truth for this recording (give the {step.vary} "
+                         "measured on the bench)")
     truth = truth_camera_from_brick(step)
     if src.is_dir():
         files = sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)

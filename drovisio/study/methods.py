@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -57,26 +58,24 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ Drovisio
-def _drovisio_codes(camera, layouts) -> Estimator:
-    from drovisio.detect.aruco import ArucoBrickDetector
+def _drovisio(detector: str) -> Callable[[object, list], Estimator]:
+    """A factory of Drovisio estimators (``"aruco"`` or ``"dots"``)."""
+    def make(camera, layouts) -> Estimator:
+        det: Any
+        if detector == "aruco":
+            from drovisio.detect.aruco import ArucoBrickDetector
 
-    det = ArucoBrickDetector(camera, layouts)
+            det = ArucoBrickDetector(camera, layouts)
+        else:
+            from drovisio.detect.dots import DotDetector
 
-    def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
-        return [(p.layout, p.instance, p.camera_from_brick(), bool(p.ambiguous))
-                for p in det.detect(img, gravity=g)]
-    return estimate
+            det = DotDetector(camera, layouts)
 
-
-def _drovisio_dots(camera, layouts) -> Estimator:
-    from drovisio.detect.dots import DotDetector
-
-    det = DotDetector(camera, layouts)
-
-    def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
-        return [(p.layout, p.instance, p.camera_from_brick(), bool(p.ambiguous))
-                for p in det.detect(img, gravity=g)]
-    return estimate
+        def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
+            return [(p.layout, p.instance, p.camera_from_brick(), bool(p.ambiguous))
+                    for p in det.detect(img, gravity=g)]
+        return estimate
+    return make
 
 
 def _needs_codes(layout) -> str | None:
@@ -204,14 +203,14 @@ def _apriltag(camera, layouts) -> Estimator:
 
 METHODS: dict[str, Method] = {
     "drovisio-codes": Method("drovisio-codes", "Drovisio (codes)", "#0b4fa8", _needs_codes,
-                             _drovisio_codes, gravity=True),
+                             _drovisio("aruco"), gravity=True),
     "drovisio-codes-image": Method("drovisio-codes-image", "Drovisio (codes), image only",
-                                   "#6fa8dc", _needs_codes, _drovisio_codes,
+                                   "#6fa8dc", _needs_codes, _drovisio("aruco"),
                                    accuracy_only=True),
     "drovisio-dots": Method("drovisio-dots", "Drovisio (dots)", "#c0392b", _needs_dots,
-                            _drovisio_dots, gravity=True),
+                            _drovisio("dots"), gravity=True),
     "drovisio-dots-image": Method("drovisio-dots-image", "Drovisio (dots), image only",
-                                  "#e6a19a", _needs_dots, _drovisio_dots, accuracy_only=True),
+                                  "#e6a19a", _needs_dots, _drovisio("dots"), accuracy_only=True),
     "opencv": Method("opencv", "plain OpenCV", "#7f8c8d", _opencv_applies, _opencv),
     "apriltag3": Method("apriltag3", "AprilTag 3", "#e67e22", _apriltag_applies, _apriltag),
 }

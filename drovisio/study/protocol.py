@@ -82,7 +82,9 @@ class Step(_Model):
     figure: str = Field(pattern=r"^6\.[2-9]$", description="The thesis figure, 6.2 to 6.9.")
     layout: str = Field(min_length=1, max_length=64)
     vary: Vary
-    value: float = Field(ge=-180, le=180, description="metres (distance, offsets) or degrees")
+    value: float | None = Field(default=None, ge=-180, le=180, description=(
+        "The truth: metres (distance, offsets) or degrees, as measured on the bench. A "
+        "recorded step without it is skipped, with its reason in the report."))
     distance: float | None = Field(default=None, gt=0.05, le=20, description=(
         "Camera distance for offsets and rotations (m); default 1.9 m for offsets, 1 m for "
         "rotations."))
@@ -92,6 +94,10 @@ class Step(_Model):
 
     @model_validator(mode="after")
     def _sane(self) -> Step:
+        if self.value is None:
+            if self.source is None:
+                raise ValueError("value: a rendered step needs its value (metres or degrees)")
+            return self
         if self.vary == "distance" and not 0.05 < self.value <= 20:
             raise ValueError("a distance step needs 0.05 < value <= 20 (metres)")
         if self.vary.startswith("offset") and abs(self.value) > 10:
@@ -101,7 +107,7 @@ class Step(_Model):
     @property
     def at_distance(self) -> float:
         if self.vary == "distance":
-            return self.value
+            return float(self.value or 0.0)
         if self.distance is not None:
             return self.distance
         return 1.9 if self.vary.startswith("offset") else 1.0
@@ -109,7 +115,7 @@ class Step(_Model):
     @property
     def label(self) -> str:
         unit = "°" if self.vary.startswith("rot") else " m"
-        return f"{self.vary} {self.value:g}{unit}"
+        return f"{self.vary} {'?' if self.value is None else f'{self.value:g}'}{unit}"
 
 
 class Protocol(_Model):

@@ -151,7 +151,8 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
                         "ambiguous": ambiguous,
                         "time_ms": 1000 * dt,
                         "errors": None if T is None else frame_errors(
-                            T, fr.camera_from_brick, symmetric, turned)})
+                            T, fr.camera_from_brick, symmetric, turned,
+                            "dots" if m.startswith("drovisio-dots") else "codes")})
                 done += 1
         except InputError as e:
             res.skipped.append(f"step {i + 1} (Fig. {step.figure}, {step.layout}, "

@@ -3,7 +3,6 @@ JSON it writes; clear refusals of what it cannot measure."""
 
 from __future__ import annotations
 
-import builtins
 import json
 
 import pytest
@@ -34,21 +33,14 @@ def test_recall_by_size_and_apriltag_on_the_same_frames(tmp_path, capsys):
     assert "recall by code size, apriltag3:" in text and "AT3" in text
 
 
-def test_what_cannot_be_measured_is_refused_in_one_line(capsys, monkeypatch):
+def test_what_cannot_be_measured_is_refused_in_one_line(capsys, request):
     assert aruco.main(["--dictionary", "DICT_9X9_1", "--frames", "1"]) == 2
     assert "--dictionary:" in capsys.readouterr().err
     # AprilTag 3 cannot read 4x4 ArUco codes
     assert aruco.main(["--apriltag", "--frames", "1"]) == 2
     err = capsys.readouterr().err
     assert "cannot read DICT_4X4_50" in err and "DICT_APRILTAG_36h11" in err
-    real_import = builtins.__import__
-
-    def no_apriltag(name, *a, **kw):
-        if name == "pupil_apriltags":
-            raise ImportError(name)
-        return real_import(name, *a, **kw)
-
-    monkeypatch.setattr(builtins, "__import__", no_apriltag)
+    request.getfixturevalue("no_apriltag")
     assert aruco.main(["--apriltag", "--dictionary", "DICT_APRILTAG_36h11",
                        "--frames", "1"]) == 2
     assert "pip install drovisio[peers]" in capsys.readouterr().err

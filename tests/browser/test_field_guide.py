@@ -77,6 +77,10 @@ def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, si
 
         page.goto(base + "/calibration")
         page.wait_for_function("document.getElementById('live').naturalWidth > 0")
+        # the board to print: the page's link gives the true-scale PDF
+        pdf = page.request.get(base + page.get_attribute("#print-a4", "href"))
+        assert pdf.ok and pdf.body()[:5] == b"%PDF-"
+        assert page.locator("#print-a4").is_visible()
         _no_sideways_scroll(page, size)
         _shot(page, f"calibration-{size}")
 

@@ -4,7 +4,6 @@ errors the benchmarks' own, and bad input named without stopping the study."""
 
 from __future__ import annotations
 
-import builtins
 import json
 from pathlib import Path
 
@@ -131,6 +130,30 @@ def test_errors_are_the_benchmarks_own_on_the_same_frames():
         assert abs(e["yaw_deg"] - st.yaw_deg[0]) < 0.01
 
 
+def test_dot_errors_are_the_dot_benchmarks_own():
+    from types import SimpleNamespace
+
+    from drovisio.bench.dots import _pose_errors
+    from drovisio.detect.dots import DotDetector
+
+    cam = Camera.drone_webcam()
+    dots = load_layout(shipped_layouts_dir() / "drick-dots-2x3.json")
+    det = DotDetector(cam, [dots])
+    step = Step(figure="6.5", layout="dots", vary="rot_z", value=30.0, frames=3)
+    n = 0
+    for fr in step_frames(step, dots, cam, 12, Path(".")):
+        for p in det.detect(fr.image):
+            T = p.camera_from_brick()
+            b = _pose_errors(SimpleNamespace(camera_from_brick=fr.camera_from_brick),
+                             T[:3, :3], T[:3, 3], True)
+            e = frame_errors(T, fr.camera_from_brick, symmetric=True, kind="dots")
+            assert abs(e["lateral_mm"] - 1000 * b["lateral_m"]) < 0.1
+            assert abs(e["depth_pct"] - 100 * b["depth_rel"]) < 0.01
+            assert abs(e["yaw_deg"] - b["yaw_deg"]) < 0.01
+            n += 1
+    assert n == 3
+
+
 def test_apriltag_corners_in_opencvs_convention():
     pytest.importorskip("pupil_apriltags")
     from drovisio.study.methods import apriltag_detector
@@ -178,6 +201,8 @@ def test_recorded_example_and_image_folders_line_up(tmp_path):
 def test_bad_input_is_named_and_the_study_goes_on(tmp_path):
     write_recorded_example(tmp_path, frames=2)
     data = yaml.safe_load((tmp_path / "protocol.yaml").read_text())
+    data["steps"].append({**data["steps"][3], "frames": 2})
+    data["steps"][-1].pop("value")                      # a recording without its truth
     data["steps"][0]["source"] = "missing.mp4"
     data["steps"][1]["frames"] = 5                      # the video has 2
     data["steps"][2]["frames"] = 4                      # the folder has 2 images
@@ -187,8 +212,9 @@ def test_bad_input_is_named_and_the_study_goes_on(tmp_path):
     res = run_study(load_protocol(_write(tmp_path / "bad.yaml", data)), tmp_path,
                     methods=["drovisio-codes", "apriltag3"], memory_seconds=0,
                     speed_bricks=())
-    assert len(res.skipped) == 3
+    assert len(res.skipped) == 4
     assert "missing.mp4: no such video or folder" in res.skipped[0]
+    assert "dots_100cm.mp4: value: no truth for this recording" in res.skipped[3]
     assert "code_120cm.mp4: the video has 2 frame(s), the step asks for frames: 5" \
         in res.skipped[1]
     assert "code_rotz45: 2 image(s), the step asks for frames: 4" in res.skipped[2]
@@ -199,7 +225,7 @@ def test_bad_input_is_named_and_the_study_goes_on(tmp_path):
 
 
 @pytest.mark.parametrize("edit, field", [
-    (lambda d: d["steps"][0].pop("value"), "steps.0.value"),
+    (lambda d: d["steps"][0].pop("value"), "steps.0: Value error, value: a rendered step"),
     (lambda d: d["steps"][0].update(figure="6.12"), "steps.0.figure"),
     (lambda d: d["steps"][0].update(layout="nope"), "steps.0.layout"),
     (lambda d: d["steps"][0].update(frames=0), "steps.0.frames"),
@@ -221,15 +247,7 @@ def test_protocol_errors_name_the_file_and_the_field(tmp_path, edit, field):
         load_protocol(tmp_path / "nan.json")
 
 
-def test_without_apriltag_the_study_says_what_was_left_out(tmp_path, monkeypatch):
-    real = builtins.__import__
-
-    def no_peer(name, *a, **kw):
-        if name == "pupil_apriltags":
-            raise ImportError(name)
-        return real(name, *a, **kw)
-
-    monkeypatch.setattr(builtins, "__import__", no_peer)
+def test_without_apriltag_the_study_says_what_was_left_out(tmp_path, no_apriltag):
     proto = load_protocol(_write(tmp_path / "p.yaml", {
         "schema": PROTOCOL_SCHEMA, "name": "x",
         "layouts": [{"name": "c", "layout": "drick-aruco-centre",

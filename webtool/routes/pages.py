@@ -35,34 +35,17 @@ def _render(request: Request, templates: Jinja2Templates, settings: Settings, pa
     )
 
 
-@router.get("/")
-def index(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/")
+def _page(path: str):
+    def page(request: Request, templates: Templates, settings: CurrentSettings):
+        return _render(request, templates, settings, path)
+    page.__name__ = "page_" + (path.strip("/") or "index")
+    return page
 
 
-@router.get("/calibration")
-def calibration(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/calibration")
-
-
-@router.get("/designer")
-def designer(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/designer")
-
-
-@router.get("/live")
-def live(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/live")
-
-
-@router.get("/mount")
-def mount(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/mount")
-
-
-@router.get("/study")
-def study(request: Request, templates: Templates, settings: CurrentSettings):
-    return _render(request, templates, settings, "/study")
+# every page but the guide is its template (the guide renders docs/field-guide.md)
+for _path in PAGES:
+    if _path != "/help":
+        router.add_api_route(_path, _page(_path), methods=["GET"])
 
 
 _IMAGE_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,80}\.(jpg|png)$")
