@@ -372,8 +372,14 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
         prior = (up, np.asarray(ev.gravity, np.float64), math.radians(gravity_prior_deg))
     # IPPE's solution from exact normalised coordinates is already close to the pixel-space
     # optimum: one Gauss–Newton step gets it (the prior is nearly linear as well)
-    best, info = _gauss_newton(obj, img, best, camera, Winv, iterations=1 if refine else 0,
+    start = best
+    best, info = _gauss_newton(obj, img, start, camera, Winv, iterations=1 if refine else 0,
                                prior=prior)
+    if prior is not None and not best.rmse_px <= 3.0 * start.rmse_px + 1.0:
+        # the prior outweighed the image (poorly known corners of a small code seen
+        # square-on): a flat pose that no longer fits is no answer; the image's own is
+        best, info = _gauss_newton(obj, img, start, camera, Winv,
+                                   iterations=1 if refine else 0)
     return PoseResult(best.rvec, best.tvec, best.rmse_px, _covariance(info, best.chi2, dof),
                       amb, others if amb else [], decided_by, [best] + others)
 
