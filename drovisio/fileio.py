@@ -21,7 +21,8 @@ from pathlib import Path
 
 from drovisio.errors import WriteError
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "check_output_path"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "check_output_path",
+           "output_folder"]
 
 
 def _umask() -> int:
@@ -67,6 +68,26 @@ def check_output_path(path: str | os.PathLike, what: str = "--out",
         if same or os.path.abspath(p) == os.path.abspath(o):
             raise WriteError(f"{p}: {what} is the same file as {label}; writing it would "
                              "destroy it: choose another name", errno.EEXIST)
+    return p
+
+
+def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
+    """A folder to write into, made if missing (an existing one is written into: its files
+    of the same names are replaced, each atomically).
+
+    Raises:
+        WriteError: the path is a file, or the folder cannot be made.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise WriteError(f"{p}: {what} is a file; give a folder", errno.ENOTDIR)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise WriteError(f"{p}: {what}: the folder cannot be made ({e.strerror or e})",
+                         e.errno or errno.EIO) from None
+    if not os.access(p, os.W_OK):
+        raise WriteError(f"{p}: {what}: the folder is not writable", errno.EACCES)
     return p
 
 

@@ -47,7 +47,7 @@ from pydantic import (
 
 from drovisio.errors import InputError
 from drovisio.geometry import ned_from_body, rot_y, rot_z, transform
-from drovisio.textfile import parse_json, parse_yaml, read_text
+from drovisio.textfile import read_structured
 
 __all__ = [
     "MOUNT_SCHEMA",
@@ -328,9 +328,7 @@ def load_mount(path: str | os.PathLike) -> Mount:
     """Read a mount file (JSON or YAML)."""
     p = Path(path)
     try:
-        text = read_text(p, "mount file")
-        data = parse_json(text, str(p)) if p.suffix.lower() == ".json" else \
-            parse_yaml(text, str(p))
+        data = read_structured(p, "mount file")
     except InputError as e:
         raise MountError(str(e)) from None
     if not isinstance(data, dict):

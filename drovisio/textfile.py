@@ -17,7 +17,8 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "read_text"]
+__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "read_structured",
+           "read_text"]
 
 
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
@@ -136,3 +137,11 @@ def parse_yaml(text: str, source: str, loader: type[BoundedYamlLoader] | None = 
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise InputError(f"{source}: not valid YAML{where}: {one_line(problem, 160)}") from None
     return _check_depth(data, source)
+
+
+def read_structured(path: str | os.PathLike, what: str = "file") -> Any:
+    """A JSON (``.json``) or YAML (anything else) file, read and parsed within the limits
+    above; errors are :class:`InputError` naming the file."""
+    p = Path(path)
+    text = read_text(p, what)
+    return parse_json(text, str(p)) if p.suffix.lower() == ".json" else parse_yaml(text, str(p))

@@ -56,6 +56,19 @@ WEIRD = ["nan", ".nan", "NaN", "inf", "-inf", "Infinity", "1e308", "-1e308", "1e
          "&a", "*a", "!!python/object:os.system", "'", '"', "\\x00"]
 
 
+def mutate_bytes(raw: bytes, seed: int, flips: int, cut: float, cut_share: float = 0.3,
+                 min_len: int = 0) -> bytes:
+    """``flips`` random bytes of a valid file changed; when ``cut < cut_share`` the file is
+    also cut short (to ``cut / cut_share`` of its length, ``min_len`` bytes at least)."""
+    data = bytearray(raw)
+    rnd = random.Random(seed)
+    for _ in range(flips):
+        data[rnd.randrange(len(data))] = rnd.randrange(256)
+    if cut < cut_share:
+        data = data[:max(min_len, int(len(data) * cut / cut_share))]
+    return bytes(data)
+
+
 def mutate(text: str, rnd: random.Random, n: int) -> str:
     """``n`` random edits of a valid file's text."""
     for _ in range(n):
@@ -252,16 +265,10 @@ IMAGES = _image_bytes()
 def test_image_decoder(which, seed, flips, cut):
     from drovisio.images import decode_image
 
-    data = bytearray(IMAGES[which])
-    rnd = random.Random(seed)
-    for _ in range(flips):
-        i = rnd.randrange(len(data))
-        data[i] = rnd.randrange(256)
-    if cut < 0.3:
-        data = data[:int(len(data) * cut / 0.3)]
+    data = mutate_bytes(IMAGES[which], seed, flips, cut)
     tried("image")
     try:
-        img, notes = decode_image(bytes(data), "x.bin")
+        img, notes = decode_image(data, "x.bin")
     except Exception as e:  # noqa: BLE001
         _check_error(e)
         return
@@ -290,16 +297,10 @@ def test_mesh_reader(which, seed, flips, cut):
     from drovisio.designer.model import DesignDocument, DesignError
 
     name, raw = MESHES[which]
-    data = bytearray(raw)
-    rnd = random.Random(seed)
-    for _ in range(flips):
-        i = rnd.randrange(len(data))
-        data[i] = rnd.randrange(256)
-    if cut < 0.3:
-        data = data[:int(len(data) * cut / 0.3)]
+    data = mutate_bytes(raw, seed, flips, cut)
     tried("mesh")
     try:
-        DesignDocument.from_mesh_bytes(bytes(data), name)
+        DesignDocument.from_mesh_bytes(data, name)
     except DesignError:
         pass
 
@@ -309,15 +310,9 @@ def test_mesh_reader(which, seed, flips, cut):
 def test_video_reader(tmp_path_factory, seed, flips, cut):
     from drovisio.sources import EndOfStream, VideoFileReader
 
-    raw = bytearray(VIDEO_BYTES)
-    rnd = random.Random(seed)
-    for _ in range(flips):
-        i = rnd.randrange(len(raw))
-        raw[i] = rnd.randrange(256)
-    if cut < 0.5:
-        raw = raw[:max(1, int(len(raw) * cut / 0.5))]
+    raw = mutate_bytes(VIDEO_BYTES, seed, flips, cut, cut_share=0.5, min_len=1)
     p = tmp_path_factory.mktemp("vid") / "v.avi"
-    p.write_bytes(bytes(raw))
+    p.write_bytes(raw)
     tried("video")
     r = VideoFileReader(p)
     try:

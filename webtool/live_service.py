@@ -410,6 +410,11 @@ class LiveService:
     def latest_output(self):
         return None if self._latest is None else self._latest[2]
 
+    def latest_image(self) -> tuple[int, np.ndarray] | None:
+        """(seq, BGR image) of the newest frame, or None before the first."""
+        latest = self._latest
+        return None if latest is None else (latest[0], latest[1])
+
     def jpeg(self, level: int) -> tuple[int, bytes] | None:
         """(seq, JPEG bytes) of the newest frame, annotated, at a :data:`LEVELS` level."""
         latest = self._latest

@@ -188,7 +188,7 @@ class MountService:
         seen = -1
         deadline = time.monotonic() + timeout
         while len(got) < frames and time.monotonic() < deadline:
-            latest = live._latest
+            latest = live.latest_image()
             if latest is not None and latest[0] != seen:
                 seen = latest[0]
                 got.append((f"live frame {seen}", latest[1]))

@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import asyncio
 import gzip
+from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
-from fastapi import HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
+from starlette.requests import HTTPConnection
 
-__all__ = ["client_response", "proxy_socket"]
+__all__ = ["client_response", "proxy_socket", "viewer_router"]
 
 _client_cache: dict[str, tuple[bytes, bytes]] = {}
 
@@ -113,3 +116,22 @@ async def proxy_socket(ws: WebSocket, port: int | None) -> None:
             await ws.close()
         except (RuntimeError, WebSocketDisconnect, ConnectionError):
             pass
+
+
+def viewer_router(prefix: str, tag: str,
+                  start_scene: Callable[[HTTPConnection], Awaitable[Any]]) -> APIRouter:
+    """``GET prefix/…`` (viser's client) and ``WebSocket prefix`` (relayed to the scene's
+    port) of one area's 3D view; ``start_scene(conn)`` starts the scene (or None)."""
+    router = APIRouter(prefix=prefix, tags=[tag])
+
+    @router.get("/{path:path}")
+    async def viser_client(request: Request, path: str = "") -> Response:
+        await start_scene(request)
+        return await client_response(request, path)
+
+    @router.websocket("")
+    async def viser_socket(ws: WebSocket) -> None:
+        sc = await start_scene(ws)
+        await proxy_socket(ws, sc.port if sc is not None else None)
+
+    return router

@@ -331,8 +331,13 @@ def main(argv: list[str] | None = None) -> int:
     paths = args.layout or [shipped_layouts_dir() / "drick-aruco-centre.json",
                             shipped_layouts_dir() / "drick-aruco-pyramids.json"]
     try:
-        layouts = load_layouts(paths)
         counts = [int(x) for x in args.bricks.split(",") if x.strip()]
+    except ValueError:
+        print(f"drovisio bench aruco: --bricks: {args.bricks!r} is not a list of whole "
+              "numbers (e.g. 1,4,16)", file=sys.stderr)
+        return 2
+    try:
+        layouts = load_layouts(paths)
     except (LayoutError, ValueError) as e:
         print(f"drovisio bench aruco: {e}", file=sys.stderr)
         return 2

@@ -7,8 +7,6 @@ import shlex
 import sys
 from pathlib import Path
 
-from drovisio.errors import InputError
-
 __all__ = ["run"]
 
 
@@ -35,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     import yaml
 
-    from drovisio.fileio import check_output_path
+    from drovisio.fileio import output_folder
     from drovisio.study.protocol import default_protocol, load_protocol
     from drovisio.study.report import write_report
     from drovisio.study.run import run_study
@@ -52,9 +50,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.frames and args.protocol:
         protocol = protocol.model_copy(update={"steps": [
             s.model_copy(update={"frames": args.frames}) for s in protocol.steps]})
-    out = check_output_path(args.out, "--out", {})
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} is a file; give a folder for the report")
+    out = output_folder(args.out, "--out")
     memory = args.memory_seconds if args.memory_seconds is not None else (
         3.0 if args.quick else 20.0)
     methods = [m.strip() for m in args.methods.split(",")] if args.methods else None
@@ -77,9 +73,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _example(args: argparse.Namespace) -> int:
+    from drovisio.fileio import output_folder
     from drovisio.study.example import write_recorded_example
 
-    out = Path(args.out)
+    out = output_folder(args.out, "--out")
     p = write_recorded_example(out, frames=args.frames or 6)
     print(f"wrote {p} and its recordings; run: drovisio study run --protocol {p} --out "
           f"{out / 'report'}", file=sys.stderr)

@@ -27,7 +27,7 @@ def _plt():
     return plt
 
 
-def box_figure(fig_id: str, records: list[dict], steps_of: dict, methods: dict,
+def box_figure(fig_id: str, records: list[dict], methods: dict,
                not_applicable: dict, path: Path) -> dict:
     """Draw thesis figure ``fig_id`` from the per-frame ``records``; returns what was drawn
     (panels, boxes per method and step) so a test can read it back."""

@@ -134,14 +134,6 @@ def _opencv(camera, layouts) -> Estimator:
     return estimate
 
 
-def _opencv_applies(layout) -> str | None:
-    if not layout.has_codes:
-        return "the layout has no codes"
-    if layout.has_dots and not layout.has_codes:
-        return "the layout has no codes"
-    return None
-
-
 # -------------------------------------------------------------------------- AprilTag 3
 def _apriltag_applies(layout) -> str | None:
     if not layout.has_codes:
@@ -211,7 +203,7 @@ METHODS: dict[str, Method] = {
                             _drovisio("dots"), gravity=True),
     "drovisio-dots-image": Method("drovisio-dots-image", "Drovisio (dots), image only",
                                   "#e6a19a", _needs_dots, _drovisio("dots"), accuracy_only=True),
-    "opencv": Method("opencv", "plain OpenCV", "#7f8c8d", _opencv_applies, _opencv),
+    "opencv": Method("opencv", "plain OpenCV", "#7f8c8d", _needs_codes, _opencv),
     "apriltag3": Method("apriltag3", "AprilTag 3", "#e67e22", _apriltag_applies, _apriltag),
 }
 

@@ -30,7 +30,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from drovisio.errors import InputError
-from drovisio.textfile import parse_json, parse_yaml, read_text
+from drovisio.textfile import read_structured
 
 __all__ = ["PROTOCOL_SCHEMA", "FIGURES", "LayoutRef", "Protocol", "ProtocolError", "Step",
            "default_protocol", "load_protocol"]
@@ -144,9 +144,7 @@ def load_protocol(path: str | Path) -> Protocol:
     """Read and check a protocol file (YAML or JSON)."""
     p = Path(path)
     try:
-        text = read_text(p, "protocol file")
-        data = parse_json(text, str(p)) if p.suffix.lower() == ".json" else \
-            parse_yaml(text, str(p))
+        data = read_structured(p, "protocol file")
     except InputError as e:
         raise ProtocolError(str(e)) from None
     if not isinstance(data, dict):

@@ -80,7 +80,7 @@ def write_report(result, out: Path, command: str, protocol_text: str) -> dict:
     summary = summarise(result.records)
     drawn = {}
     for fig in figure_ids(result):
-        drawn[fig] = box_figure(fig, result.records, {}, METHODS, result.not_applicable,
+        drawn[fig] = box_figure(fig, result.records, METHODS, result.not_applicable,
                                 out / f"fig-{fig}.png")
     if result.speed:
         drawn["6.10"] = fps_figure(result.speed, METHODS, out / "fig-6.10.png")

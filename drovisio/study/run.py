@@ -45,9 +45,7 @@ def resolve_layouts(protocol: Protocol, base: Path) -> dict:
     out = {}
     for ref in protocol.layouts:
         shipped = shipped_layouts_dir() / f"{ref.layout}.json"
-        path = shipped if shipped.is_file() else Path(ref.layout)
-        if not path.is_absolute() and not shipped.is_file():
-            path = base / path
+        path = shipped if shipped.is_file() else base / ref.layout   # (absolute stays so)
         try:
             lay = load_layout(path)
             out[ref.name] = with_dictionary(lay, ref.dictionary) if ref.dictionary else lay
@@ -185,9 +183,17 @@ def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray
 def _speed(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
     import cv2
 
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)        # one core, as on the drone's board; the process's own after
+    try:
+        return _speed_runs(layouts, names, estimators, camera, bricks, count, seed)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _speed_runs(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
     from drovisio.study.methods import METHODS
 
-    cv2.setNumThreads(1)
     out = []
     for lname, lay in layouts.items():
         ms = [m for m in names if (lname, m) in estimators and not METHODS[m].accuracy_only]

@@ -267,3 +267,16 @@ def test_cli_refuses_a_bad_protocol_in_one_line(tmp_path, capsys):
                      str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.yaml: layouts" in err[0]
+
+
+def test_cli_writes_into_a_folder_and_refuses_what_is_not_one(tmp_path, capsys):
+    (tmp_path / "a-file").write_text("keep me")
+    for out in (tmp_path / "a-file", tmp_path / "a-file" / "below"):
+        assert cli.main(["study", "example", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--out" in err[0] and "Traceback" not in err[0]
+    assert (tmp_path / "a-file").read_text() == "keep me"
+    folder = tmp_path / "existing"
+    folder.mkdir()
+    assert cli.main(["study", "example", "--out", str(folder), "--frames", "1"]) == 0
+    assert (folder / "protocol.yaml").is_file()

@@ -35,10 +35,9 @@ from webtool.access import access_level
 from webtool.errors import ServiceError
 from webtool.live_service import LEVELS, LiveService
 from webtool.services import get_service
-from webtool.viser_proxy import client_response, proxy_socket
+from webtool.viser_proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/live", tags=["live"])
-viewer_router = APIRouter(prefix="/live/3d", tags=["live"])
 NO_STORE = {"Cache-Control": "no-store"}
 
 
@@ -51,6 +50,14 @@ async def started(conn: HTTPConnection) -> LiveService:
 
 
 Live = Annotated[LiveService, Depends(started)]
+
+
+async def _scene(conn: HTTPConnection):
+    svc = await started(conn)
+    return await asyncio.to_thread(svc.start_scene)
+
+
+viewer_router = viewer_router_for("/live/3d", "live", _scene)
 
 
 class TargetBody(BaseModel):
@@ -160,19 +167,3 @@ async def live_ws(ws: WebSocket) -> None:
         svc.remove_viewer(vid)
         task.cancel()
 
-
-# ------------------------------------------------------------------------------------------
-# The viser client and its WebSocket, through this app
-# ------------------------------------------------------------------------------------------
-
-@viewer_router.get("/{path:path}")
-async def viser_client(request: Request, svc: Live, path: str = "") -> Response:
-    await asyncio.to_thread(svc.start_scene)
-    return await client_response(request, path)
-
-
-@viewer_router.websocket("")
-async def viser_socket(ws: WebSocket) -> None:
-    svc = await started(ws)
-    sc = await asyncio.to_thread(svc.start_scene)
-    await proxy_socket(ws, sc.port if sc is not None else None)

@@ -23,8 +23,8 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Request, UploadFile, WebSocket
-from fastapi.responses import JSONResponse, Response
+from fastapi import APIRouter, Depends, File, UploadFile
+from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from drovisio.mount import MountAngles
@@ -32,10 +32,14 @@ from webtool.errors import ServiceError
 from webtool.live_service import LiveService
 from webtool.mount_service import MountService
 from webtool.services import get_service, service
-from webtool.viser_proxy import client_response, proxy_socket
+from webtool.viser_proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/mount", tags=["mount"])
-viewer_router = APIRouter(prefix="/mount/3d", tags=["mount"])
+async def _scene(conn):
+    return await asyncio.to_thread(get_service(conn.app, "mount").start_scene)
+
+
+viewer_router = viewer_router_for("/mount/3d", "mount", _scene)
 
 NO_STORE = {"Cache-Control": "no-store"}
 Mounts = Annotated[MountService, Depends(service("mount"))]
@@ -93,15 +97,3 @@ async def scene(svc: Mounts) -> JSONResponse:
         raise ServiceError("the 3D preview is not available", 503)
     return JSONResponse({"url": "/mount/3d/", "port": sc.port, "clients": sc.clients(),
                          "shown": sc.shown}, headers=NO_STORE)
-
-
-@viewer_router.get("/{path:path}")
-async def viser_client(request: Request, svc: Mounts, path: str = "") -> Response:
-    await asyncio.to_thread(svc.start_scene)
-    return await client_response(request, path)
-
-
-@viewer_router.websocket("")
-async def viser_socket(ws: WebSocket) -> None:
-    sc = await asyncio.to_thread(get_service(ws.app, "mount").start_scene)
-    await proxy_socket(ws, sc.port if sc is not None else None)

@@ -24,17 +24,22 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request, WebSocket
-from fastapi.responses import JSONResponse, Response
+from fastapi import APIRouter, Depends
+from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from webtool.errors import ServiceError
 from webtool.replay_service import ReplayService
 from webtool.services import get_service, service
-from webtool.viser_proxy import client_response, proxy_socket
+from webtool.viser_proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/replay", tags=["replay"])
-viewer_router = APIRouter(prefix="/replay/3d", tags=["replay"])
+async def _scene(conn):
+    return await asyncio.to_thread(get_service(conn.app, "replay").start_scene)
+
+
+# the viser client and its WebSocket, through this app (same client files as /live/3d/)
+viewer_router = viewer_router_for("/replay/3d", "replay", _scene)
 NO_STORE = {"Cache-Control": "no-store"}
 Replay = Annotated[ReplayService, Depends(service("replay"))]
 
@@ -103,20 +108,3 @@ async def scene(svc: Replay) -> JSONResponse:
         raise ServiceError("the 3D view is not available", 503)
     return JSONResponse({"url": "/replay/3d/", "port": sc.port, "clients": sc.clients(),
                          "updates": sc.updates}, headers=NO_STORE)
-
-
-# ------------------------------------------------------------------------------------------
-# The viser client and its WebSocket, through this app (same client files as /live/3d/)
-# ------------------------------------------------------------------------------------------
-
-
-@viewer_router.get("/{path:path}")
-async def viser_client(request: Request, svc: Replay, path: str = "") -> Response:
-    await asyncio.to_thread(svc.start_scene)
-    return await client_response(request, path)
-
-
-@viewer_router.websocket("")
-async def viser_socket(ws: WebSocket) -> None:
-    sc = await asyncio.to_thread(get_service(ws.app, "replay").start_scene)
-    await proxy_socket(ws, sc.port if sc is not None else None)
