@@ -139,10 +139,16 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="CAMERA.yaml",
                    help="camera file to write (OpenCV FileStorage form)")
     p.add_argument("--model", default="plumb_bob",
-                   choices=("auto", "plumb_bob", "rational", "fisheye"),
+                   choices=("auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye"),
                    help="lens model: plumb_bob (OpenCV's 5 coefficients, default), rational "
-                        "(8), fisheye (Kannala-Brandt, 4: lenses of 120 deg and more), or auto "
-                        "(chosen on held-out views; the report says why)")
+                        "(8), thin_prism (12: rational + thin prism), tilted (14: + the "
+                        "sensor's tilt), fisheye (Kannala-Brandt, 4: lenses of 120 deg and "
+                        "more), or auto (plumb_bob, rational or fisheye, chosen on held-out "
+                        "views; the report says why)")
+    p.add_argument("--board-flatness", action="store_true",
+                   help="also measure how far the board bowed (fitted with the lens, as "
+                        "mrcal's board warp): a bow of a millimetre "
+                        "moves the focal length by about 1 %%; the report says it")
     p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
                    help="calibration images, or folders of them")
 

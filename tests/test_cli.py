@@ -73,6 +73,12 @@ def test_arguments_follow_design():
     a = parser.parse_args(["calibrate", "--board", "chessboard:9x6", "--square", "0.025",
                            "--report", "r.json", "--out", "cam.yaml", "imgs/"])
     assert a.square == 0.025 and a.report == "r.json" and a.images == ["imgs/"]
+    # every lens model the calibration knows, and only those
+    from drovisio.calibration.solve import MODEL_CHOICES
+
+    model = next(x for x in parser._subparsers._group_actions[0].choices["calibrate"]._actions
+                 if x.dest == "model")
+    assert tuple(model.choices) == MODEL_CHOICES
     a = parser.parse_args(["run", "--source", "0", "--camera", "c.yaml", "--layout", "a.json",
                            "--mount", "m.yaml", "--sink", "jsonl:-", "--sink",
                            "udp://127.0.0.1:9000", "--record", "rec/"])

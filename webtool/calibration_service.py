@@ -50,6 +50,8 @@ import numpy as np
 from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, to_gray
 from drovisio.calibration.report import _clean, build_report, uncertainty_image
 from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
+from drovisio.calibration.solve import MODEL_CHOICES
+from drovisio.calibration.uncertainty import lens_key
 from drovisio.calibration.verdict import Verdict
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera, save_camera
@@ -347,7 +349,7 @@ class CalibrationService:
                                                  self.settings.source is None))
             self.used_camera = data.get("used_camera")
             lens = data.get("lens_model", "plumb_bob")
-            if lens in ("auto", "plumb_bob", "rational", "fisheye"):
+            if lens in MODEL_CHOICES:
                 sess.set_model(lens)
             self._after_session_change()
         self._recover_orphans()
@@ -1026,7 +1028,7 @@ class CalibrationService:
                        "image_size": list(sess.image_size or self._frame_size or (640, 480))},
             "auto_capture": self.auto_capture,
             "lens": {"model": sess.config.solve.model,
-                     "solved_with": res.camera.model if res is not None else None,
+                     "solved_with": lens_key(res.camera) if res is not None else None,
                      "choice": res.model_choice if res is not None else None},
             "feedback": {k: v for k, v in self._feedback.items() if not k.startswith("_")},
             "generation": self._gen,

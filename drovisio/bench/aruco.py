@@ -411,7 +411,9 @@ def main(argv: list[str] | None = None) -> int:
     report = _report(rows, corner_acc, args)
     print(report["text"])
     if args.json:
-        args.json.write_text(json.dumps(report["data"], indent=2) + "\n")
+        from drovisio.fileio import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(report["data"], indent=2) + "\n")
     return 0
 
 

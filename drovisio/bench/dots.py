@@ -896,7 +896,9 @@ def main(argv: list[str]) -> int:
     rep["seconds"] = time.time() - t0
     _print_report(rep)
     if args.json:
-        Path(args.json).write_text(json.dumps(rep, indent=2, default=float))
+        from drovisio.fileio import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(rep, indent=2, default=float))
     return 0
 
 

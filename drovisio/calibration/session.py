@@ -298,15 +298,15 @@ class CalibrationSession:
             self._rejected.append({"file": name, "reason": reason})
 
     def set_model(self, model: str) -> None:
-        """The lens model of the next solves (``auto``, ``plumb_bob``, ``rational`` or
-        ``fisheye``); a result of another model is no longer current."""
+        """The lens model of the next solves (one of
+        :data:`drovisio.calibration.solve.MODEL_CHOICES`); a result of another model is no
+        longer current."""
         from dataclasses import replace
 
-        from drovisio.calibration.solve import MODELS
+        from drovisio.calibration.solve import MODELS, unknown_model
 
         if model != "auto" and model not in MODELS:
-            raise CalibrationError(f"unknown lens model {model!r}: use auto, plumb_bob, "
-                                   "rational or fisheye")
+            raise CalibrationError(unknown_model(model))
         with self._lock:
             if self.config.solve.model != model:
                 self.config.solve = replace(self.config.solve, model=model)

@@ -17,8 +17,9 @@ Rules (stated once here, reported in the result):
 * **Outlier corners**: before the outlier views, a corner farther from its projection than
   5 × the median corner residual (and 0.5 px) is dropped, at most 5 % of a view's corners, and
   listed with its residual (``rejected_corners``).
-* **Lens model** (``model``): plumb_bob (5 coefficients), rational (8) or fisheye
-  (Kannala–Brandt, 4). ``auto`` solves each on one half of the views (alternating) and scores
+* **Lens model** (``model``): plumb_bob (5 coefficients), rational (8), thin_prism (12),
+  tilted (14) or fisheye (Kannala–Brandt, 4). ``auto`` (among plumb_bob, rational and fisheye:
+  the thin prism and the tilted sensor are asked for by name) solves each on one half of the views (alternating) and scores
   it by the RMS of the other half's corners, each of those views posed by PnP through the
   half's model, both ways round; plumb_bob is kept unless another model lowers that by 10 %
   and 0.02 px (``model_choice`` says the figures and why). It is chosen before the outlier
@@ -42,6 +43,7 @@ from drovisio.calibration.uncertainty import (
     UncertaintyMap,
     covariance_from_information,
     grid_jacobians,
+    lens_key,
     model_difference_px,
     param_names,
     param_values,
@@ -53,7 +55,8 @@ from drovisio.calibration.uncertainty import (
 from drovisio.camera import Camera
 
 __all__ = ["CalibrationError", "SolveOptions", "ViewInput", "ViewFit", "CalibrationResult",
-           "solve", "fit_model", "choose_model", "MODELS", "RMS_DEFINITION"]
+           "solve", "fit_model", "choose_model", "MODELS", "MODEL_CHOICES",
+           "RMS_DEFINITION", "camera_model", "unknown_model"]
 
 RMS_DEFINITION = ("root mean square over all kept corners of the distance between the detected "
                   "corner and the projection of its board point, pixels (OpenCV calibrateCamera)")
@@ -68,8 +71,8 @@ class SolveOptions:
     """Knobs of :func:`solve` (defaults are the documented rules)."""
 
     model: str = "plumb_bob"
-    """Lens model: ``plumb_bob`` (5 coefficients), ``rational`` (8), ``fisheye``
-    (Kannala–Brandt, 4) or ``auto`` (chosen by held-out views; module doc)."""
+    """Lens model: one of :data:`MODEL_CHOICES` (``auto``: chosen by held-out views; module
+    doc)."""
     fix_k3: str | bool = "auto"
     """"auto" (the 2σ rule), True (always fix) or False (never); plumb_bob only."""
     reject_corners: bool = True
@@ -86,6 +89,8 @@ class SolveOptions:
     grid_step_px: float = 16.0
     roi: tuple[float, float, float, float] | None = None
     """Image region (x0, y0, x1, y1) where the statistics are taken (None: whole image)."""
+    board_flatness: bool = False
+    """Also estimate how far the board bowed (:mod:`drovisio.calibration.flatness`)."""
 
 
 @dataclass
@@ -152,10 +157,12 @@ class CalibrationResult:
     model_choice: dict | None = None
     """How the lens model was chosen (``auto``): per model its held-out RMS, and why."""
     rejected_corners: list[dict] = field(default_factory=list)
+    board_flatness: dict | None = None
+    """The board's bow (:func:`drovisio.calibration.flatness.board_flatness`), if asked."""
 
     @property
     def std(self) -> dict[str, float]:
-        return {n: float(s) for n, s in zip(param_names(self.camera.model), self.model.std)}
+        return {n: float(s) for n, s in zip(param_names(self.camera), self.model.std)}
 
     @property
     def covariance(self) -> np.ndarray:
@@ -188,13 +195,36 @@ class CalibrationResult:
                                "grid_step_px": float(self.uncertainty.xs[1]
                                                      - self.uncertainty.xs[0])},
             "cross_validation_px": self.cross_validation,
+            "board_flatness": self.board_flatness,
         }
 
 
 # ==================================================================================== solves
 MODELS = {"plumb_bob": "plumb_bob", "rational": "rational_polynomial",
-          "rational_polynomial": "rational_polynomial", "fisheye": "fisheye"}
-"""Names ``--model`` takes → the camera file's model names (as ROS's camera_info)."""
+          "rational_polynomial": "rational_polynomial", "thin_prism": "thin_prism",
+          "tilted": "tilted", "fisheye": "fisheye"}
+"""Names ``--model`` takes → the calibration's model names (:func:`lens_key`)."""
+MODEL_CHOICES = ("auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye")
+"""What ``--model`` and the calibration page offer."""
+# OpenCV's flags and coefficient count of each model but the fisheye
+_BROWN = {"plumb_bob": (0, 5),
+          "rational_polynomial": (cv2.CALIB_RATIONAL_MODEL, 8),
+          "thin_prism": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL, 12),
+          "tilted": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL
+                     | cv2.CALIB_TILTED_MODEL, 14)}
+
+
+def unknown_model(model: str) -> str:
+    """The one message for a lens model the calibration does not know."""
+    return f"unknown lens model {model!r}: use {', '.join(MODEL_CHOICES)}"
+
+
+def camera_model(key: str) -> str:
+    """The camera file's model name of a calibration model (thin_prism and tilted are OpenCV's
+    model with 12 and 14 coefficients: ``rational_polynomial``)."""
+    return "fisheye" if key == "fisheye" else ("plumb_bob" if key == "plumb_bob" else
+                                                "rational_polynomial")
+
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
@@ -208,11 +238,11 @@ def _opencv_solve(O, I, size, model: str, fix_k3: bool):
         _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(O64, I64, size, np.eye(3), np.zeros(4),
                                                       flags=flags, criteria=_CRITERIA)
         return K, np.asarray(D, float).ravel()[:4], rvecs, tvecs
-    flags = cv2.CALIB_RATIONAL_MODEL if model == "rational_polynomial" else (
-        cv2.CALIB_FIX_K3 if fix_k3 else 0)
+    flags, n = _BROWN[model]
+    if model == "plumb_bob" and fix_k3:
+        flags |= cv2.CALIB_FIX_K3
     _, K, D, rvecs, tvecs = cv2.calibrateCamera(O, I, size, None, None, flags=flags,
                                                 criteria=_CRITERIA)
-    n = 8 if model == "rational_polynomial" else 5
     return K, np.asarray(D, float).ravel()[:n], rvecs, tvecs
 
 
@@ -231,7 +261,8 @@ def _fit(views: list[ViewInput], size: tuple[int, int], fix_k3: bool,
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise CalibrationError("the solve diverged (non-finite or negative focal length); "
                                "add views with the board tilted and at other distances")
-    cam = Camera(K=K, dist=D, width=size[0], height=size[1], name="camera", model=model)
+    cam = Camera(K=K, dist=D, width=size[0], height=size[1], name="camera",
+                 model=camera_model(model))
     free = np.ones(len(param_names(model)), bool)
     if model == "plumb_bob":
         free[8] = not fix_k3
@@ -299,8 +330,7 @@ def solve(views: list[ViewInput], image_size: tuple[int, int],
     opt = options or SolveOptions()
     size = (int(image_size[0]), int(image_size[1]))
     if opt.model != "auto" and opt.model not in MODELS:
-        raise CalibrationError(f"unknown lens model {opt.model!r}: use auto, plumb_bob, "
-                               "rational or fisheye")
+        raise CalibrationError(unknown_model(opt.model))
     kept = list(views)
     rejected: list[dict] = []
     choice = None
@@ -339,12 +369,18 @@ def solve(views: list[ViewInput], image_size: tuple[int, int],
                     name=camera_name, model=model.camera.model)
     model.camera = camera
     um = projection_uncertainty(camera, model.covariance, opt.grid_step_px)
-    cv_result = _cross_validate(kept, size, "k3" in fixed, um, opt, camera.model)
+    cv_result = _cross_validate(kept, size, "k3" in fixed, um, opt, model_name)
+    flatness = None
+    if opt.board_flatness:
+        from drovisio.calibration.flatness import board_flatness
+
+        flatness = board_flatness(kept, camera, lens_key(camera), model.rms_px, model.fits,
+                                  float(model.std[0]))
     return CalibrationResult(camera=camera, rms_px=model.rms_px, per_view=model.fits,
                              rejected=rejected, model=model, fixed=fixed, uncertainty=um,
                              cross_validation=cv_result, free_model=free_model, roi=opt.roi,
                              views=kept, model_choice=choice,
-                             rejected_corners=rejected_corners)
+                             rejected_corners=rejected_corners, board_flatness=flatness)
 
 
 def _reject_corners(views: list[ViewInput], model: Model, opt: SolveOptions

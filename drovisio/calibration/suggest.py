@@ -153,7 +153,7 @@ def suggest_next_pose(camera: Camera, board: BoardSpec, coverage: Coverage | Non
     have_model = bool(views) and bool(fits) and sigma2 is not None and len(views) >= 3
     if not have_model:
         return _coverage_hint(camera, board, coverage)
-    free = (np.ones(len(param_names(camera.model)), bool) if free is None
+    free = (np.ones(len(param_names(camera)), bool) if free is None
             else np.asarray(free, bool))
     jac = [view_jacobian(v.object_points, f.rvec, f.tvec, camera)[:2]
            for v, f in zip(views, fits)]

@@ -3,7 +3,8 @@
 Model and covariance
 --------------------
 The solve minimises the squared reprojection error over the intrinsics θ of the lens model
-(:func:`param_names`: fx, fy, cx, cy and 5 Brown, 8 rational or 4 fisheye coefficients) and
+(:func:`param_names`: fx, fy, cx, cy and 5 Brown, 8 rational, 12 thin-prism, 14 tilted or 4
+fisheye coefficients) and
 six extrinsics e_i = (rvec_i, tvec_i) per view.
 With J_i = [A_i | B_i] the Jacobian of view i's residuals with respect to (θ, e_i), the
 information about θ *after the extrinsics have been solved for* is the Schur complement
@@ -49,18 +50,36 @@ import numpy as np
 
 from drovisio.camera import Camera
 
-__all__ = ["PARAM_NAMES", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
+__all__ = ["PARAM_NAMES", "lens_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
            "UncertaintyMap", "image_grid", "grid_jacobians", "sigma_max",
            "projection_uncertainty", "model_difference_px"]
 
-def param_names(model: str = "plumb_bob") -> tuple[str, ...]:
-    """The intrinsics a calibration of ``model`` estimates, in the order of its vectors."""
-    base = ("fx", "fy", "cx", "cy")
-    if model == "fisheye":
-        return base + ("k1", "k2", "k3", "k4")
-    if model == "rational_polynomial":
-        return base + ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
-    return base + ("k1", "k2", "p1", "p2", "k3")
+_DIST_NAMES = {
+    "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
+    "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    "thin_prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
+    "tilted": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx",
+               "ty"),
+    "fisheye": ("k1", "k2", "k3", "k4"),
+}
+
+
+def lens_key(camera: Camera) -> str:
+    """The calibration's name of a camera's lens model: its file model, and for OpenCV's
+    model with 12 or 14 coefficients ``thin_prism`` or ``tilted`` (the file says
+    ``rational_polynomial`` for all three, as OpenCV writes them)."""
+    if camera.is_fisheye:
+        return "fisheye"
+    n = camera.dist.size
+    return ("tilted" if n >= 14 else "thin_prism" if n >= 12 else
+            "rational_polynomial" if n >= 8 else "plumb_bob")
+
+
+def param_names(model: str | Camera = "plumb_bob") -> tuple[str, ...]:
+    """The intrinsics a calibration of ``model`` (a :func:`lens_key` name, or a camera)
+    estimates, in the order of its vectors."""
+    key = lens_key(model) if isinstance(model, Camera) else model
+    return ("fx", "fy", "cx", "cy") + _DIST_NAMES.get(key, _DIST_NAMES["plumb_bob"])
 
 
 PARAM_NAMES = param_names("plumb_bob")
@@ -68,7 +87,7 @@ PARAM_NAMES = param_names("plumb_bob")
 
 def param_values(camera: Camera) -> np.ndarray:
     """The camera's intrinsics in :func:`param_names` order (missing coefficients 0)."""
-    n = len(param_names(camera.model)) - 4
+    n = len(param_names(camera)) - 4
     d = np.zeros(n)
     d[: min(n, camera.dist.size)] = camera.dist[:n]
     return np.array([camera.fx, camera.fy, camera.cx, camera.cy, *d])
@@ -183,7 +202,7 @@ def grid_jacobians(camera: Camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray
     gx, gy = np.meshgrid(xs, ys)
     px = np.stack([gx.ravel(), gy.ravel()], axis=1)
     xy = camera.normalize(px)
-    P = len(param_names(camera.model))
+    P = len(param_names(camera))
     out = np.full((len(px), 2, P), np.nan)
     ok = np.all(np.isfinite(xy), axis=1)
     if ok.any():

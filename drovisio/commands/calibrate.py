@@ -148,7 +148,8 @@ def run(args: argparse.Namespace) -> int:
     width = len(str(n))
 
     session = CalibrationSession(board, config=SessionConfig(
-        camera_name=out.stem or "camera", solve=SolveOptions(model=args.model)))
+        camera_name=out.stem or "camera", solve=SolveOptions(
+            model=args.model, board_flatness=args.board_flatness)))
     frames = []  # (path name, FrameResult)
     n_read = 0
     for i, path in enumerate(images, 1):
@@ -233,6 +234,10 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(report), file=sys.stderr)
     if result.model_choice is not None:
         print(f"lens model: {result.model_choice['reason']}", file=sys.stderr)
+    flat = result.board_flatness
+    if flat is not None:
+        print("board flatness: " + (flat["summary"] if flat["computed"] else
+                                    f"not computed: {flat['reason']}"), file=sys.stderr)
     print(f"wrote {out} (OpenCV) and {ros} (ROS camera_info)"
           + (f", report {report_path}" if report_path else ""), file=sys.stderr)
     return 0

@@ -13,7 +13,9 @@ from drovisio.camera import Camera
 
 @pytest.mark.parametrize("kind", ["aruco", "dots"])
 def test_bricks_through_a_150_degree_fisheye(kind):
-    e = detection_errors(kind, range(10))
+    # 2 samples per pixel: twice as fast as the benchmark's 3, its aliasing costs accuracy
+    # (drovisio bench lens at 3: ArUco yaw p95 0.34°, at 2: 0.51°), hence the looser bounds
+    e = detection_errors(kind, range(10), ss=2)
     assert e["eligible"] >= 25
     # the 60° lens's targets: lateral ≤ 1 cm, depth ≤ 1.5 %, yaw ≤ 1° (p95 over few bricks)
     assert e["found"] >= 0.9 * e["eligible"], e

@@ -1,15 +1,18 @@
 """Small codes: tag36h11 codes of 14–20 px at the far end of the working range, blurred,
-found by the rescue (a few misread bits tolerated) and the second look (twice the size);
-never a brick that is not there."""
+found by the rescue (read with their blur, a few misread bits tolerated), the quads of
+contours OpenCV passes over, and the second look (twice the size); never a brick that is not
+there."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from drovisio.bench.aruco import Frame, _countable, _size_px, _visibility
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector, ArucoParams
+from drovisio.detect.code_reading import CodeReader, ring_quads
 from drovisio.layout import (
     aruco_code_bits,
     aruco_dictionary_id,
@@ -65,12 +68,12 @@ def test_small_far_codes_are_found(far_frames, layouts):
     found, countable, false, sizes = _recall(far_frames, ArucoBrickDetector(CAM, layouts))
     # the set is what it claims: mostly codes under 20 px
     assert countable >= 60 and np.median(sizes) < 20.5, (countable, np.median(sizes))
-    assert found / countable >= 0.9 and false == 0, (found, countable, false)
-    # the first pass alone (exact reading, no second look) misses what the two added
-    plain = ArucoBrickDetector(CAM, layouts, ArucoParams(rescue_max_bit_errors=0,
-                                                         second_look_max=0))
+    assert found / countable >= 0.95 and false == 0, (found, countable, false)
+    # OpenCV's pass alone misses what the rescue, the ring quads and the second look add
+    # (measured: 70 of 87 against 85)
+    plain = ArucoBrickDetector(CAM, layouts, ArucoParams(rescue=False, second_look_max=0))
     found0, _, false0, _ = _recall(far_frames, plain)
-    assert found - found0 >= 3 and false0 == 0, (found, found0)
+    assert found - found0 >= 10 and false0 == 0, (found, found0)
 
 
 def test_bit_errors_tolerated_follow_the_codes_distances(layouts):
@@ -107,3 +110,73 @@ def test_a_misread_quad_is_not_taken_for_another_code(layouts):
         (cell, cell), np.uint8))
     got, _ = det._rescue(img, quad, [], *[det._detectors[0][i] for i in (1, 2, 3)])
     assert [c.marker_id for c in got] == [3] and _size_px(got[0].raw_corners) == 24
+
+
+def _blurred_code(bits: np.ndarray, side_px: float, sigma_px: float, angle_deg: float = 17.0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A code drawn at 32 px per cell, blurred, turned and shrunk to ``side_px`` (area
+    sampling) on a 120×120 grey image; with its four outer corners (px)."""
+    S, n = 32, bits.shape[0]
+    big = np.full(((n + 4) * S, (n + 4) * S), 200, np.float32)
+    big[2 * S:(n + 2) * S, 2 * S:(n + 2) * S] = np.kron(bits * 170.0 + 30.0, np.ones((S, S)))
+    scale = side_px / (n * S)
+    c = (n + 4) * S / 2.0
+    M = cv2.getRotationMatrix2D((c, c), angle_deg, scale)
+    M[:, 2] += [60.0 - c, 60.0 - c]
+    img = cv2.warpAffine(cv2.GaussianBlur(big, (0, 0), sigma_px / scale), M, (120, 120),
+                         flags=cv2.INTER_AREA, borderValue=200)
+    pts = np.array([[2, 2], [n + 2, 2], [n + 2, n + 2], [2, n + 2]], np.float64) * S - 0.5
+    return img.astype(np.uint8), pts @ M[:, :2].T + M[:, 2]
+
+
+@pytest.mark.parametrize("side_px, sigma_px", [(14, 0.9), (14, 1.2), (15, 1.2), (17, 1.2)])
+def test_the_reader_reads_blurred_cells_that_centre_samples_misread(side_px, sigma_px):
+    bits = aruco_code_bits(TAG36H11, 3).astype(np.float32)
+    img, quad = _blurred_code(bits, side_px, sigma_px)
+    truth = bits[1:-1, 1:-1].ravel() > 0
+    reading = CodeReader(8).read(img, quad[None])
+    assert int((reading.bits[0] != truth).sum()) == 0
+    assert reading.black_offset[0] < 0.2 and reading.contrast[0] > 60
+    # a threshold at the cells' centres (OpenCV's way) gets 8-12 of these 36 wrong
+    H = cv2.getPerspectiveTransform(np.float32([[0, 0], [8, 0], [8, 8], [0, 8]]),
+                                    np.float32(quad))
+    cc = np.arange(8) + 0.5
+    gu, gv = np.meshgrid(cc, cc)
+    p = cv2.perspectiveTransform(np.float32(np.stack([gu.ravel(), gv.ravel()], 1))[None], H)[0]
+    v = cv2.remap(img.astype(np.float32), p[None, :, 0], p[None, :, 1],
+                  cv2.INTER_LINEAR).reshape(8, 8)
+    border = np.concatenate([v[0], v[-1], v[1:-1, 0], v[1:-1, -1]])
+    centre = (v[1:-1, 1:-1] > 0.5 * (np.median(border) + v[1:-1, 1:-1].max())).ravel()
+    assert int((centre != truth).sum()) >= 8
+
+
+def test_a_code_whose_border_merges_with_a_pyramid_edge_is_found(layouts):
+    # a rendered bench frame (drovisio bench aruco --dictionary DICT_APRILTAG_36h11 --bricks 4
+    # --seed 5000): two sharp 22-px codes on a pyramid whose black border touches the shaded
+    # side; OpenCV's thresholded contour is no quad there and nothing is even rejected
+    spec = SceneSpec(layouts=layouts, n_bricks=4)
+    scene, fx = random_scene(505017, spec, CAM)
+    r = render(scene, fx, ss=3)
+    gray = cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY)
+    truth = {mid: c for b in r.bricks for mid, c in b.code_corners_px.items()}
+    det = ArucoBrickDetector(CAM, layouts)
+    cv_det = det._detectors[0][0]
+    _, ids, rejected = cv_det.detectMarkers(gray)
+    assert not {22, 23} & set(np.ravel(ids) if ids is not None else [])
+    for mid in (22, 23):
+        assert all(np.abs(np.asarray(q).reshape(4, 2).mean(axis=0)
+                          - truth[mid].mean(axis=0)).max() > 3 for q in rejected)
+    # a ring's hull is a quad near each (within 5 px: it takes in the pyramid's edge)
+    rings = ring_quads(gray, 5, 12.0, 8.0, 40.0)
+    for mid in (22, 23):
+        assert min(np.abs(q.mean(axis=0) - truth[mid].mean(axis=0)).max() for q in rings) < 5
+    poses = det.detect(r.image, gravity=gravity_in_camera(r.camera_from_world))
+    pyramids = [p for p in poses if p.markers == [22, 23]]
+    assert len(pyramids) == 1
+    codes = {c.marker_id: c for c in det.last_codes}
+    for mid in (22, 23):
+        assert np.abs(codes[mid].refined.corners_px - truth[mid]).max() < 0.5
+    # without the ring quads the brick is lost
+    without = ArucoBrickDetector(CAM, layouts, ArucoParams(ring_quads_max=0))
+    assert not [p for p in without.detect(r.image, gravity=gravity_in_camera(
+        r.camera_from_world)) if 22 in p.markers]

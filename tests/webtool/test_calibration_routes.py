@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import re
 import threading
 import time
 from pathlib import Path
@@ -409,6 +410,15 @@ def test_lens_model_choice_solves_again_and_says_why(make_client):
     rep = c.get(f"{API}/result").json()
     assert set(rep["std"]) == {"fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"}
     assert len(rep["camera"]["dist"]) == 4
+    c.post(f"{API}/lens", json={"model": "thin_prism"})
+    s = wait_state(c, lambda s: s["solve"]["current"] and s["lens"]["solved_with"] == "thin_prism",
+                   timeout=30)
+    rep = c.get(f"{API}/result").json()
+    assert rep["camera"]["model"] == "rational_polynomial" and len(rep["camera"]["dist"]) == 12
+    assert list(rep["std"])[-4:] == ["s1", "s2", "s3", "s4"]
+    c.post(f"{API}/lens", json={"model": "fisheye"})
+    wait_state(c, lambda s: s["solve"]["current"] and s["lens"]["solved_with"] == "fisheye",
+               timeout=30)
     # the choice is kept with the session
     assert json.loads((session_dir(c) / "session.json").read_text())["lens_model"] == "fisheye"
     for bad in ({"model": "kannala"}, {"model": "auto", "x": 1}, {}):
@@ -459,3 +469,16 @@ def test_the_measured_square_size_scales_the_board_not_the_lens(make_client):
         assert c.post(f"{API}/square", json=bad).status_code == 422, bad
     assert c.post(f"{API}/square", content=b'{"square_m": NaN}',
                   headers={"content-type": "application/json"}).status_code == 422
+
+
+def test_the_page_offers_every_lens_model_the_calibration_knows(make_client):
+    import typing
+
+    from drovisio.calibration.solve import MODEL_CHOICES
+    from webtool.routes.calibration import LensBody
+
+    assert typing.get_args(LensBody.model_fields["model"].annotation) == MODEL_CHOICES
+    html = make_client(no_camera).get("/calibration").text
+    lens = html.split('id="lens"')[1].split("</select>")[0]
+    offered = re.findall(r'<option value="([a-z_]+)"', lens)
+    assert sorted(offered) == sorted(MODEL_CHOICES)

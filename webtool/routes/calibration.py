@@ -57,7 +57,7 @@ class AutoBody(Body):
 
 
 class LensBody(Body):
-    model: Literal["auto", "plumb_bob", "rational", "fisheye"]
+    model: Literal["auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye"]
 
 
 class SquareBody(Body):

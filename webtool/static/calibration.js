@@ -287,12 +287,24 @@
   const DIST_NAMES = {
     plumb_bob: ["k1", "k2", "p1", "p2", "k3"],
     rational_polynomial: ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"],
+    thin_prism: ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"],
+    tilted: ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty"],
     fisheye: ["k1", "k2", "k3", "k4"],
   };
-  const distLabel = (k) => (k[0] === "p" ? `tangential ${k}` : `radial ${k}`);
+  const DIST_KIND = { p: "tangential", s: "thin prism", t: "sensor tilt" };
+  const distLabel = (k) => `${DIST_KIND[k[0]] || "radial"} ${k}`;
   const LENS_NAMES = { plumb_bob: "normal lens (5 coefficients)",
     rational_polynomial: "wide lens (rational, 8 coefficients)",
+    thin_prism: "wide lens with thin prism (12 coefficients)",
+    tilted: "wide lens, thin prism and tilted sensor (14 coefficients)",
     fisheye: "fisheye (Kannala–Brandt, 4 coefficients)" };
+  // OpenCV's model with 12 or 14 coefficients is written as rational_polynomial
+  const lensKey = (cam) => {
+    const m = cam.model || "plumb_bob";
+    if (m !== "rational_polynomial") return m;
+    const n = (cam.dist || []).length;
+    return n >= 14 ? "tilted" : n >= 12 ? "thin_prism" : m;
+  };
 
   async function renderResult(s) {
     const sec = $("result");
@@ -327,7 +339,7 @@
     box.replaceChildren(...parts);
 
     const cam = rep.camera;
-    const model = cam.model || "plumb_bob";
+    const model = lensKey(cam);
     const names = DIST_NAMES[model] || DIST_NAMES.plumb_bob;
     const PARAMS = BASE_PARAMS.concat(names.map((k) => [k, distLabel(k), ""]));
     const vals = { fx: cam.fx, fy: cam.fy, cx: cam.cx, cy: cam.cy };
