@@ -47,9 +47,11 @@ def _explain(path: Path, e: OSError) -> WriteError:
 
 
 def check_output_path(path: str | os.PathLike, what: str = "--out",
-                      not_same_as: Mapping[str, str | os.PathLike] | None = None) -> Path:
+                      not_same_as: Mapping[str, str | os.PathLike] | None = None,
+                      folder_must_exist: bool = False) -> Path:
     """Refuse an output path that is a folder or would overwrite one of ``not_same_as``
-    (e.g. an input or the camera file), before any work is done.
+    (e.g. an input or the camera file), or (``folder_must_exist``) whose folder is missing,
+    before any work is done.
 
     Raises:
         WriteError: the path cannot be an output.
@@ -59,6 +61,9 @@ def check_output_path(path: str | os.PathLike, what: str = "--out",
         raise WriteError(f"{p}: {what} is a folder; give a file name", errno.EISDIR)
     if p.exists() and not p.is_file():
         raise WriteError(f"{p}: {what} is not a regular file; give a file name", errno.EINVAL)
+    if folder_must_exist and not p.absolute().parent.is_dir():
+        raise WriteError(f"{p}: {what}: the folder does not exist; create it or choose "
+                         "another", errno.ENOENT)
     for label, other in (not_same_as or {}).items():
         o = Path(other)
         try:

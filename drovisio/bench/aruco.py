@@ -319,6 +319,10 @@ def _corner_errors(codes, fr: Frame, acc: dict) -> None:
 # ----------------------------------------------------------------------------- main
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.json:
+        from drovisio.fileio import check_output_path
+
+        check_output_path(args.json, "--json", folder_must_exist=True)
     import cv2
 
     from drovisio.camera import Camera

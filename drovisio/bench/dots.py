@@ -856,6 +856,10 @@ def _print_report(rep: dict) -> None:
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
+    if args.json:
+        from drovisio.fileio import check_output_path
+
+        check_output_path(args.json, "--json", folder_must_exist=True)
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
     bad = [p for p in parts if p not in PARTS]
     if bad:

@@ -131,6 +131,10 @@ def main(argv: list[str]) -> int:
                         "fisheye's rim add ~0.3 px of corner noise the lens does not make)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args(argv)
+    if args.json:
+        from drovisio.fileio import check_output_path
+
+        check_output_path(args.json, "--json", folder_must_exist=True)
     if args.views < 3:
         raise InputError(f"--views {args.views}: a calibration needs at least 3 views")
     parts = {x.strip() for x in args.parts.split(",")}

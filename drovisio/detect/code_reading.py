@@ -100,6 +100,7 @@ class CodeReader:
         d, e = y[:, 1] - y[:, 0] + g * y[:, 1], y[:, 3] - y[:, 0] + h * y[:, 3]
         u, v = self._unit[:, 0][None], self._unit[:, 1][None]
         w = g[:, None] * u + h[:, None] * v + 1.0
+        w = np.where(np.abs(w) > 1e-9, w, 1e-9)  # a degenerate quad: read, then refused
         mx = ((a[:, None] * u + b[:, None] * v + x[:, :1]) / w).astype(np.float32)
         my = ((d[:, None] * u + e[:, None] * v + y[:, :1]) / w).astype(np.float32)
         out = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

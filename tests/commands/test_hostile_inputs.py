@@ -312,3 +312,13 @@ def test_unexpected_errors_leave_one_line_and_a_traceback_file(capsys, monkeypat
     path.unlink()
 
 
+
+
+@pytest.mark.parametrize("bench", ["aruco", "dots", "lens"])
+def test_bench_json_where_it_cannot_be_written_is_refused_before_the_work(capsys, tmp_path,
+                                                                          bench):
+    rc, _, err = run_cli(capsys, "bench", bench, "--json", tmp_path / "missing" / "x.json")
+    assert rc == 2 and "--json: the folder does not exist" in err
+    rc, _, err = run_cli(capsys, "bench", bench, "--json", tmp_path)
+    assert rc == 2 and "--json is a folder" in err
+    assert list(tmp_path.iterdir()) == []

@@ -8,6 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drovisio.bench.aruco import Frame, _countable, _size_px, _visibility
 from drovisio.camera import Camera
@@ -180,3 +182,34 @@ def test_a_code_whose_border_merges_with_a_pyramid_edge_is_found(layouts):
     without = ArucoBrickDetector(CAM, layouts, ArucoParams(ring_quads_max=0))
     assert not [p for p in without.detect(r.image, gravity=gravity_in_camera(
         r.camera_from_world)) if 22 in p.markers]
+
+
+@settings(max_examples=150, deadline=5000, derandomize=True, database=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), kind=st.sampled_from(["noise", "stripes", "flat",
+                                                                "blocks"]),
+       quad=st.lists(st.floats(-1e4, 1e4, allow_nan=False), min_size=8, max_size=8))
+def test_reader_and_ring_quads_take_any_picture_and_quad(layouts, seed, kind, quad):
+    rng = np.random.default_rng(seed)
+    if kind == "noise":
+        img = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+    elif kind == "stripes":
+        img = np.tile(((np.arange(640) // rng.integers(1, 9)) % 2 * 255).astype(np.uint8),
+                      (480, 1))
+    elif kind == "flat":
+        img = np.full((480, 640), int(rng.integers(0, 256)), np.uint8)
+    else:  # black squares of code sizes on grey: quads everywhere, none a code
+        img = np.full((480, 640), 200, np.uint8)
+        for _ in range(40):
+            x, y, s = rng.integers(0, 620), rng.integers(0, 460), int(rng.integers(8, 30))
+            img[y:y + s, x:x + s] = rng.integers(0, 60)
+    quads = np.array([np.reshape(quad, (4, 2)), [[0, 0], [0, 0], [0, 0], [0, 0]],
+                      [[10, 10], [20, 20], [30, 30], [40, 40]]])  # given, a point, collinear
+    reading = CodeReader(8).read(img, quads)
+    assert reading.bits.shape == (3, 36) and reading.bits.dtype == bool
+    assert reading.contrast.shape == reading.black_offset.shape == (3,)
+    rings = ring_quads(img, 5, 12.0, 8.0, 40.0)
+    assert rings.ndim == 3 and rings.shape[1:] == (4, 2) and len(rings) <= 60
+    # clockwise in the image, as OpenCV's quads
+    x, y = rings[..., 0], rings[..., 1]
+    assert np.all((x * np.roll(y, -1, 1) - np.roll(x, -1, 1) * y).sum(axis=1) >= 0)
+    assert ArucoBrickDetector(CAM, layouts).detect(img) == []
