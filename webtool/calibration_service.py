@@ -50,7 +50,7 @@ import numpy as np
 from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, to_gray
 from drovisio.calibration.report import _clean, build_report, uncertainty_image
 from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
-from drovisio.calibration.solve import MODEL_CHOICES
+from drovisio.calibration.solve import MODEL_CHOICES, SolveOptions
 from drovisio.calibration.uncertainty import lens_key
 from drovisio.calibration.verdict import Verdict
 from drovisio.camera import Camera
@@ -297,7 +297,9 @@ class CalibrationService:
         return None
 
     def _config(self, session_id: str) -> SessionConfig:
-        return SessionConfig(camera_name=f"drovisio-{session_id}")
+        # the page always says how flat the printed board was (a fraction of a second)
+        return SessionConfig(camera_name=f"drovisio-{session_id}",
+                             solve=SolveOptions(board_flatness=True))
 
     def _open_session(self) -> None:
         """Resume the last session of this source, or start a new one."""

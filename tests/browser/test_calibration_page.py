@@ -50,6 +50,10 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     assert "root mean square" in page.text_content("#rms-def")
     page.wait_for_function("document.getElementById('uncertainty-map').naturalWidth > 0")
     assert page.text_content("#lens-result").startswith("Lens model: normal lens")
+    # the shipped views are of a flat (rendered) board: said, not flagged
+    assert page.text_content("#board-flatness").startswith(
+        "Board: the board is flat within the measurement")
+    assert "error" not in (page.get_attribute("#board-flatness", "class") or "")
 
     # the lens choice: "choose for me" solves again and says why it kept the normal model
     page.select_option("#lens", "auto")

@@ -404,6 +404,9 @@ def test_lens_model_choice_solves_again_and_says_why(make_client):
     assert "held-out RMS" in s["lens"]["choice"]["reason"]
     rep = c.get(f"{API}/result").json()
     assert rep["camera"]["model"] == "plumb_bob" and rep["model_choice"]["chosen"] == "plumb_bob"
+    # the page's solves say how flat the board was (the shipped views: a rendered flat board)
+    flat = rep["board_flatness"]
+    assert flat["computed"] and not flat["matters"] and "board" in flat["summary"]
     c.post(f"{API}/lens", json={"model": "fisheye"})
     s = wait_state(c, lambda s: s["solve"]["current"] and s["lens"]["solved_with"] == "fisheye",
                    timeout=30)

@@ -362,6 +362,10 @@
       return tr;
     });
     $("params").querySelector("tbody").replaceChildren(...rows);
+    const flat = rep.board_flatness;
+    const flatEl = $("board-flatness");
+    flatEl.textContent = flat && flat.computed ? `Board: ${flat.summary}.` : "";
+    flatEl.classList.toggle("error", Boolean(flat && flat.computed && flat.matters));
     setText("rms", `RMS reprojection error: ${fmt(rep.rms_px, 3)} px over ${rep.views_kept} views.`);
     setText("rms-def", `RMS: ${rep.rms_definition || ""}. A small RMS alone does not make a good calibration: the uncertainty below does.`);
     const u = rep.uncertainty_px || {};
