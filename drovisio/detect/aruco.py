@@ -158,7 +158,7 @@ class ArucoParams:
     small_cell_px: float = 2.5
     """Dictionaries whose cells are at most this wide on a 20-px code have "small cells":
     they get the ring quads and the second look. 4×4 codes (3.3 px) do not: on the bench the
-    two found the last 3 of 520 bricks but made 7 false ones in 280 frames (16 bits read off
+    two found the last 3 of 520 bricks but made 7 false ones in 440 frames (16 bits read off
     random quads match one of our codes too often), at 2.3× the time."""
     second_look_max_side_px: float = 30.0
     """Unread quads larger than this (mean side) get no second look."""
