@@ -25,6 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from drovisio.calibration.uncertainty import param_names
 from drovisio.camera import Camera
 
 __all__ = ["board_flatness"]
@@ -45,9 +46,10 @@ def _bow_basis(obj: np.ndarray, extent: tuple[np.ndarray, np.ndarray]) -> np.nda
     return np.stack([1.0 - u * u, 1.0 - v * v], axis=1)
 
 
-def _residuals(views, camera: Camera, intr: np.ndarray, poses: np.ndarray, w: np.ndarray,
-               extent, n_dist: int, jacobian: bool = True):
-    """Stacked residuals (projected − detected) and, if asked, the Jacobian's blocks."""
+def _residuals(views, intr: np.ndarray, poses: np.ndarray, w: np.ndarray, extent,
+               n_dist: int):
+    """Stacked residuals (projected − detected) per view, their sum of squares, and the
+    Jacobian's blocks per view: intrinsics, poses, bow."""
     K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1.0]])
     d = intr[4:4 + n_dist]
     res, JI, JP, JW = [], [], [], []
@@ -60,16 +62,15 @@ def _residuals(views, camera: Camera, intr: np.ndarray, poses: np.ndarray, w: np
         px, J = cv2.projectPoints(pts.reshape(-1, 1, 3), r, t, K, d)
         res.append((px.reshape(-1, 2) - np.asarray(v.corners, np.float64).reshape(-1, 2))
                    .ravel())
-        if jacobian:
-            J = np.asarray(J, np.float64)
-            JP.append(J[:, 0:6])
-            JI.append(J[:, 6:10 + n_dist])
-            # d px / d w = d px / d X_cam · R · d P / d w, and d px / d X_cam = d px / d t
-            R = cv2.Rodrigues(r)[0]
-            dXdw = R[:, 2:3] * B[:, None, :]          # (N, 3, 2): only z moves
-            JW.append(np.einsum("nij,njk->nik", J[:, 3:6].reshape(-1, 2, 3), dXdw)
-                      .reshape(-1, 2))
-    return res, JI, JP, JW
+        J = np.asarray(J, np.float64)
+        JP.append(J[:, 0:6])
+        JI.append(J[:, 6:10 + n_dist])
+        # d px / d w = d px / d X_cam · R · d P / d w, and d px / d X_cam = d px / d t
+        R = cv2.Rodrigues(r)[0]
+        dXdw = R[:, 2:3] * B[:, None, :]          # (N, 3, 2): only z moves
+        JW.append(np.einsum("nij,njk->nik", J[:, 3:6].reshape(-1, 2, 3), dXdw)
+                  .reshape(-1, 2))
+    return res, float(sum((x * x).sum() for x in res)), JI, JP, JW
 
 
 def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
@@ -106,7 +107,7 @@ def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
     extent = (allp.min(axis=0), allp.max(axis=0))
     if np.any(extent[1][:2] - extent[0][:2] <= 0):
         return _not_computed("the board points are not a flat grid")
-    n_dist = {"plumb_bob": 5, "rational_polynomial": 8, "thin_prism": 12, "tilted": 14}[model]
+    n_dist = len(param_names(model)) - 4
     intr = np.zeros(4 + n_dist)
     intr[:4] = camera.fx, camera.fy, camera.cx, camera.cy
     intr[4:4 + min(n_dist, camera.dist.size)] = camera.dist[:n_dist]
@@ -114,43 +115,42 @@ def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
     w = np.zeros(2)
     nV, nI = len(views), intr.size
     lam = 1e-3
-
-    def cost_of(intr_, poses_, w_) -> float:
-        r, *_ = _residuals(views, camera, intr_, poses_, w_, extent, n_dist, jacobian=False)
-        return float(sum((x * x).sum() for x in r))
-
-    cost = cost_of(intr, poses, w)
-    for _ in range(iterations):
-        res, JI, JP, JW = _residuals(views, camera, intr, poses, w, extent, n_dist)
-        # normal equations over (intrinsics, bow, poses); dense: a few hundred unknowns
-        P = nI + 2 + 6 * nV
-        A = np.zeros((P, P))
-        g = np.zeros(P)
-        for i in range(nV):
-            Jg = np.concatenate([JI[i], JW[i]], axis=1)
-            sl = slice(nI + 2 + 6 * i, nI + 8 + 6 * i)
-            A[:nI + 2, :nI + 2] += Jg.T @ Jg
-            A[:nI + 2, sl] += Jg.T @ JP[i]
-            A[sl, sl] += JP[i].T @ JP[i]
-            g[:nI + 2] += Jg.T @ res[i]
-            g[sl] += JP[i].T @ res[i]
-        A[nI + 2:, :nI + 2] = A[:nI + 2, nI + 2:].T
-        D = np.diag(np.diag(A)) + 1e-12 * np.eye(P)
-        try:
-            step = -np.linalg.solve(A + lam * D, g)
-        except np.linalg.LinAlgError:
-            break
-        intr_n, w_n = intr + step[:nI], w + step[nI:nI + 2]
-        poses_n = poses + step[nI + 2:].reshape(nV, 6)
-        cost_n = cost_of(intr_n, poses_n, w_n)
-        if np.isfinite(cost_n) and cost_n <= cost:
-            done = cost - cost_n < 1e-10 * max(cost, 1e-30)
-            intr, poses, w, cost = intr_n, poses_n, w_n, cost_n
-            lam = max(lam / 5.0, 1e-9)
-            if done:
+    try:
+        cur = _residuals(views, intr, poses, w, extent, n_dist)
+        for _ in range(iterations):
+            res, cost, JI, JP, JW = cur
+            # normal equations over (intrinsics, bow, poses); dense: a few hundred unknowns
+            P = nI + 2 + 6 * nV
+            A = np.zeros((P, P))
+            g = np.zeros(P)
+            for i in range(nV):
+                Jg = np.concatenate([JI[i], JW[i]], axis=1)
+                sl = slice(nI + 2 + 6 * i, nI + 8 + 6 * i)
+                A[:nI + 2, :nI + 2] += Jg.T @ Jg
+                A[:nI + 2, sl] += Jg.T @ JP[i]
+                A[sl, sl] += JP[i].T @ JP[i]
+                g[:nI + 2] += Jg.T @ res[i]
+                g[sl] += JP[i].T @ res[i]
+            A[nI + 2:, :nI + 2] = A[:nI + 2, nI + 2:].T
+            D = np.diag(np.diag(A)) + 1e-12 * np.eye(P)
+            try:
+                step = -np.linalg.solve(A + lam * D, g)
+            except np.linalg.LinAlgError:
                 break
-        else:
-            lam *= 10.0
+            intr_n, w_n = intr + step[:nI], w + step[nI:nI + 2]
+            poses_n = poses + step[nI + 2:].reshape(nV, 6)
+            trial = _residuals(views, intr_n, poses_n, w_n, extent, n_dist)
+            if np.isfinite(trial[1]) and trial[1] <= cost:
+                done = cost - trial[1] < 1e-10 * max(cost, 1e-30)
+                intr, poses, w, cur = intr_n, poses_n, w_n, trial
+                lam = max(lam / 5.0, 1e-9)
+                if done:
+                    break
+            else:
+                lam *= 10.0
+    except cv2.error as e:  # a pose or a coefficient OpenCV cannot project with
+        return _not_computed(f"the fit failed ({str(e).strip().splitlines()[-1][:80]})")
+    res, cost = cur[0], cur[1]
     n_obs = sum(r.size for r in res)
     dof = max(n_obs - (nI + 2 + 6 * nV), 1)
     sigma2 = cost / dof

@@ -18,12 +18,12 @@ Rules (stated once here, reported in the result):
   5 × the median corner residual (and 0.5 px) is dropped, at most 5 % of a view's corners, and
   listed with its residual (``rejected_corners``).
 * **Lens model** (``model``): plumb_bob (5 coefficients), rational (8), thin_prism (12),
-  tilted (14) or fisheye (Kannala–Brandt, 4). ``auto`` (among plumb_bob, rational and fisheye:
-  the thin prism and the tilted sensor are asked for by name) solves each on one half of the views (alternating) and scores
-  it by the RMS of the other half's corners, each of those views posed by PnP through the
-  half's model, both ways round; plumb_bob is kept unless another model lowers that by 10 %
-  and 0.02 px (``model_choice`` says the figures and why). It is chosen before the outlier
-  rules, which need the right model.
+  tilted (14) or fisheye (Kannala–Brandt, 4). ``auto`` chooses among plumb_bob, rational and
+  fisheye (the thin prism and the tilted sensor are asked for by name): it solves each on one
+  half of the views (alternating) and scores it by the RMS of the other half's corners, each
+  of those views posed by PnP through the half's model, both ways round; plumb_bob is kept
+  unless another model lowers that by 10 % and 0.02 px (``model_choice`` says the figures and
+  why). It is chosen before the outlier rules, which need the right model.
 * **Covariance / uncertainty map**: see :mod:`drovisio.calibration.uncertainty`.
 * **Cross-validation**: the kept views are split into two disjoint halves (alternating views),
   each is solved with the same model, and the two models are compared over the image:
@@ -41,6 +41,7 @@ import numpy as np
 
 from drovisio.calibration.uncertainty import (
     UncertaintyMap,
+    camera_model,
     covariance_from_information,
     grid_jacobians,
     lens_key,
@@ -56,7 +57,7 @@ from drovisio.camera import Camera
 
 __all__ = ["CalibrationError", "SolveOptions", "ViewInput", "ViewFit", "CalibrationResult",
            "solve", "fit_model", "choose_model", "MODELS", "MODEL_CHOICES",
-           "RMS_DEFINITION", "camera_model", "unknown_model"]
+           "RMS_DEFINITION", "unknown_model"]
 
 RMS_DEFINITION = ("root mean square over all kept corners of the distance between the detected "
                   "corner and the projection of its board point, pixels (OpenCV calibrateCamera)")
@@ -206,24 +207,17 @@ MODELS = {"plumb_bob": "plumb_bob", "rational": "rational_polynomial",
 """Names ``--model`` takes → the calibration's model names (:func:`lens_key`)."""
 MODEL_CHOICES = ("auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye")
 """What ``--model`` and the calibration page offer."""
-# OpenCV's flags and coefficient count of each model but the fisheye
-_BROWN = {"plumb_bob": (0, 5),
-          "rational_polynomial": (cv2.CALIB_RATIONAL_MODEL, 8),
-          "thin_prism": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL, 12),
-          "tilted": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL
-                     | cv2.CALIB_TILTED_MODEL, 14)}
+# OpenCV's flags of each model but the fisheye (their coefficients: param_names)
+_BROWN_FLAGS = {"plumb_bob": 0,
+                "rational_polynomial": cv2.CALIB_RATIONAL_MODEL,
+                "thin_prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+                "tilted": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL
+                           | cv2.CALIB_TILTED_MODEL)}
 
 
 def unknown_model(model: str) -> str:
     """The one message for a lens model the calibration does not know."""
     return f"unknown lens model {model!r}: use {', '.join(MODEL_CHOICES)}"
-
-
-def camera_model(key: str) -> str:
-    """The camera file's model name of a calibration model (thin_prism and tilted are OpenCV's
-    model with 12 and 14 coefficients: ``rational_polynomial``)."""
-    return "fisheye" if key == "fisheye" else ("plumb_bob" if key == "plumb_bob" else
-                                                "rational_polynomial")
 
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -238,7 +232,7 @@ def _opencv_solve(O, I, size, model: str, fix_k3: bool):
         _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(O64, I64, size, np.eye(3), np.zeros(4),
                                                       flags=flags, criteria=_CRITERIA)
         return K, np.asarray(D, float).ravel()[:4], rvecs, tvecs
-    flags, n = _BROWN[model]
+    flags, n = _BROWN_FLAGS[model], len(param_names(model)) - 4
     if model == "plumb_bob" and fix_k3:
         flags |= cv2.CALIB_FIX_K3
     _, K, D, rvecs, tvecs = cv2.calibrateCamera(O, I, size, None, None, flags=flags,

@@ -50,7 +50,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 
-__all__ = ["PARAM_NAMES", "lens_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
+__all__ = ["PARAM_NAMES", "camera_model", "lens_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
            "UncertaintyMap", "image_grid", "grid_jacobians", "sigma_max",
            "projection_uncertainty", "model_difference_px"]
 
@@ -73,6 +73,12 @@ def lens_key(camera: Camera) -> str:
     n = camera.dist.size
     return ("tilted" if n >= 14 else "thin_prism" if n >= 12 else
             "rational_polynomial" if n >= 8 else "plumb_bob")
+
+
+def camera_model(key: str) -> str:
+    """The camera file's model name of a calibration model (thin_prism and tilted are OpenCV's
+    model with 12 and 14 coefficients: ``rational_polynomial``); :func:`lens_key`'s inverse."""
+    return key if key in ("fisheye", "plumb_bob") else "rational_polynomial"
 
 
 def param_names(model: str | Camera = "plumb_bob") -> tuple[str, ...]:

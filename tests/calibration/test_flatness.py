@@ -103,3 +103,16 @@ def test_calibrate_board_flatness_in_the_report(capsys, tmp_path):
     assert "board flatness: the board is flat within the measurement" in err
     f = json.loads((tmp_path / "report.json").read_text())["board_flatness"]
     assert f["computed"] and abs(f["warp_x_mm"]) < 0.05 and abs(f["warp_y_mm"]) < 0.05
+
+
+def test_a_failing_bow_fit_is_named_and_the_calibration_stands(monkeypatch):
+    import drovisio.calibration.flatness as flatness
+
+    def broken(*a, **k):  # as OpenCV's projection fails on a pose it cannot take
+        raise cv2.error("OpenCV(5.0.0) projectPoints: bad argument")
+
+    monkeypatch.setattr(flatness, "_residuals", broken)
+    r = solve(_views(0.0015, 0.0), CAM.size, SolveOptions(board_flatness=True))
+    assert r.board_flatness["computed"] is False
+    assert r.board_flatness["reason"].startswith("the fit failed (")
+    assert abs(r.camera.fx - CAM.fx) / CAM.fx < 0.05   # the flat solve is still there

@@ -18,7 +18,6 @@ from drovisio.layout import (
     aruco_dictionary_id,
     load_layouts,
     shipped_layouts_dir,
-    with_dictionary,
 )
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import render
@@ -28,17 +27,10 @@ TAG36H11 = "DICT_APRILTAG_36h11"
 
 
 @pytest.fixture(scope="module")
-def layouts():
-    base = load_layouts([shipped_layouts_dir() / "drick-aruco-centre.json",
-                         shipped_layouts_dir() / "drick-aruco-pyramids.json"])
-    return [with_dictionary(lay, TAG36H11) for lay in base]
-
-
-@pytest.fixture(scope="module")
-def far_frames(layouts) -> list[Frame]:
+def far_frames(tag36h11_layouts) -> list[Frame]:
     # the far end of the range, blurred: most codes are 14-22 px across
-    spec = SceneSpec(layouts=layouts, n_bricks=4, distance=(1.7, 2.2), tilt_deg=(0.0, 30.0),
-                     blur_sigma_px=(0.5, 1.0))
+    spec = SceneSpec(layouts=tag36h11_layouts, n_bricks=4, distance=(1.7, 2.2),
+                     tilt_deg=(0.0, 30.0), blur_sigma_px=(0.5, 1.0))
     out = []
     for seed in range(24):
         scene, fx = random_scene(7000 + seed, spec, CAM)
@@ -64,20 +56,22 @@ def _recall(frames, det) -> tuple[int, int, int, list[float]]:
     return found, countable, false, sizes
 
 
-def test_small_far_codes_are_found(far_frames, layouts):
-    found, countable, false, sizes = _recall(far_frames, ArucoBrickDetector(CAM, layouts))
+def test_small_far_codes_are_found(far_frames, tag36h11_layouts):
+    found, countable, false, sizes = _recall(far_frames,
+                                             ArucoBrickDetector(CAM, tag36h11_layouts))
     # the set is what it claims: mostly codes under 20 px
     assert countable >= 60 and np.median(sizes) < 20.5, (countable, np.median(sizes))
     assert found / countable >= 0.95 and false == 0, (found, countable, false)
     # OpenCV's pass alone misses what the rescue, the ring quads and the second look add
     # (measured: 70 of 87 against 85)
-    plain = ArucoBrickDetector(CAM, layouts, ArucoParams(rescue=False, second_look_max=0))
+    plain = ArucoBrickDetector(CAM, tag36h11_layouts,
+                               ArucoParams(rescue=False, second_look_max=0))
     found0, _, false0, _ = _recall(far_frames, plain)
     assert found - found0 >= 10 and false0 == 0, (found, found0)
 
 
-def test_bit_errors_tolerated_follow_the_codes_distances(layouts):
-    det = ArucoBrickDetector(CAM, layouts)
+def test_bit_errors_tolerated_follow_the_codes_distances(tag36h11_layouts):
+    det = ArucoBrickDetector(CAM, tag36h11_layouts)
     assert det._rescue_errors == {aruco_dictionary_id(TAG36H11): 3}
     # 4x4 codes are close to each other: a rescued reading must be exact
     four = ArucoBrickDetector(CAM, load_layouts([shipped_layouts_dir() /
@@ -85,9 +79,9 @@ def test_bit_errors_tolerated_follow_the_codes_distances(layouts):
     assert list(four._rescue_errors.values()) == [0]
 
 
-def test_a_misread_quad_is_not_taken_for_another_code(layouts):
+def test_a_misread_quad_is_not_taken_for_another_code(tag36h11_layouts):
     # a code with 5 of its 36 bits flipped is too far from every code: not rescued
-    det = ArucoBrickDetector(CAM, layouts)
+    det = ArucoBrickDetector(CAM, tag36h11_layouts)
     bits = aruco_code_bits(TAG36H11, 3).astype(np.uint8)
     rng = np.random.default_rng(1)
     inner = bits[1:-1, 1:-1].copy()
@@ -112,16 +106,16 @@ def test_a_misread_quad_is_not_taken_for_another_code(layouts):
     assert [c.marker_id for c in got] == [3] and _size_px(got[0].raw_corners) == 24
 
 
-def test_a_code_whose_border_merges_with_a_pyramid_edge_is_found(layouts):
+def test_a_code_whose_border_merges_with_a_pyramid_edge_is_found(tag36h11_layouts):
     # a rendered bench frame (drovisio bench aruco --dictionary DICT_APRILTAG_36h11 --bricks 4
     # --seed 5000): two sharp 22-px codes on a pyramid whose black border touches the shaded
     # side; OpenCV's thresholded contour is no quad there and nothing is even rejected
-    spec = SceneSpec(layouts=layouts, n_bricks=4)
+    spec = SceneSpec(layouts=tag36h11_layouts, n_bricks=4)
     scene, fx = random_scene(505017, spec, CAM)
     r = render(scene, fx, ss=3)
     gray = cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY)
     truth = {mid: c for b in r.bricks for mid, c in b.code_corners_px.items()}
-    det = ArucoBrickDetector(CAM, layouts)
+    det = ArucoBrickDetector(CAM, tag36h11_layouts)
     cv_det = det._detectors[0][0]
     _, ids, rejected = cv_det.detectMarkers(gray)
     assert not {22, 23} & set(np.ravel(ids) if ids is not None else [])
@@ -139,7 +133,7 @@ def test_a_code_whose_border_merges_with_a_pyramid_edge_is_found(layouts):
     for mid in (22, 23):
         assert np.abs(codes[mid].refined.corners_px - truth[mid]).max() < 0.5
     # without the ring quads the brick is lost
-    without = ArucoBrickDetector(CAM, layouts, ArucoParams(ring_quads_max=0))
+    without = ArucoBrickDetector(CAM, tag36h11_layouts, ArucoParams(ring_quads_max=0))
     assert not [p for p in without.detect(r.image, gravity=gravity_in_camera(
         r.camera_from_world)) if 22 in p.markers]
 
