@@ -150,6 +150,9 @@ class PipelineStats:
         self.held = 0
         """Bricks of the last frame held over by the tracker (not measured in it)."""
         self.last_error: str | None = None
+        self.duplicates: dict[str, int] = {}
+        """``layout:instance`` -> frames in which its code id was read on several codes (those
+        copies are not tracked: which one is the brick is unknown); at most 16 names."""
 
     def fps(self, now: float | None = None) -> float:
         ft = list(self.frame_times)
@@ -171,7 +174,8 @@ class PipelineStats:
                 "latency_ms": round(self._median(self.latency_ms), 2),
                 "bricks": self.bricks, "held": self.held,
                 "detector_errors": self.detector_errors,
-                "sink_errors": self.sink_errors, "last_error": self.last_error}
+                "sink_errors": self.sink_errors, "last_error": self.last_error,
+                "duplicates": dict(self.duplicates)}
 
 
 class Pipeline:
@@ -293,7 +297,14 @@ class Pipeline:
         detect_ms = (time.perf_counter() - t0) * 1e3
         if self.fuse:
             poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
-        bricks = self.tracker.update(poses, frame.t_mono, frame.t_wall)
+        # codes whose id was read several times in the frame: posed and flagged by the
+        # detector, but never tracked (one track would jump between the copies)
+        tracked = [p for p in poses if not p.duplicate]
+        if len(tracked) != len(poses):
+            for name in sorted({f"{p.layout}:{p.instance}" for p in poses if p.duplicate}):
+                if name in self.stats.duplicates or len(self.stats.duplicates) < 16:
+                    self.stats.duplicates[name] = self.stats.duplicates.get(name, 0) + 1
+        bricks = self.tracker.update(tracked, frame.t_mono, frame.t_wall)
         target = self.target.choose(bricks)
         out = FrameOutput(source=self.source.label, frame=frame.index, seq=frame.seq,
                           t=frame.t_wall, t_mono=frame.t_mono, bricks=bricks, target=target,

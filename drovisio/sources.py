@@ -389,19 +389,19 @@ class StreamReader(_CaptureReader):
             cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.read_timeout_s * 1000)])
 
 
-#: after this many undecodable frames in a row, the rest of a video is taken as missing
+#: when a frame cannot be decoded, this many following frames are tried; if none decodes,
+#: the video ends there (cut short) and one item says where
 MAX_BAD_FRAMES_IN_A_ROW = 8
-#: at most this many "missing frame" items for the end of a damaged video (a header's frame
-#: count can be anything); beyond it one item covers the rest
-MAX_MISSING_ITEMS = 10000
 
 
 class VideoFileReader:
     """A video file, frame by frame; ``loop=True`` starts over at the end (demo playback).
 
-    A frame the decoder cannot read (a damaged or cut-short file) becomes a frame carrying
-    ``error``; decoding resumes after it where the file allows, and frames the file's header
-    announces but that cannot be reached are reported missing, one by one.
+    A frame the decoder cannot read (a damaged file) becomes a frame carrying ``error`` and
+    decoding resumes after it; when none of the next :data:`MAX_BAD_FRAMES_IN_A_ROW` frames
+    decodes either, the file is taken as cut short there: one frame carrying ``error`` says
+    where the video ended and how many of the frames its header announces are missing, and
+    the video ends.
     """
 
     finite = True
@@ -419,8 +419,9 @@ class VideoFileReader:
         self.total = 0
         self.count = 0
         """Frames the file's header announces (0: unknown)."""
-        self.bad = 0
-        self._missing_from: int | None = None
+        self._pending: list[RawFrame] = []
+        self.ended_early: int | None = None
+        """The frame index at which a cut-short file ended (None: it did not)."""
 
     def open(self) -> None:
         import cv2
@@ -442,8 +443,8 @@ class VideoFileReader:
         n = cap.get(cv2.CAP_PROP_FRAME_COUNT)
         self.count = int(n) if 0 < n < 1e9 else 0
         self.index = 0
-        self.bad = 0
-        self._missing_from = None
+        self._pending = []
+        self.ended_early = None
 
     def _frame(self, img, i: int, error: str | None = None) -> RawFrame:
         self.total += 1
@@ -464,7 +465,6 @@ class VideoFileReader:
         self.cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
         self.lap += 1
         self.index = 0
-        self.bad = 0
         return True
 
     def read(self) -> RawFrame | None:
@@ -472,33 +472,35 @@ class VideoFileReader:
 
         if self.cap is None:
             return None
-        if self._missing_from is not None:       # the unreachable end of a damaged file
-            i = self.index
-            if i >= self.count or i - self._missing_from >= MAX_MISSING_ITEMS:
-                if i < self.count:
-                    self.index = self.count
-                    return self._frame(None, i, f"frames {i} to {self.count - 1} could not be "
-                                                "decoded (the video is damaged or cut short)")
-                raise EndOfStream()
-            self.index += 1
-            return self._frame(None, i, "frame could not be decoded (the video is damaged or "
-                                        "cut short)")
+        if self._pending:
+            return self._pending.pop(0)
         ok, img = self.cap.read()
         if ok and img is not None:
             i = self.index
             self.index += 1
-            self.bad = 0
             return self._frame(img, i)
         if self.count and self.index < self.count:  # announced but not decodable
-            i = self.index
-            self.index += 1
-            self.bad += 1
-            if self.bad >= MAX_BAD_FRAMES_IN_A_ROW:
-                self._missing_from = i
-            else:
-                self.cap.set(cv2.CAP_PROP_POS_FRAMES, i + 1)
-            return self._frame(None, i, "frame could not be decoded (the video is damaged or "
-                                        "cut short)")
+            first = self.index
+            # a damaged frame, or the end of a cut-short file: look a few frames further
+            for j in range(first + 1, min(first + 1 + MAX_BAD_FRAMES_IN_A_ROW, self.count)):
+                self.cap.set(cv2.CAP_PROP_POS_FRAMES, j)
+                ok, img = self.cap.read()
+                if ok and img is not None:
+                    out = self._frame(None, first, "frame could not be decoded (the video is "
+                                                   "damaged)")
+                    self._pending = [self._frame(None, k, "frame could not be decoded (the "
+                                                          "video is damaged)")
+                                     for k in range(first + 1, j)] + [self._frame(img, j)]
+                    self.index = j + 1
+                    return out
+            self.index = self.count
+            self.ended_early = first
+            return self._frame(None, first, (
+                f"the video ends at frame {first}, {self.count - first} frames before the "
+                f"{self.count} its header announces (the file is cut short or damaged from "
+                "there: copy it again)" if first else
+                f"no frame of the {self.count} its header announces can be decoded (the file "
+                "is damaged or cut short: copy it again)"))
         if self._restart():
             ok, img = self.cap.read()
             if ok and img is not None:

@@ -16,6 +16,7 @@ BENCHMARKS = {
     "dots": "colour-dot bricks: recall, accuracy, speed, memory",
     "lens": "both detectors and the calibration through a 150° fisheye lens",
     "pipeline": "the live pipeline: latency, frame rate, memory",
+    "real": "real photos (tags, ChArUco, chessboards): Drovisio beside OpenCV and AprilTag 3",
     "renderer": "exactness of the synthetic renderer",
 }
 

@@ -229,7 +229,7 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
             normalized_grid(streams.camera)
 
     messages: list[str] = []
-    n_frames = n_bricks = n_errors = n_gravity = 0
+    n_frames = n_bricks = n_errors = n_gravity = n_dup_frames = 0
     times: list[float] = []   # detection + pose time of each frame
     noted: set[str] = set()
     for item in iter_inputs(args.inputs, messages):
@@ -268,6 +268,18 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
                     break
             if dets:
                 times.append(time.perf_counter() - t0)
+        dup = sorted({(b.layout, b.instance) for b in res.bricks if b.duplicate},
+                     key=str)
+        n_dup_frames += bool(dup)
+        for lay_name, inst in dup:
+            key = f"{item.source}: {lay_name}:{inst}"
+            if key not in noted:   # said once per input, not once per frame
+                noted.add(key)
+                n = sum(1 for b in res.bricks if b.duplicate and b.layout == lay_name
+                        and b.instance == inst)
+                _err(f"{where}: {n} codes of {lay_name} instance {inst} share their id: each "
+                     "is posed on its own and flagged \"duplicate\" (give each brick its own "
+                     "ids: the layout's first_id, ids_per_instance, instances)")
         if res.error is not None:
             n_errors += 1
             _err(f"{where}: {res.error}")
@@ -281,6 +293,9 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
         _err("no frames to process")
         return 1
     _summary(n_frames, n_bricks, n_errors, gravity, n_gravity, times)
+    if n_dup_frames:
+        _err(f"{n_dup_frames} of {n_frames} frames had codes sharing one id (flagged "
+             "\"duplicate\")")
     return 1 if n_errors else 0
 
 

@@ -60,6 +60,9 @@ def status_line(st: dict, elapsed: float) -> str:
         extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
     if st.get("sink_errors"):
         extra += f" | {st['sink_errors']} sink exceptions"
+    if st.get("duplicates"):
+        extra += (" | id read on several codes, not tracked (give each brick its own ids): "
+                  + ", ".join(sorted(st["duplicates"])))
     return (f"{elapsed:7.1f} s | {st['fps']:5.1f} fps | detect {st['detect_ms']:6.1f} ms | "
             f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks"
             + (f" ({st['held']} held over, not sent)" if st.get("held") else "")

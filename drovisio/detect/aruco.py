@@ -64,6 +64,7 @@ from drovisio.pose import (
     reference_up,
     solve_brick_pose,
 )
+from drovisio.pose.ambiguity import noise_scale
 
 __all__ = [
     "ArucoBrickDetector",
@@ -103,7 +104,9 @@ class ArucoParams:
     corner error ≈ 2× the prediction)."""
     max_rmse_px: float = 2.0
     """Bricks whose joint fit is worse than this (px RMS) are dropped (a wrong grouping or a
-    code on a bent surface)."""
+    code on a bent surface) unless the fit is explained otherwise
+    (:meth:`ArucoBrickDetector._fit_explained`: noisier corners, or a camera model that fits
+    OpenCV's own corners no better)."""
     gravity_prior_deg: float | None = 5.0
     """With gravity, a soft prior that the brick lies flat (standard deviation, degrees;
     None: gravity only chooses between flip candidates). It covers the drone's attitude
@@ -225,7 +228,11 @@ class ArucoBrickDetector:
         self.last_codes: list[CodeDetection] = []
         """The codes of the last frame (with their refinement), for inspection."""
         self.last_results: dict = {}
-        """(layout name, instance) -> :class:`drovisio.pose.PoseResult` of the last frame."""
+        """(layout name, instance, copy) -> :class:`drovisio.pose.PoseResult` of the last
+        frame (copy 0: the brick; 1, 2, ...: codes whose id was read more than once)."""
+        self.last_duplicates: dict[int, int] = {}
+        """Code id -> how many times it was read in the last frame, for ids read more than
+        once (each copy is posed on its own and flagged ``duplicate``)."""
         # one cv2 detector per dictionary family, with a dictionary of exactly our ids
         fam: dict[str, dict] = {}
         for lay in self.layouts:
@@ -350,7 +357,9 @@ class ArucoBrickDetector:
                                coarse_iterations=self.params.refine_coarse_iterations,
                                lm_lambda=self.params.refine_lambda,
                                max_samples=self.params.max_samples,
-                               band_px=self.params.band_px)
+                               band_px=self.params.band_px,
+                               tolerable_cells=np.array([self._rescue_errors[self._dvalue[
+                                   c.marker_id]] for c in codes]))
             # the corners' information matrices (inverse covariances) for the pose: the
             # fit's covariance scaled to the measured noise, with a 0.03 px floor
             cov = np.array([r.cov_px for r in ref]) * self.params.corner_noise_scale ** 2
@@ -506,16 +515,17 @@ class ArucoBrickDetector:
         self.timing.frames += 1
         codes = self.detect_codes(gray)
         t0 = time.perf_counter()
-        groups: dict[tuple[str, int], list[CodeDetection]] = {}
+        groups: dict[tuple[str, int, int], list[CodeDetection]] = {}
         for c in codes:
             if c.refined is None or not c.refined.ok:
                 continue
-            groups.setdefault((c.layout.name, c.instance), []).append(c)
+            groups.setdefault((c.layout.name, c.instance, 0), []).append(c)
+        groups = self._split_duplicates(groups)
         g = None if gravity is None else np.asarray(gravity, np.float64).ravel()
         if g is not None:
             nrm = float(np.linalg.norm(g))
             g = g / nrm if nrm > 0 and np.isfinite(nrm) else None
-        results: dict[tuple[str, int], tuple] = {}
+        results: dict[tuple[str, int, int], tuple] = {}
         for key, group in groups.items():
             res = self._solve(group, PoseEvidence(gravity=g,
                                                   previous=self._previous(key)))
@@ -538,8 +548,9 @@ class ArucoBrickDetector:
         for key in sorted(results):
             res, group = results[key]
             lay = group[0].layout
-            if self.history is not None and not res.ambiguous:
-                self.history.update(key, res.rvec, res.tvec)
+            duplicate = key[2] > 0
+            if self.history is not None and not res.ambiguous and not duplicate:
+                self.history.update(key[:2], res.rvec, res.tvec)
             img_pts = (group[0].refined.corners_px.copy() if len(group) == 1 else
                        np.concatenate([c.refined.corners_px for c in group]))
             out.append(BrickPose(
@@ -548,12 +559,43 @@ class ArucoBrickDetector:
                 reprojection_rmse_px=float(res.rmse_px),
                 markers=sorted(c.marker_id for c in group), ambiguous=bool(res.ambiguous),
                 alternatives=[(a.rvec, a.tvec) for a in res.alternatives],
-                symmetric=False, covariance=res.covariance, image_points=img_pts))
+                symmetric=False, covariance=res.covariance, image_points=img_pts,
+                duplicate=duplicate))
         self.timing.pose_s += time.perf_counter() - t0
         return out
 
     def _previous(self, key):
-        return None if self.history is None else self.history.previous(key)
+        if self.history is None or key[2] > 0:  # a duplicate has no identity to follow
+            return None
+        return self.history.previous(key[:2])
+
+    def _split_duplicates(self, groups: dict[tuple[str, int, int], list[CodeDetection]]
+                          ) -> dict[tuple[str, int, int], list[CodeDetection]]:
+        """Codes whose id was read more than once in the frame (one printed id on several
+        objects) are taken out of their brick and each posed on its own, under keys
+        ``(layout, instance, 1..)`` (flagged ``duplicate``): which copy belongs to the
+        brick's other codes is unknown, and merging them would make one wrong brick. The
+        brick's remaining codes keep key ``(layout, instance, 0)``. Counts per id go to
+        :attr:`last_duplicates`."""
+        self.last_duplicates = {}
+        out: dict[tuple[str, int, int], list[CodeDetection]] = {}
+        for (name, inst, _), group in groups.items():
+            ids = [c.marker_id for c in group]
+            dup = {i for i in ids if ids.count(i) > 1}
+            if not dup:
+                out[(name, inst, 0)] = group
+                continue
+            rest = [c for c in group if c.marker_id not in dup]
+            if rest:
+                out[(name, inst, 0)] = rest
+            # copies in image order (top to bottom, left to right): stable keys for a frame
+            copies = sorted((c for c in group if c.marker_id in dup),
+                            key=lambda c: (c.marker_id, *c.refined.corners_px.mean(axis=0)[::-1]))
+            for k, c in enumerate(copies, start=1):
+                out[(name, inst, k)] = [c]
+            for i in dup:
+                self.last_duplicates[i] = ids.count(i)
+        return out
 
     def _solve(self, group: list[CodeDetection], evidence: PoseEvidence):
         """Joint pose of one brick from its codes; (PoseResult, group) or None."""
@@ -577,7 +619,9 @@ class ArucoBrickDetector:
         res = solve_brick_pose(obj, img, self.camera, image_pts_norm=xn, points_info=info,
                                evidence=evidence, rule=self.params.ambiguity,
                                gravity_prior_deg=self.params.gravity_prior_deg, planar=None)
-        if res is None or not np.isfinite(res.rmse_px) or res.rmse_px > self.params.max_rmse_px:
+        if res is None or not np.isfinite(res.rmse_px) or (
+                res.rmse_px > self.params.max_rmse_px
+                and not self._fit_explained(res, group, obj, img, info)):
             if len(group) > 1:  # one code may be wrong: keep the best single-code pose
                 singles = [self._solve([c], evidence) for c in group]
                 singles = [s for s in singles if s is not None]
@@ -585,6 +629,49 @@ class ArucoBrickDetector:
                     return min(singles, key=lambda s: s[0].rmse_px)
             return None
         return res, group
+
+
+    def _fit_explained(self, res, group: list[CodeDetection], obj: np.ndarray, img: np.ndarray,
+                       info: np.ndarray) -> bool:
+        """Whether a joint fit worse than ``max_rmse_px`` is still right.
+
+        Several codes: when their residuals are consistent with the corner noise measured
+        robustly in them (χ² at that noise ≤ 3·dof + 4, the ambiguity rule's test,
+        :func:`drovisio.pose.ambiguity.noise_scale`): noisy corners or a camera model that
+        fits the whole board a little worse, not one code grouped wrongly (its residuals
+        would stand out from the others'). One code (2 degrees of freedom cannot measure
+        noise): when OpenCV's own corners of that code fit the camera no better (within
+        1.5×, the spread of independent corner estimates): the residual is then the camera
+        model's, not the corners' (both judged by the same unweighted planar PnP).
+        """
+        dof = 2 * len(img) - 6
+        if len(group) > 1:
+            px, _ = self.camera.project_points(obj.reshape(-1, 1, 3), res.rvec, res.tvec)
+            r = (px.reshape(-1, 2) - img).ravel()
+            try:
+                e = np.linalg.cholesky(info).T @ r
+            except np.linalg.LinAlgError:
+                return False
+            return float(e @ e) / noise_scale(e, dof) <= 3.0 * dof + 4.0
+        ours = self._plain_rmse(obj, img)
+        raw = self._plain_rmse(obj, group[0].raw_corners)
+        return ours <= 1.5 * raw
+
+    def _plain_rmse(self, obj: np.ndarray, pts: np.ndarray) -> float:
+        """RMS residual (px) of the unweighted planar PnP (IPPE) of one code's corners: how
+        well the camera model explains those four points as the square they are."""
+        xn = self.camera.normalize(pts)
+        if not np.all(np.isfinite(xn)):
+            return float("inf")
+        try:
+            ok, rv, tv = cv2.solvePnP(obj.reshape(-1, 1, 3), xn.reshape(-1, 1, 2), np.eye(3),
+                                      None, flags=cv2.SOLVEPNP_IPPE)
+        except cv2.error:
+            return float("inf")
+        if not ok:
+            return float("inf")
+        px, _ = self.camera.project_points(obj.reshape(-1, 1, 3), rv, tv)
+        return float(np.sqrt(((px.reshape(-1, 2) - pts) ** 2).sum(axis=1).mean()))
 
 
 def detect_aruco(image: np.ndarray, camera: Camera, layouts, gravity: np.ndarray | None = None

@@ -47,7 +47,7 @@ from drovisio import _numba
 from drovisio.camera import Camera
 from drovisio.detect import corners_kernels as _ck
 
-__all__ = ["RefinedCode", "normalized_grid", "refine_codes"]
+__all__ = ["RefinedCode", "cell_verdict", "normalized_grid", "refine_codes"]
 
 #: samples (pixels) per code in the fit; bigger codes are subsampled on a regular grid
 MAX_SAMPLES = 280
@@ -236,12 +236,18 @@ def _model(g, lev, s, x, y, bits, bits_t, n_max, jacobian=True, blur_jacobian=Tr
     return I, J
 
 
-def _cell_margins(g, lev, s, x, y, vals, wts, bits, ns) -> np.ndarray:
+def _cell_margins(g, lev, s, x, y, vals, wts, bits, ns
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per code, how clearly its inner cells read as its bits (see RefinedCode.cell_margin).
 
     At the fitted geometry and blur, each inner cell's whiteness a_k is estimated by linear
     least squares, (I - B)/(W - B) = sum_k a_k row_r(v) col_j(u), with a weak pull toward the
     expected bit (cells no sample sees keep it).
+
+    Returns:
+        (margin (C,): the least signed margin, a - 0.5 for white cells and 0.5 - a for black
+        ones; a (C, cells): every cell's whiteness, NaN beyond a code's own size (codes
+        padded to a larger n); the expected bits (C, cells), 1 = white).
     """
     C, n = bits.shape[0], bits.shape[1]
     D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
@@ -264,14 +270,59 @@ def _cell_margins(g, lev, s, x, y, vals, wts, bits, ns) -> np.ndarray:
     rhs = np.matmul(basis, yv[..., None])[..., 0].astype(np.float64) + mu * expected
     A = A + mu[:, :, None] * np.eye(m * m)
     a = _solve(A, rhs)
-    margin = np.where(expected > 0.5, a - 0.5, 0.5 - a).min(axis=1)
-    # codes padded to a larger n carry zero cells beyond their own size: ignore them
+    # codes padded to a larger n carry zero cells beyond their own size: not theirs
     for c in np.nonzero(ns < n)[0]:
-        mc = ns[c] - 2
-        ac = a[c].reshape(m, m)[:mc, :mc]
-        ec = expected[c].reshape(m, m)[:mc, :mc]
-        margin[c] = np.where(ec > 0.5, ac - 0.5, 0.5 - ac).min()
-    return margin
+        own = np.zeros((m, m), bool)
+        own[:ns[c] - 2, :ns[c] - 2] = True
+        a[c, ~own.ravel()] = np.nan
+    margins = np.where(expected > 0.5, a - 0.5, 0.5 - a)
+    return np.nanmin(margins, axis=1), a, expected
+
+
+def cell_verdict(a: np.ndarray, expected: np.ndarray, tolerable: int,
+                 false_rate: float = 0.01) -> tuple[bool, int, int, float]:
+    """Whether a code's cells read as its bits, judged by the cells' own statistics.
+
+    The cells a code's bits call white and those they call black form two brightness classes
+    (whiteness ``a`` from the deblurred fit, :func:`_cell_margins`); their centres (medians)
+    and common spread (the pooled median absolute deviation) are measured in the code itself,
+    so JPEG blocks, gamma and residual blur widen the classes instead of failing the code. A
+    cell *reads wrong* when it lies nearer the other class's centre; it is *undecided* when
+    the odds that it belongs to its own class rather than the other (normal classes of the
+    measured spread) are below ``2 · cells / false_rate``. The code is accepted when no cell
+    reads wrong, at most ``tolerable`` are undecided (with that many unknown, the decided
+    cells still tell the code from every other by the dictionary's distance: the rescue's bit
+    tolerance), and the classes lie at least ``2 z`` spreads apart (``z``: the normal quantile
+    beyond which a right cell falls with chance ``false_rate`` over all the code's cells, so
+    that a right cell almost never crosses the midpoint).
+
+    Args:
+        a: (cells,) whiteness of each inner cell (NaN: not a cell of this code).
+        expected: (cells,) the code's bits, 1 = white.
+        tolerable: Undecided cells the dictionary's distance allows.
+        false_rate: Chance that a right code is refused for one of its cells.
+
+    Returns:
+        (accepted, cells read wrong, cells undecided, class separation in spreads).
+    """
+    from statistics import NormalDist
+
+    own = np.isfinite(a)
+    a, white = a[own], expected[own] > 0.5
+    if white.all() or not white.any():
+        return False, 0, int(own.sum()), 0.0
+    z = NormalDist().inv_cdf(1.0 - false_rate / (2.0 * len(a)))
+    cw, cb = float(np.median(a[white])), float(np.median(a[~white]))
+    dev = np.concatenate([a[white] - cw, a[~white] - cb])
+    # 1.4826 MAD: the normal's sigma; floored at a hundredth of the contrast (exact renders)
+    spread = max(1.4826 * float(np.median(np.abs(dev))), 0.01)
+    d = np.where(white, a - 0.5 * (cw + cb), 0.5 * (cw + cb) - a) / spread
+    separation = (cw - cb) / spread
+    wrong = int((d <= 0).sum())
+    # log odds of the own class against the other at d spreads from the midpoint: sep · d
+    undecided = int(((d > 0) & (separation * d < np.log(2.0 * len(a) / false_rate))).sum())
+    return (wrong == 0 and undecided <= tolerable and separation >= 2.0 * z, wrong, undecided,
+            separation)
 
 
 def _homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -358,12 +409,35 @@ def _select_samples(grid, gray, x0, y0, bw, P, P_box, K, centre, scale, g, lo, h
     return xs, ys, vals, wts, cnt
 
 
+def _move_limits(moved: np.ndarray, use: np.ndarray, floor_px: float, cell_px: np.ndarray
+                 ) -> np.ndarray:
+    """How far (px) a corner of each code may move from its start, from the start noise
+    measured in this frame.
+
+    The starts' errors (OpenCV's corners, rescued quads) are taken as isotropic normal with
+    a standard deviation ``sigma`` per axis, estimated robustly over every corner of the frame
+    (the median distance moved is ``1.1774 sigma`` for a 2-D normal), but never below
+    ``floor_px``. A right corner moves farther than ``sigma · sqrt(2 ln(N / 0.001))`` (N: the
+    frame's corners) with a chance of 0.1 % a frame: a corner beyond that went elsewhere (the fit
+    slid along an edge, onto the paper around the code). The limit never exceeds the
+    previous bound of one and a half cells (at least 2 px).
+    """
+    C = len(moved)
+    cap = np.maximum(1.5 * cell_px, 2.0)
+    if not use.any():
+        return cap
+    d = moved[use].ravel()
+    sigma = max(float(np.median(d)) / 1.1774, floor_px)
+    limit = sigma * np.sqrt(2.0 * np.log(max(d.size, 1) / 0.001))
+    return np.minimum(cap, np.full(C, limit))
+
+
 def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | np.ndarray,
                  bits: list[np.ndarray], iterations: int = 3, coarse_iterations: int = 1,
                  chord_from: int | None = None, max_samples: int = MAX_SAMPLES,
                  band_px: float = 3.0, coarse_min_cell_px: float = 0.0,
-                 lm_lambda: float = 0.1, min_cell_margin: float = 0.25,
-                 blur_iterations: int = 99
+                 lm_lambda: float = 0.1, tolerable_cells: int | np.ndarray = 0,
+                 blur_iterations: int = 99, start_sigma_px: float = 0.85
                  ) -> list[RefinedCode]:
     """Refine the outer corners of decoded codes by a photometric fit of their interior.
 
@@ -388,10 +462,15 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
             big (0: never skipped; skipping lost accuracy on small codes).
         lm_lambda: Initial Levenberg–Marquardt damping (relative to the diagonal); 0.1
             measured best with three iterations.
-        min_cell_margin: Codes whose inner cells read back less clearly than this
-            (:attr:`RefinedCode.cell_margin`) are not ``ok``.
+        tolerable_cells: Per code (or one number for all), how many inner cells may read
+            undecided at the fit's noise (:func:`cell_verdict`); a code with a cell that
+            reads wrong, or with more undecided cells, is not ``ok``.
         blur_iterations: The blur is fitted in the first this many fine iterations only
             (default: all; fitting it in every iteration measured best).
+        start_sigma_px: Least standard deviation (px, per axis) of the starts' errors: a
+            corner that moves farther than the frame's start noise allows is refused
+            (:func:`_move_limits`). 0.85: OpenCV's corners at the detector's settings,
+            1.21 px RMS (both axes) on the rendered bench.
 
     Returns:
         One :class:`RefinedCode` per input code, in order.
@@ -516,9 +595,10 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
         g[better], lev[better], s[better] = g_n[better], lev_n[better], s_n[better]
         r[better], cost[better] = r_n[better], cost_n[better]
         lam = np.where(better, np.maximum(lam / 3.0, 1e-6), lam * 5.0)
-    margin = _cell_margins(g, lev, s, xs, ys, vals, wts, bits_pad, ns)
     # covariance of the parameters from the last Jacobian and the final residuals
     sig2 = cost / np.maximum(cnt - 12.0, 1.0)
+    margin, cell_a, cell_bits = _cell_margins(g, lev, s, xs, ys, vals, wts, bits_pad, ns)
+    tol_cells = np.broadcast_to(np.asarray(tolerable_cells, np.int64), (C,))
     A = A + 1e-9 * eye12
     A[~valid] = eye12
     try:
@@ -554,7 +634,9 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     contrast = lev[:, 1] - lev[:, 0]
     resid = np.sqrt(sig2)
     blur = np.sqrt(s[:, 0] * s[:, 1]) * cell_px
-    shift = np.abs(px_c - q).max(axis=(1, 2))
+    moved = np.sqrt(((px_c - q) ** 2).sum(axis=2))  # (C, 4) how far each corner moved, px
+    move_limit = _move_limits(moved, valid & np.isfinite(moved).all(axis=1), start_sigma_px,
+                              cell_px)
     out: list[RefinedCode] = []
     for c in range(C):
         if not valid[c]:
@@ -568,12 +650,17 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
             ok, why = False, f"low contrast ({contrast[c]:.0f})"
         elif resid[c] > 0.2 * contrast[c]:
             ok, why = False, f"poor fit (residual {resid[c]:.1f} for contrast {contrast[c]:.0f})"
-        elif shift[c] > max(1.5 * cell_px[c], 2.0):
-            ok, why = False, f"corners moved {shift[c]:.1f} px"
+        elif moved[c].max() > move_limit[c]:
+            ok, why = False, (f"a corner moved {moved[c].max():.1f} px from its start (limit "
+                              f"{move_limit[c]:.1f} px at the start noise of this frame)")
         elif blur[c] > 2.5 * cell_px[c]:
             ok, why = False, "too blurred"
-        elif margin[c] < min_cell_margin:
-            ok, why = False, f"cells do not read as the code (margin {margin[c]:.2f})"
+        else:
+            cells_ok, wrong, undecided, sep = cell_verdict(cell_a[c], cell_bits[c],
+                                                           int(tol_cells[c]))
+            if not cells_ok:
+                ok, why = False, (f"cells do not read as the code ({wrong} wrong, {undecided} "
+                                  f"undecided, classes {sep:.1f} spreads apart)")
         sig = float(np.sqrt(max(np.trace(cov_px[c]), 0.0) / 8))
         out.append(RefinedCode(px_c[c], xn_c[c], cov_px[c], sig, float(resid[c]),
                                float(contrast[c]), float(blur[c]), ok, why,

@@ -36,6 +36,7 @@ class BrickPose:
         symmetric: The layout is symmetric; the yaw is reported in one canonical half-turn.
         covariance: 6×6 covariance of (rvec, tvec), from the Jacobian and the corner noise.
         image_points: (N, 2) measured image points the pose was fitted to (for drawing).
+        duplicate: See the attribute.
     """
 
     layout: str
@@ -50,6 +51,9 @@ class BrickPose:
     symmetric: bool = False
     covariance: np.ndarray | None = None
     image_points: np.ndarray | None = None
+    duplicate: bool = False
+    """Its code's id was read more than once in the frame: each copy is posed on its own
+    and flagged, never merged with the others into one brick."""
 
     def camera_from_brick(self) -> np.ndarray:
         """The pose as a 4×4 matrix."""
@@ -73,6 +77,8 @@ class BrickPose:
                                    for r, t in self.alternatives]
         if self.symmetric:
             out["symmetric"] = True
+        if self.duplicate:
+            out["duplicate"] = True
         if with_covariance and self.covariance is not None:
             out["covariance"] = [[float(f"{v:.6g}") for v in row] for row in self.covariance]
         return out

@@ -11,7 +11,9 @@ rule** (:func:`decide_flips`), batched over bricks:
    is far worse than the other's never wins by evidence;
 2. the image decides (``reprojection``) when the other candidate's χ² exceeds the best one's
    by ``chi2_margin`` at the measured point noise and the best fit is consistent with that
-   noise (χ² ≤ 3·dof + 4);
+   noise (χ² ≤ 3·dof + 4); the noise is the points' assumed covariance (from their fit),
+   raised where the brick's own residuals robustly show more (:func:`noise_scale`: real JPEG
+   corners of a 13-code board);
 3. two candidates closer than ``min_angle_deg`` are one pose (``close``: the better fit);
 4. with gravity, a choice tilted more than ``gravity_tol_deg`` from flat is no choice
    (gravity contradicts it: typically a pose from too few points);
@@ -41,6 +43,7 @@ __all__ = [
     "alternative_plausible",
     "canonical_half_turn",
     "decide_flips",
+    "noise_scale",
     "reference_up",
 ]
 
@@ -136,12 +139,57 @@ def _is_z(axis: np.ndarray) -> bool:
     return bool(axis[0] == 0.0 and axis[1] == 0.0 and axis[2] > 0.0)
 
 
+#: Fewest degrees of freedom from which a brick's own residuals measure its noise: below,
+#: the relative standard error of a variance estimate, sqrt(2 / dof), exceeds one half.
+MIN_DOF_FOR_SCALE = 8
+
+
+def _chi2_quantile(p: float, dof: float) -> float:
+    """The p-quantile of χ²(dof) (Wilson–Hilferty; within 1 % from 3 dof up)."""
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(p)
+    h = 2.0 / (9.0 * dof)
+    return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
+
+
+def noise_scale(whitened: np.ndarray, dof: int, confidence: float = 0.99) -> float:
+    """How much noisier a brick's image points are than assumed, measured robustly from its
+    own residuals: the factor (≥ 1) on the χ² scale, i.e. on the points' variance.
+
+    The residuals of the best fit, whitened by the assumed point covariance (``whitened``,
+    (2N,): unit variance each when the assumption holds), give the variance robustly from
+    their median square (a wrong point or two does not raise it: the χ²(1) median is
+    0.4549), corrected for the parameters the fit absorbed (2N / dof). The factor is the
+    lower ``confidence`` bound of that estimate (the noise is raised only as far as the
+    residuals prove it), and 1 below :data:`MIN_DOF_FOR_SCALE` degrees of freedom (a single
+    code's 2 cannot measure it). Real JPEG corners are noisier than their fit's covariance
+    says; this keeps the rule's "measured point noise" true for them, while a fit whose
+    residuals are large only at some points (one wrong code) stays inconsistent.
+
+    Args:
+        whitened: (2N,) residuals of the best candidate, whitened by the assumed noise.
+        dof: Degrees of freedom of the fit (2N − 6).
+        confidence: Confidence of the lower bound.
+
+    Returns:
+        The variance factor s² (1 when the residuals do not show more noise).
+    """
+    e = np.asarray(whitened, np.float64).ravel()
+    if dof < MIN_DOF_FOR_SCALE or e.size == 0 or not np.all(np.isfinite(e)):
+        return 1.0
+    s2 = float(np.median(e * e)) / 0.4549 * (e.size / dof)
+    return max(1.0, s2 * dof / _chi2_quantile(confidence, dof))
+
+
 def alternative_plausible(chi2: np.ndarray, dof: np.ndarray | float,
-                          rule: AmbiguityRule = AmbiguityRule()) -> np.ndarray:
+                          rule: AmbiguityRule = AmbiguityRule(),
+                          scale: np.ndarray | float = 1.0) -> np.ndarray:
     """Per brick (B,): the image alone cannot rule out the second candidate of ``chi2``
     (B, 2) — its χ² is within the margin of the first's, or the first's fit is itself
-    inconsistent with the noise."""
-    chi2 = np.asarray(chi2, np.float64)
+    inconsistent with the noise. ``scale`` (B,) or one number: the measured noise as a factor
+    on the assumed variance (:func:`noise_scale`); the χ² are divided by it."""
+    chi2 = np.asarray(chi2, np.float64) / np.reshape(np.asarray(scale, np.float64), (-1, 1))
     dof = np.asarray(dof, np.float64)     # (B,) or one number: broadcasts
     best = np.minimum(chi2[:, 0], chi2[:, 1])
     other = np.maximum(chi2[:, 0], chi2[:, 1])
@@ -153,7 +201,8 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
                  previous: Sequence[np.ndarray | None] | None = None,
                  up_axis: Sequence[float] | np.ndarray = (0.0, 0.0, 1.0),
                  rule: AmbiguityRule = AmbiguityRule(), rmse_px: np.ndarray | None = None,
-                 use_evidence: bool = True, use_fit: bool = True
+                 use_evidence: bool = True, use_fit: bool = True,
+                 scale: np.ndarray | float = 1.0
                  ) -> tuple[np.ndarray, list[str]]:
     """The one rule (module doc), for B bricks with two candidates each.
 
@@ -170,6 +219,8 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
         rmse_px: (B, 2) RMS reprojection errors, for the hopeless-fit test before χ² exist.
         use_evidence: Let gravity, the reference and the previous pose speak.
         use_fit: Let the reprojection (and the "close" rule) speak.
+        scale: The point noise measured from each brick's residuals, as a factor on the
+            assumed variance (:func:`noise_scale`), (B,) or one number; 1: as assumed.
 
     Returns:
         (choice (B,) of 0 or 1, or −1 when undecided; what decided, per brick: ``close``,
@@ -177,8 +228,9 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
         did).
     """
     R = np.asarray(R, np.float64)
-    chi2 = np.asarray(chi2, np.float64)
     B = R.shape[0]
+    # χ² at the measured noise (the assumed one, raised by the residuals' own scale)
+    chi2 = np.asarray(chi2, np.float64) / np.reshape(np.asarray(scale, np.float64), (-1, 1))
     dof_a = np.asarray(dof, np.float64)
     up = np.asarray(up_axis, np.float64)
     choice = np.full(B, -1, np.int64)

@@ -36,7 +36,13 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.pose.ambiguity import AmbiguityRule, PoseEvidence, decide_flips
+from drovisio.pose.ambiguity import (
+    MIN_DOF_FOR_SCALE,
+    AmbiguityRule,
+    PoseEvidence,
+    decide_flips,
+    noise_scale,
+)
 from drovisio.pose.measures import is_planar, tilt_deg
 
 __all__ = ["PoseCandidate", "PoseResult", "solve_brick_pose"]
@@ -225,6 +231,21 @@ def _covariance(info: np.ndarray, chi2: float, dof: int) -> np.ndarray:
     return 0.5 * (cov + cov.T)
 
 
+def _measured_scale(obj, img, cand: PoseCandidate, camera: Camera, Winv: np.ndarray,
+                    dof: int) -> float:
+    """The point noise the best candidate's residuals show, as a factor on the assumed
+    variance (:func:`drovisio.pose.ambiguity.noise_scale`)."""
+    if dof < MIN_DOF_FOR_SCALE:
+        return 1.0
+    px, _ = camera.project_points(obj.reshape(-1, 1, 3), cand.rvec, cand.tvec)
+    r = (px.reshape(-1, 2) - img).ravel()
+    try:  # whitened: e = Lᵀ r with L Lᵀ = Winv, so |e|² = χ²
+        e = np.linalg.cholesky(Winv).T @ r
+    except np.linalg.LinAlgError:
+        return 1.0
+    return noise_scale(e, dof)
+
+
 def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Camera,
                      gravity: np.ndarray | None = None, planar: bool | None = None, *,
                      image_pts_norm: np.ndarray | None = None,
@@ -341,7 +362,8 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
         prev = None if ev.previous is None else cv2.Rodrigues(
             np.asarray(ev.previous[0], np.float64).reshape(3, 1))[0]
 
-        def decide(use_evidence: bool, use_fit: bool) -> tuple[int | None, str]:
+        def decide(use_evidence: bool, use_fit: bool, scale: float = 1.0
+                   ) -> tuple[int | None, str]:
             R2 = np.stack([c.R for c in cands])[None]
             chi2 = np.array([[c.chi2 for c in cands]])
             rmse = np.array([[c.rmse_px for c in cands]])
@@ -349,7 +371,7 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                                      reference_up=ev.reference_up,
                                      previous=None if prev is None else [prev], up_axis=up,
                                      rule=rule, rmse_px=rmse, use_evidence=use_evidence,
-                                     use_fit=use_fit)
+                                     use_fit=use_fit, scale=scale)
             return (int(pick[0]), why[0]) if pick[0] >= 0 else (None, "")
 
         # evidence first (it needs no refinement: flips differ by tens of degrees), then the
@@ -359,7 +381,8 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
             cands = sorted((_gauss_newton(obj, img, c, camera, Winv,
                                           iterations=1 if refine else 0)[0]
                             for c in cands), key=lambda c: c.chi2)
-            chosen, decided_by = decide(False, True)
+            chosen, decided_by = decide(False, True,
+                                        _measured_scale(obj, img, cands[0], camera, Winv, dof))
     if chosen is None:  # undecided: report the better-fitting one, flag it
         chosen, amb, decided_by = 0, True, "none"
     else:
