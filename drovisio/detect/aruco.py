@@ -228,8 +228,8 @@ class ArucoBrickDetector:
         self.last_codes: list[CodeDetection] = []
         """The codes of the last frame (with their refinement), for inspection."""
         self.last_results: dict = {}
-        """(layout name, instance, copy) -> :class:`drovisio.pose.PoseResult` of the last
-        frame (copy 0: the brick; 1, 2, ...: codes whose id was read more than once)."""
+        """(layout name, instance) -> :class:`drovisio.pose.PoseResult` of the last frame;
+        codes whose id was read more than once: (layout name, instance, copy 1, 2, ...)."""
         self.last_duplicates: dict[int, int] = {}
         """Code id -> how many times it was read in the last frame, for ids read more than
         once (each copy is posed on its own and flagged ``duplicate``)."""
@@ -543,7 +543,8 @@ class ArucoBrickDetector:
                     if res2 is not None:
                         results[key] = res2
         self.last_codes = codes
-        self.last_results = {key: r[0] for key, r in results.items()}
+        self.last_results = {(key[:2] if key[2] == 0 else key): r[0]
+                             for key, r in results.items()}
         out: list[BrickPose] = []
         for key in sorted(results):
             res, group = results[key]

@@ -109,3 +109,36 @@ def test_gravity_vetoes_a_pose_it_contradicts():
     R = _pair(_flat(tilt_deg=20), _flat(tilt_deg=-65))
     pick, _ = decide_flips(R, np.array([[5.0, 80.0]]), 10, gravity=DOWN)
     assert pick[0] == 0
+
+
+def test_noise_scale_is_measured_robustly_from_the_residuals():
+    """The factor on the assumed variance: 1 when the residuals match it, about the true
+    factor (at its lower 99 % bound) when the points are noisier, hardly raised by a few
+    gross residuals, and never measured from a single code's 2 degrees of freedom."""
+    from drovisio.pose.ambiguity import noise_scale
+
+    rng = np.random.default_rng(7)
+    n, dof = 104, 98                      # 52 corners, 6 pose parameters
+    e = rng.normal(0.0, 1.0, n) * np.sqrt(dof / n)
+    assert noise_scale(e, dof) == 1.0
+    s = noise_scale(2.0 * e, dof)         # variance 4x the assumed
+    assert 2.0 < s < 4.0
+    bad = 2.0 * e.copy()
+    bad[:8] = 60.0                        # one code's four corners far off
+    assert noise_scale(bad, dof) < 1.3 * s
+    # with that scale the board's own χ² is consistent again, the outliers' is not
+    assert float((2.0 * e) @ (2.0 * e)) / s <= 3 * dof + 4
+    assert float(bad @ bad) / noise_scale(bad, dof) > 3 * dof + 4
+    assert noise_scale(10.0 * rng.normal(size=8), 2) == 1.0
+
+
+def test_decide_flips_uses_the_measured_scale():
+    """χ² 417 for 52 corners (dof 98) with the mirror 20 px RMS worse: inconsistent at the
+    assumed noise, decided at the measured one."""
+    from drovisio.pose.ambiguity import decide_flips
+
+    R = np.stack([np.eye(3), rot_x(0.6)])[None]
+    chi2 = np.array([[417.0, 40000.0]])
+    assert decide_flips(R, chi2, 98)[0][0] == -1
+    pick, why = decide_flips(R, chi2, 98, scale=3.0)
+    assert pick[0] == 0 and why[0] == "reprojection"

@@ -1,0 +1,208 @@
+"""Code acceptance, ambiguity and identity on real photos nobody here rendered
+(``../shared/datasets/real``: its README names each set's source).
+
+Skipped with the reason when the folder is absent; ``DROVISIO_REQUIRE_SHARED=1`` (CI) makes
+its absence a failure.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from drovisio.bench.real import (
+    APRILTAG_PIXEL_OFFSET,
+    _match_corners,
+    charuco_layout,
+    tag_layout,
+)
+from drovisio.camera_file import load_camera
+from drovisio.detect.aruco import ArucoBrickDetector
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+REAL = Path(os.environ.get("DROVISIO_REAL_DATA", REPO_ROOT.parent / "shared" / "datasets" /
+                           "real"))
+
+
+def _need(sub: str) -> Path:
+    d = REAL / sub
+    if not d.is_dir():
+        msg = (f"real data {d} is absent; set DROVISIO_REAL_DATA to the folder of "
+               "../shared/datasets/real to run these tests")
+        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1":  # CI has ../shared: never skip
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return d
+
+
+@pytest.fixture(scope="module")
+def charuco():
+    d = _need("charuco")
+    dic = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)
+    board = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, dic)
+    cam = load_camera(d / "tutorial_camera_charuco.yml").for_image(640, 480)[0]
+    gray = cv2.imread(str(d / "choriginal.jpg"), cv2.IMREAD_GRAYSCALE)
+    cc, ci, _, _ = cv2.aruco.CharucoDetector(board).detectBoard(gray)
+    obj = np.asarray(board.getChessboardCorners(), np.float64)[np.ravel(ci)]
+    ok, rv, tv = cv2.solvePnP(obj, cc, cam.K, cam.dist)
+    assert ok and len(ci) == 24
+    return {"board": board, "camera": cam, "gray": gray, "rvec": rv, "tvec": tv}
+
+
+def _board_prediction(ch, marker_id: int) -> np.ndarray:
+    b = ch["board"]
+    k = list(np.ravel(b.getIds())).index(marker_id)
+    p, _ = cv2.projectPoints(np.asarray(b.getObjPoints()[k], np.float64), ch["rvec"],
+                             ch["tvec"], ch["camera"].K, ch["camera"].dist)
+    return p.reshape(4, 2)
+
+
+def test_charuco_tutorial_photo_keeps_every_code_opencv_reads(charuco):
+    """OpenCV reads 17 codes; the fixed 0.25 cell margin dropped 4 of them (margins 0.15 -
+    0.24 in a real JPEG). Each is kept; its corners sit nearer the board pose's prediction
+    than OpenCV's; the 17-code brick is posed like OpenCV's ChArUco board."""
+    det = ArucoBrickDetector(charuco["camera"], [charuco_layout(charuco["board"],
+                                                                "DICT_6X6_250")])
+    poses = det.detect(charuco["gray"])
+    _, cv_ids, _ = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)).detectMarkers(charuco["gray"])
+    kept = sorted(c.marker_id for c in det.last_codes if c.refined.ok)
+    assert kept == sorted(int(i) for i in np.ravel(cv_ids)) == list(range(17))
+    assert len(poses) == 1 and poses[0].markers == list(range(17))
+    ours = np.concatenate([np.linalg.norm(c.refined.corners_px
+                                          - _board_prediction(charuco, c.marker_id), axis=1)
+                           for c in det.last_codes])
+    cv_c, cv_i, _ = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)).detectMarkers(charuco["gray"])
+    theirs = np.concatenate([np.linalg.norm(np.asarray(q).reshape(4, 2)
+                                            - _board_prediction(charuco, int(i)), axis=1)
+                             for q, i in zip(cv_c, np.ravel(cv_i))])
+    # measured: median 0.68 px (OpenCV's corners 1.03 px)
+    assert np.median(ours) < 0.8 and np.median(ours) < 0.8 * np.median(theirs)
+    b = poses[0]
+    R = cv2.Rodrigues(np.ravel(b.rvec))[0] @ np.diag([1.0, -1.0, -1.0])  # brick y, z flipped
+    Rb = cv2.Rodrigues(charuco["rvec"])[0]
+    angle = np.degrees(np.arccos(np.clip((np.trace(R.T @ Rb) - 1) / 2, -1, 1)))
+    assert np.linalg.norm(np.ravel(b.tvec) - charuco["tvec"].ravel()) < 0.002   # 0.88 mm
+    assert angle < 0.2                                                          # 0.065°
+
+
+@pytest.mark.parametrize("codes", [13, 17])
+def test_rigid_board_is_not_ambiguous(charuco, codes):
+    """The board's mirror pose reprojects ~20 px RMS worse: χ² at the corners' assumed
+    noise (417 for 52 corners) exceeded 3·dof + 4, real JPEG corners being noisier than
+    their fit says; the noise measured robustly in the board's own residuals decides it."""
+    lay = charuco_layout(charuco["board"], "DICT_6X6_250")
+    if codes == 13:  # the four codes the fixed cell margin used to drop
+        lay = lay.model_copy(update={"markers": [m for m in lay.markers
+                                                 if m.id not in (1, 3, 7, 15)]})
+    det = ArucoBrickDetector(charuco["camera"], [lay])
+    poses = det.detect(charuco["gray"])
+    assert len(poses) == 1 and len(poses[0].markers) == codes
+    res = det.last_results[("charuco", 0)]
+    assert not poses[0].ambiguous and res.decided_by == "reprojection"
+    worse = sorted(c.rmse_px for c in res.candidates)
+    assert worse[1] > 10 * worse[0]
+
+
+@pytest.fixture(scope="module")
+def multi():
+    from drovisio.study.methods import apriltag_detector
+
+    d = _need("apriltag-multi")
+    cam = load_camera(d / "camera.yaml")
+    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
+    cv_det = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11))
+    out = {}
+    for f in sorted(d.glob("*.png")):
+        g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        poses = det.detect(g)
+        q, i, _ = cv_det.detectMarkers(g)
+        at = apriltag_detector("tag36h11").detect(g)
+        out[f.name] = {"poses": poses, "codes": list(det.last_codes),
+                       "opencv": [(int(k), np.asarray(c).reshape(4, 2))
+                                  for c, k in zip(q, np.ravel(i))],
+                       "apriltag": [(int(a.tag_id), a.corners - APRILTAG_PIXEL_OFFSET)
+                                    for a in at]}
+    return out
+
+
+def _near(q, pool):
+    side = np.linalg.norm(q[1] - q[0])
+    return [p for p in pool if np.linalg.norm(p.mean(axis=0) - q.mean(axis=0)) < 0.3 * side]
+
+
+def test_multi_tag_photos_codes_kept_and_corners_agree_with_apriltag(multi):
+    ok_codes = kept = n_cv = 0
+    rms = []
+    for name, r in multi.items():
+        good = [c for c in r["codes"] if c.refined.ok]
+        ok_codes += len(good)
+        for c in good:  # no false code: each is one a peer reads at that place
+            q = c.refined.corners_px
+            assert (_near(q, [p for i, p in r["opencv"] if i == c.marker_id])
+                    or _near(q, [p for i, p in r["apriltag"] if i == c.marker_id])), name
+            at = _near(q, [p for i, p in r["apriltag"] if i == c.marker_id])
+            if at:
+                rms.append(float(np.sqrt(np.mean(_match_corners(q, at[0]) ** 2))))
+        for mid, q in r["opencv"]:
+            n_cv += 1
+            kept += bool(_near(q, [c.refined.corners_px for c in good if c.marker_id == mid]))
+        # every brick is one code, posed (a fit worse than 2 px is kept when OpenCV's own
+        # corners fit the camera no better)
+        assert sorted(p.markers[0] for p in r["poses"]) == sorted(c.marker_id for c in good)
+    # 54 read by OpenCV: 51 kept; the others: two codes of 10 and 12 px the first pass does
+    # not find, and the 108-px tag whose fitted corner went astray (next test)
+    assert n_cv == 54 and kept >= 51 and ok_codes >= 53
+    rms_a = np.array(rms)
+    # measured: median 0.18 px, p90 0.49 px (OpenCV's corners: 0.80, 1.39)
+    assert np.median(rms_a) < 0.3 and np.mean(rms_a < 0.5) > 0.85
+
+
+def test_a_corner_far_from_its_quad_is_not_accepted(multi):
+    """On test_image_multiple_07 the 108-px tag 85 near the image edge: the fit slid one
+    corner 11 px onto the paper (AprilTag and OpenCV agree there within 4 px)."""
+    r = multi["test_image_multiple_07.png"]
+    c85 = [c for c in r["codes"] if c.marker_id == 85]
+    assert len(c85) == 1 and not c85[0].refined.ok
+    assert "moved" in c85[0].refined.reason
+    at = [p for i, p in r["apriltag"] if i == 85][0]
+    assert _match_corners(c85[0].refined.corners_px, at).max() > 5.0   # it was wrong
+    assert 85 not in [p.markers[0] for p in r["poses"]]
+    # the 82-px tag 198 (fit 3.9 px RMS, OpenCV's corners 3.6 px: the camera's) is kept
+    assert 198 in [p.markers[0] for p in r["poses"]]
+
+
+def test_many_codes_with_one_id_are_posed_each_and_flagged(tmp_path):
+    """AprilTag's Swarmathon photos: cubes with tag 0 on every face. Each copy is its own
+    pose, flagged duplicate; none is merged into one brick."""
+    d = _need("apriltag-swarm")
+    cam = load_camera(d / "camera.yaml")
+    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
+    for f in sorted(d.glob("*.jpg")):
+        poses = det.detect(cv2.imread(str(f)))
+        good = [c for c in det.last_codes if c.refined.ok]
+        assert len(good) >= 10
+        assert len(poses) == len(good) and all(p.duplicate for p in poses)
+        assert all(p.markers == [0] and len(p.image_points) == 4 for p in poses)
+        assert all(p.to_json()["duplicate"] is True for p in poses)
+        assert det.last_duplicates == {0: len(good)}
+        centres = np.array([p.image_points.mean(axis=0) for p in poses])
+        gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(len(poses)) * 1e9
+        assert gaps.min() > 5.0   # distinct codes, not one read twice
+        # AprilTag's expected corners (its test data): ours within 1.5 px RMS of each match
+        import re
+
+        truth = [np.array([[float(a), float(b)] for a, b in re.findall(r"\(([-\d.]+) ([-\d.]+)\)", ln)])
+                 - APRILTAG_PIXEL_OFFSET for ln in f.with_suffix(".txt").read_text().splitlines()
+                 if ln.strip()]
+        matched = [min((np.sqrt(np.mean(_match_corners(c.refined.corners_px, t) ** 2))
+                        for t in truth), default=np.inf) for c in good]
+        matched = [m for m in matched if m < 5.0]
+        assert len(matched) >= 0.75 * len(truth)
+        assert np.median(matched) < 1.0
