@@ -289,8 +289,9 @@ def cell_verdict(a: np.ndarray, expected: np.ndarray, tolerable: int,
     so JPEG blocks, gamma and residual blur widen the classes instead of failing the code. A
     cell *reads wrong* when it lies nearer the other class's centre; it is *undecided* when
     the odds that it belongs to its own class rather than the other (normal classes of the
-    measured spread) are below ``2 · cells / false_rate``, or when it lies more than ``z``
-    spreads from its own class's centre toward the other's (it fits neither). The code is accepted when no cell
+    measured spread) are below ``2 · cells / false_rate`` (a cell that far from both classes
+    is decided by neither: on exact renders the spread is tiny and a cell a few spreads off
+    its class still reads right). The code is accepted when no cell
     reads wrong, at most ``tolerable`` are undecided (with that many unknown, the decided
     cells still tell the code from every other by the dictionary's distance: the rescue's bit
     tolerance), and the classes lie at least ``2 z`` spreads apart (``z``: the normal quantile
@@ -320,12 +321,8 @@ def cell_verdict(a: np.ndarray, expected: np.ndarray, tolerable: int,
     d = np.where(white, a - 0.5 * (cw + cb), 0.5 * (cw + cb) - a) / spread
     separation = (cw - cb) / spread
     wrong = int((d <= 0).sum())
-    # undecided: the log odds of the own class against the other (sep · d at d spreads from
-    # the midpoint) are low, or the cell lies beyond z spreads from its own class toward
-    # the other (an outlier of both: a shadow, a speck)
-    toward = 0.5 * separation - d
-    undecided = int(((d > 0) & ((separation * d < np.log(2.0 * len(a) / false_rate))
-                                | (toward > z))).sum())
+    # log odds of the own class against the other at d spreads from the midpoint: sep · d
+    undecided = int(((d > 0) & (separation * d < np.log(2.0 * len(a) / false_rate))).sum())
     return (wrong == 0 and undecided <= tolerable and separation >= 2.0 * z, wrong, undecided,
             separation)
 
