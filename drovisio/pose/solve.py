@@ -41,6 +41,9 @@ from drovisio.pose.measures import is_planar, tilt_deg
 
 __all__ = ["PoseCandidate", "PoseResult", "solve_brick_pose"]
 
+#: most Gauss–Newton iterations of the final refinement (it stops when converged)
+REFINE_ITERATIONS = 6
+
 
 
 @dataclass
@@ -208,6 +211,9 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
             if not ok:
                 break
         step = step.ravel()
+        if (float(np.abs(step[:3]).max()) < 1e-9
+                and float(np.abs(step[3:]).max()) < 1e-9 * (1.0 + float(np.abs(tvec).max()))):
+            break  # converged: the next point would be this one
         rvec = rvec + step[:3]
         tvec = tvec + step[3:]
     n = len(obj)
@@ -370,16 +376,18 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
     if (ev.gravity is not None and gravity_prior_deg and not amb
             and tilt_deg(best.R, ev.gravity, up) <= rule.gravity_tol_deg):
         prior = (up, np.asarray(ev.gravity, np.float64), math.radians(gravity_prior_deg))
-    # IPPE's solution from exact normalised coordinates is already close to the pixel-space
-    # optimum: one Gauss–Newton step gets it (the prior is nearly linear as well)
+    # IPPE weighs every point alike in normalised coordinates; through a wide lens a point
+    # far off-axis is stretched there (tan θ), so its start is not the pixel-space optimum
+    # the corners' image covariance defines: Gauss–Newton in pixels, to convergence
+    # (through a 60° lens one step got it: the later steps are below 1e-9)
     start = best
-    best, info = _gauss_newton(obj, img, start, camera, Winv, iterations=1 if refine else 0,
-                               prior=prior)
+    best, info = _gauss_newton(obj, img, start, camera, Winv,
+                               iterations=REFINE_ITERATIONS if refine else 0, prior=prior)
     if prior is not None and not best.rmse_px <= 3.0 * start.rmse_px + 1.0:
         # the prior outweighed the image (poorly known corners of a small code seen
         # square-on): a flat pose that no longer fits is no answer; the image's own is
         best, info = _gauss_newton(obj, img, start, camera, Winv,
-                                   iterations=1 if refine else 0)
+                                   iterations=REFINE_ITERATIONS if refine else 0)
     return PoseResult(best.rvec, best.tvec, best.rmse_px, _covariance(info, best.chi2, dof),
                       amb, others if amb else [], decided_by, [best] + others)
 
