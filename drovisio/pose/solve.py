@@ -173,6 +173,7 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
     best_cost = np.inf
     best_chi2 = np.inf
     best_sq = np.inf
+    best_d = None
     info = None
     lam = 1e-6
     obj3 = obj.reshape(-1, 1, 3)
@@ -203,6 +204,7 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
             if J is not None:
                 info = A
             best_sq = float((d * d).sum())
+            best_d = d
             lam = max(lam * 0.1, 1e-9)
         else:  # worse: back to the best, damp more
             rvec, tvec = best_rt
@@ -225,6 +227,8 @@ def _gauss_newton(obj, img, cand: PoseCandidate, camera: Camera, Winv, iteration
         tvec = tvec + step[3:]
     n = len(obj)
     out = PoseCandidate(best_rt[0].copy(), best_rt[1].copy(), math.sqrt(best_sq / n), best_chi2)
+    if best_d is not None:
+        out.__dict__["_residual"] = best_d  # (N, 2) image - projection, px (for the weights)
     return out, np.zeros((6, 6)) if info is None else info   # None: no finite cost at all
 
 
@@ -233,8 +237,15 @@ def _robust_weights(obj, img, cand: PoseCandidate, camera: Camera, Winv: np.ndar
     """Huber weights (N,) of the points at a pose: 1 for a point whose reprojection residual
     is within ``k`` standard deviations of its own covariance (the 2×2 block of the inverse
     of ``Winv``), ``k / d`` for one ``d > k`` away."""
-    px, _ = camera.project_points(obj.reshape(-1, 1, 3), cand.rvec, cand.tvec)
-    r = img - px.reshape(-1, 2)
+    r = cand.__dict__.get("_residual")
+    if r is None:
+        px, _ = camera.project_points(obj.reshape(-1, 1, 3), cand.rvec, cand.tvec)
+        r = img - px.reshape(-1, 2)
+    rr = r.ravel()
+    if not float(rr @ Winv @ rr) > k * k:
+        # a point's own Mahalanobis distance is at most the whole residual's (a marginal
+        # of a Gaussian): nothing to weigh down, no inversion
+        return np.ones(len(obj))
     ok, C = cv2.invert(Winv, flags=cv2.DECOMP_CHOLESKY)
     if not ok:
         return np.ones(len(obj))
