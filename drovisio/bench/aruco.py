@@ -96,6 +96,17 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--cache", type=Path, metavar="DIR",
                    help="keep rendered frames here and reuse them on the next run")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
+    p.add_argument("--video", type=Path, metavar="PATH",
+                   help="time the detector on real frames instead (a video file or a folder "
+                        "of images; no truth): drovisio vs plain detectMarkers vs AprilTag 3, "
+                        "medians and p90, per dictionary (4x4, 6x6, tag36h11; --dictionary: "
+                        "one). E.g. OpenCV's vtest.avi, Debian's opencv-doc: "
+                        "/usr/share/doc/opencv-doc/examples/data/vtest.avi")
+    p.add_argument("--max-frames", type=int, default=300, metavar="N",
+                   help="with --video: at most this many frames (default 300)")
+    p.add_argument("--camera", type=Path, metavar="CAMERA_FILE",
+                   help="with --video: the frames' camera file (default: a 60 deg pinhole "
+                        "of their size)")
     return p
 
 
@@ -323,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         from drovisio.fileio import check_output_path
 
         check_output_path(args.json, "--json", folder_must_exist=True)
+    if args.video is not None:
+        return _video_main(args)
     import cv2
 
     from drovisio.camera import Camera
@@ -418,6 +431,36 @@ def main(argv: list[str] | None = None) -> int:
         from drovisio.fileio import atomic_write_text
 
         atomic_write_text(args.json, json.dumps(report["data"], indent=2) + "\n")
+    return 0
+
+
+def _video_main(args) -> int:
+    """``--video``: timing on real frames (:mod:`drovisio.bench.aruco_video`)."""
+    from drovisio.bench import aruco_video
+    from drovisio.errors import InputError
+    from drovisio.layout import aruco_dictionary_id
+
+    if args.max_frames < 1:
+        raise InputError(f"--max-frames {args.max_frames}: give a positive number of frames")
+    dicts = (args.dictionary,) if args.dictionary else aruco_video.DEFAULT_DICTIONARIES
+    for d in dicts:
+        try:
+            aruco_dictionary_id(d)
+        except ValueError as e:
+            raise InputError(f"--dictionary: {e}") from None
+    camera = None
+    if args.camera is not None:
+        from drovisio.camera_file import load_camera
+
+        camera = load_camera(args.camera)
+    data = aruco_video.run(args.video, dicts, max_frames=args.max_frames, repeat=args.repeat,
+                           threads=args.threads, clock=args.clock, camera=camera,
+                           apriltag=True)
+    print(aruco_video.report(data))
+    if args.json:
+        from drovisio.fileio import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(data, indent=2) + "\n")
     return 0
 
 

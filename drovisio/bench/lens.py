@@ -44,13 +44,16 @@ def _eligible(kind: str, b, camera: Camera) -> bool:
     return bool(np.all(np.isfinite(c)) and np.all((c >= 5) & (c < [W - 5, H - 5])))
 
 
-def detection_errors(kind: str, seeds, camera: Camera = FISHEYE_150, ss: int = 3) -> dict:
+def detection_errors(kind: str, seeds, camera: Camera = FISHEYE_150, ss: int = 3,
+                     spread: float = 1.6) -> dict:
     """Bricks of ``kind`` ("aruco" or "dots") in the scenes of ``seeds`` through ``camera``,
-    rendered with ``ss``×``ss`` samples per pixel.
+    rendered with ``ss``×``ss`` samples per pixel, spread over ``spread`` (× the distance ×
+    0.45, :class:`drovisio.scenes.SceneSpec`; 1.6: up to ~60° off-axis, 4: up to ~80°).
 
     Returns:
-        ``{"eligible", "found", "unflagged_flips", "lateral_m", "depth", "yaw_deg"}`` (the
-        last three: lists over the found bricks).
+        ``{"eligible", "found", "unflagged_flips", "lateral_m", "depth", "yaw_deg",
+        "off_axis_deg"}`` (the last four: lists over the found bricks; off-axis: the angle
+        between the optical axis and the ray to the brick's origin).
     """
     from drovisio.detect.aruco import ArucoBrickDetector
     from drovisio.detect.dots import DotDetector
@@ -62,9 +65,9 @@ def detection_errors(kind: str, seeds, camera: Camera = FISHEYE_150, ss: int = 3
     lay = load_layout(shipped_layouts_dir() / name)
     det = (ArucoBrickDetector(camera, [lay]) if kind == "aruco"
            else DotDetector(camera, [lay]))
-    spec = SceneSpec(layouts=[lay], n_bricks=4, distance=(0.5, 2.0), spread=1.6, props=1)
+    spec = SceneSpec(layouts=[lay], n_bricks=4, distance=(0.5, 2.0), spread=spread, props=1)
     out: dict = {"eligible": 0, "found": 0, "unflagged_flips": 0, "lateral_m": [],
-                 "depth": [], "yaw_deg": []}
+                 "depth": [], "yaw_deg": [], "off_axis_deg": []}
     for seed in seeds:
         r = render_random(seed, spec, camera, ss=ss)
         poses = det.detect(r.image, gravity=gravity_in_camera(r.camera_from_world))
@@ -86,6 +89,8 @@ def detection_errors(kind: str, seeds, camera: Camera = FISHEYE_150, ss: int = 3
             out["lateral_m"].append(float(np.linalg.norm((p.tvec - T[:3, 3])[:2])))
             out["depth"].append(float(abs(p.tvec[2] - T[2, 3]) / T[2, 3]))
             out["yaw_deg"].append(abs(yaw_about_axis_deg(T[:3, :3], R)))
+            t = T[:3, 3]
+            out["off_axis_deg"].append(float(np.degrees(np.arccos(t[2] / np.linalg.norm(t)))))
     return out
 
 
@@ -129,8 +134,13 @@ def main(argv: list[str]) -> int:
                    help="renderer samples per pixel and axis (default 3, as the other "
                         "benchmarks; at 2 the aliased edges of 15-px codes through the "
                         "fisheye's rim add ~0.3 px of corner noise the lens does not make)")
+    p.add_argument("--spread", type=float, default=1.6,
+                   help="how far from the view's centre bricks are placed (default 1.6: up to "
+                        "~60° off-axis; 4: the periphery, up to ~80°)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args(argv)
+    if not 0.0 < args.spread <= 10.0:
+        raise InputError(f"--spread {args.spread}: give a number in (0, 10]")
     if args.json:
         from drovisio.fileio import check_output_path
 
@@ -142,17 +152,30 @@ def main(argv: list[str]) -> int:
     print(f"drovisio bench lens — {rep['camera']}")
     if "detect" in parts:
         for kind in ("aruco", "dots"):
-            e = detection_errors(kind, range(args.scenes), ss=args.ss)
+            e = detection_errors(kind, range(args.scenes), ss=args.ss, spread=args.spread)
             rep[kind] = {"eligible": e["eligible"], "found": e["found"],
                          "unflagged_flips": e["unflagged_flips"],
                          "lateral_p95_cm": _p95(e["lateral_m"]) * 100,
                          "depth_p95_pct": _p95(e["depth"]) * 100,
-                         "yaw_p95_deg": _p95(e["yaw_deg"])}
+                         "yaw_p95_deg": _p95(e["yaw_deg"]), "off_axis": {}}
             f = rep[kind]
             print(f"  {kind:5s} found {f['found']}/{f['eligible']}, lateral p95 "
                   f"{f['lateral_p95_cm']:.2f} cm, depth p95 {f['depth_p95_pct']:.2f} %, yaw p95 "
                   f"{f['yaw_p95_deg']:.2f}°, unflagged flips {f['unflagged_flips']}",
                   flush=True)
+            ang = np.asarray(e["off_axis_deg"])
+            for lo, hi in ((0, 40), (40, 60), (60, 90)):
+                sel = (ang >= lo) & (ang < hi)
+                if not sel.any():
+                    continue
+                lat = np.asarray(e["lateral_m"])[sel]
+                yaw = np.asarray(e["yaw_deg"])[sel]
+                f["off_axis"][f"{lo}-{hi}"] = {"found": int(sel.sum()),
+                                               "lateral_p95_cm": _p95(list(lat)) * 100,
+                                               "yaw_p95_deg": _p95(list(yaw))}
+                print(f"        {lo:2d}-{hi:2d}° off-axis: {int(sel.sum())} found, lateral p95 "
+                      f"{_p95(list(lat)) * 100:.2f} cm, yaw p95 {_p95(list(yaw)):.2f}°",
+                      flush=True)
     if "calibrate" in parts:
         for model in ("fisheye", "auto"):
             c = calibration_errors(args.views, model, ss=args.ss)

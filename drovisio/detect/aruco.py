@@ -12,8 +12,9 @@ Pipeline of :class:`ArucoBrickDetector` for one frame:
    merges with a pyramid's shaded side), are read again (:meth:`ArucoBrickDetector._rescue`)
    by a least-squares fit of their blurred cells
    (:class:`drovisio.detect.code_reading.CodeReader`), with as many misread bits as the
-   codes' distances allow (36h11: 3, 4×4: 0). Quads still unread get a second look at twice
-   the size (:meth:`ArucoBrickDetector._second_look`). On 815 rendered tag36h11 bricks
+   codes' distances allow (36h11: 3, 4×4: 0). Quads still unread that read closer to one of
+   our codes than chance get a second look at twice the size
+   (:meth:`ArucoBrickDetector._second_look`; on clutter almost none do). On 815 rendered tag36h11 bricks
    (``drovisio bench aruco --dictionary DICT_APRILTAG_36h11 --apriltag --bricks 4 --frames
    300 --seed 5000 --empty 0``): codes of 14–20 px 76.3 % (OpenCV's pass alone) → 96.2 %
    (AprilTag 3: 74.0 %), all ≥ 14 px 94.7 % → 99.3 % (93.6 %), no false brick, at 0.86× the
@@ -47,6 +48,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from drovisio._threads import one_blas_thread
 from drovisio.camera import Camera
 from drovisio.detect.code_reading import CodeReader, ring_quads
 from drovisio.detect.corners import RefinedCode, refine_codes
@@ -164,6 +166,11 @@ class ArucoParams:
     two found the last 3 of 520 bricks but made 7 false ones in 440 frames (16 bits read off
     random quads match one of our codes too often), at 2.3× the time."""
     second_look_max_side_px: float = 30.0
+    second_look_chance: float = 0.05
+    """The budget of the second look: only quads whose reading came closer to one of our
+    codes than a random pattern would with this chance get it (36h11 with 30–60 ids: at
+    most 7 bits off). On the bench its codes read 4–6 bits off; quads on clutter read
+    like random patterns (8–12 off), and looking again at those cost 0.25 ms each."""
     """Unread quads larger than this (mean side) get no second look."""
     second_look_window: int = 9
     """Adaptive threshold window of the second look (px of the enlarged image)."""
@@ -247,6 +254,7 @@ class ArucoBrickDetector:
         self._dvalue: dict[int, int] = {}
         self._patterns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._rescue_errors: dict[int, int] = {}
+        self._look_errors: dict[int, int] = {}
         self._detectors_by_dvalue: dict[int, cv2.aruco.ArucoDetector] = {}
         self._second_detectors: dict[int, cv2.aruco.ArucoDetector] = {}
         self._small_cells: dict[int, bool] = {}
@@ -278,6 +286,22 @@ class ArucoBrickDetector:
                             np.int8)
             self._patterns[dvalue] = (pats, ids)
             self._rescue_errors[dvalue] = self._tolerable_bit_errors(pats)
+            self._look_errors[dvalue] = self._chance_bit_errors(
+                pats, self.params.second_look_chance)
+
+    @staticmethod
+    def _chance_bit_errors(pats: np.ndarray, chance: float) -> int:
+        """Most bit errors e such that a random reading lands within e bits of one of the
+        patterns (every id in every quarter turn) with a chance of at most ``chance``."""
+        import math
+
+        n = pats.shape[2]
+        count = pats.shape[0] * pats.shape[1]
+        e, total = -1, 0
+        while e < n and (total + math.comb(n, e + 1)) * count / 2.0 ** n <= chance:
+            e += 1
+            total += math.comb(n, e)
+        return e
 
     def _tolerable_bit_errors(self, pats: np.ndarray) -> int:
         """Bit errors a rescued reading may have: at most a third of the smallest Hamming
@@ -314,6 +338,13 @@ class ArucoBrickDetector:
 
     # ------------------------------------------------------------------------ stages
     def detect_codes(self, gray: np.ndarray, refine: bool = True) -> list[CodeDetection]:
+        """Decode the layouts' codes in a grey image and (by default) refine their corners,
+        with one BLAS thread (spinning BLAS threads made a frame's time follow the machine's
+        load: :mod:`drovisio._threads`). See :meth:`_detect_codes`."""
+        with one_blas_thread():
+            return self._detect_codes(gray, refine)
+
+    def _detect_codes(self, gray: np.ndarray, refine: bool = True) -> list[CodeDetection]:
         """Decode the layouts' codes in a grey image and (by default) refine their corners.
 
         Quads that OpenCV found but could not read (small codes whose corners it places a
@@ -382,7 +413,8 @@ class ArucoBrickDetector:
         read by :class:`drovisio.detect.code_reading.CodeReader` (blur included) at a few
         outward shifts of its corners and in the four corner orders; an unambiguous match to
         one of our ids is kept (a few bits may be misread: :meth:`_tolerable_bit_errors`).
-        Returns the codes and the small quads still unread (for :meth:`_second_look`)."""
+        Returns the codes and the quads still unread that read closer to one of our codes
+        than chance (``second_look_chance``), for :meth:`_second_look`."""
         p = self.params
         none = np.zeros((0, 4, 2))
         quads = (np.asarray(rejected, np.float64).reshape(-1, 4, 2)
@@ -444,7 +476,9 @@ class ArucoBrickDetector:
             # the grid read with the corners rolled by `rot` is the code upright
             out.append(CodeDetection(mid, lay, k, slot, np.roll(quads[q], -rot, axis=0)))
             read[q] = True
-        return out, quads[~read]
+        # the budget of the second look: unread quads that read like one of our codes a few
+        # bits off, not like random patterns (clutter)
+        return out, quads[~read & (best <= self._look_errors[dvalue])]
 
     def _second_look(self, gray, quads, found, dvalue, ids, owners) -> list[CodeDetection]:
         """Codes too small or too blurred for the first pass: around quads it found but could

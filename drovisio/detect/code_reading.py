@@ -140,6 +140,10 @@ def _split_levels(d: np.ndarray) -> CodeReading:
     return CodeReading(bits, contrast, offset)
 
 
+_PREV = np.array([3, 0, 1, 2])
+_NEXT = np.array([1, 2, 3, 0])
+
+
 def ring_quads(gray: np.ndarray, window: int, constant: float, min_side_px: float,
                max_side_px: float, max_count: int = 60) -> np.ndarray:
     """Quads from the convex hulls of thresholded contours that are no quad themselves.
@@ -161,12 +165,23 @@ def ring_quads(gray: np.ndarray, window: int, constant: float, min_side_px: floa
     contours, _ = cv2.findContours(th, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     lo, hi = 4.0 * min_side_px, 2.5 * 4.0 * max_side_px  # a ring is traced on both sides
     length = np.fromiter(map(len, contours), np.int64, len(contours))
+    idx = np.nonzero((length >= lo) & (length <= hi))[0]
+    if idx.size == 0:
+        return np.zeros((0, 4, 2))
+    # the bounding boxes of all these contours at once (a call per contour would cost more
+    # than the test saves): a convex hull spanning w × h px is at least 2·sqrt(w² + h²) and
+    # at most 2·(w + h) around, so boxes that cannot hold a hull of a code's perimeter are
+    # dropped before any hull is taken; the most frequent rejection (the hull is no quad)
+    # comes before the contour's own polygon: the same quads, fewer calls
+    sel = [contours[i] for i in idx.tolist()]
+    pts = np.concatenate(sel).reshape(-1, 2)
+    starts = np.concatenate([[0], np.cumsum(length[idx])[:-1]])
+    ext = (np.maximum.reduceat(pts, starts) - np.minimum.reduceat(pts, starts)).astype(np.float64)
+    fits = ((2.0 * np.hypot(ext[:, 0], ext[:, 1]) <= 4.0 * max_side_px)
+            & (2.0 * (ext[:, 0] + ext[:, 1]) + 4.0 >= 4.0 * min_side_px))
     out, sizes = [], []
-    for i in np.nonzero((length >= lo) & (length <= hi))[0].tolist():
-        ct = contours[i]
-        ap = cv2.approxPolyDP(ct, 0.03 * len(ct), True)
-        if len(ap) == 4 and cv2.isContourConvex(ap):
-            continue  # a quad already: OpenCV's own candidate
+    for k in np.nonzero(fits)[0].tolist():
+        ct = sel[k]
         hull = cv2.convexHull(ct)
         per = cv2.arcLength(hull, True)
         if not 4.0 * min_side_px <= per <= 4.0 * max_side_px:
@@ -174,11 +189,15 @@ def ring_quads(gray: np.ndarray, window: int, constant: float, min_side_px: floa
         q = cv2.approxPolyDP(hull, 0.04 * per, True)
         if len(q) != 4:
             continue
+        ap = cv2.approxPolyDP(ct, 0.03 * len(ct), True)
+        if len(ap) == 4 and cv2.isContourConvex(ap):
+            continue  # a quad already: OpenCV's own candidate
         q = q.reshape(4, 2).astype(np.float64)
-        side = np.sqrt(((q - np.roll(q, 1, axis=0)) ** 2).sum(axis=1))
+        d = q - q[_PREV]  # (np.roll costs more than the arithmetic on 4 points)
+        side = np.sqrt((d * d).sum(axis=1))
         if side.min() < min_side_px or side.max() > 3.0 * side.min():
             continue
-        if (q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]).sum() < 0:
+        if (q[:, 0] * q[_NEXT, 1] - q[_NEXT, 0] * q[:, 1]).sum() < 0:
             q = q[::-1].copy()  # clockwise in the image, as OpenCV's quads
         out.append(q)
         sizes.append(per)

@@ -44,3 +44,58 @@ def test_what_cannot_be_measured_is_refused_in_one_line(capsys, request):
     assert aruco.main(["--apriltag", "--dictionary", "DICT_APRILTAG_36h11",
                        "--frames", "1"]) == 2
     assert "pip install drovisio[peers]" in capsys.readouterr().err
+
+
+def test_video_timing_on_a_folder_of_frames(tmp_path, capsys):
+    # a folder of rendered frames with tag36h11 bricks: every detector runs on the same
+    # frames, the codes are found (the figures are times, so only their shape is checked)
+    pytest.importorskip("pupil_apriltags")
+    import cv2
+
+    from drovisio.camera import Camera
+    from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
+    from drovisio.scenes import SceneSpec, render_random
+
+    base = load_layouts([shipped_layouts_dir() / "drick-aruco-centre.json",
+                         shipped_layouts_dir() / "drick-aruco-pyramids.json"])
+    lays = [with_dictionary(lay, "DICT_APRILTAG_36h11") for lay in base]
+    spec = SceneSpec(layouts=lays, n_bricks=3, distance=(0.6, 1.0), tilt_deg=(0.0, 15.0))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for s in range(3):
+        r = render_random(9100 + s, spec, Camera.drone_webcam(), ss=2)
+        cv2.imwrite(str(frames / f"{s:03d}.png"), r.image)
+    (frames / "notes.txt").write_text("not a frame")
+    out = tmp_path / "video.json"
+    rc = aruco.main(["--video", str(frames), "--dictionary", "DICT_APRILTAG_36h11",
+                     "--repeat", "1", "--json", str(out)])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert data["frames"] == 3 and data["size"] == [640, 480]
+    row = data["dictionaries"]["DICT_APRILTAG_36h11"]
+    # the bricks the detector finds on these frames by itself, and codes for all three
+    from drovisio.detect.aruco import ArucoBrickDetector
+
+    det = ArucoBrickDetector(Camera.from_fov(640, 480, 60.0), lays)
+    direct = sum(len(det.detect(cv2.imread(str(p)))) for p in sorted(frames.glob("*.png")))
+    assert row["bricks"] == direct >= 5, (row, direct)
+    assert row["plain_codes"] >= 5 and row["apriltag_tags"] >= 5, row
+    for key in ("ours_s", "plain_s", "apriltag_s"):
+        assert len(row[key]) == 2 and 0 < row[key][0] <= row[key][1]
+    assert row["ratio_plain"][0] == pytest.approx(row["ours_s"][0] / row["plain_s"][0])
+    text = capsys.readouterr().out
+    assert "DICT_APRILTAG_36h11" in text and "AprilTag3 ms" in text
+
+
+def test_video_that_cannot_be_read_is_refused_in_one_line(tmp_path, capsys):
+    from drovisio.cli import main
+
+    bad = tmp_path / "clip.avi"
+    bad.write_bytes(b"\x00" * 64)
+    assert main(["bench", "aruco", "--video", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "--video" in err[0], err
+    assert main(["bench", "aruco", "--video", str(tmp_path / "none")]) == 2
+    assert main(["bench", "aruco", "--video", str(tmp_path), "--dictionary", "DICT_9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "--dictionary" in err[1], err
