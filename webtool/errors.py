@@ -16,9 +16,9 @@ import logging
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
 
 from drovisio.errors import InputError, WriteError, one_line
+from webtool.responses import JSONResponse
 
 __all__ = ["ServiceError", "install_error_handlers"]
 
