@@ -71,12 +71,21 @@ class Limits:
         self.max_yaml_aliases = 100
         self.max_markers = 200
         self.max_body_bytes = 1024 * 1024
-        self.max_work_bytes = int(_env_float("DROVISIO_MAX_WORK_MIB", 2048.0) * 2**20)
-        """Largest buffer a render or decode may allocate (estimated before it starts)."""
+        self.max_work_bytes = int(_env_float("DROVISIO_MAX_WORK_MIB",
+                                             _half_the_memory_mib()) * 2**20)
+        """Most memory one render may take (estimated before it starts): half this machine's
+        memory by default."""
         self.max_digits = 30
         """Most digits of an integer read from an argument or a file (Python refuses 4,300)."""
         self.connect_timeout_s = _env_float("DROVISIO_CONNECT_TIMEOUT_S", 5.0)
         """Deadline of every network connect made at start-up (a silent peer)."""
+
+
+def _half_the_memory_mib() -> float:
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**21
+    except (ValueError, OSError, AttributeError):  # not a POSIX system
+        return 2048.0
 
 
 def _env_float(name: str, default: float) -> float:

@@ -17,7 +17,8 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "read_inside",
+__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "path_text_problem",
+           "read_inside",
            "read_structured", "read_text", "resolve_inside"]
 
 
@@ -63,6 +64,21 @@ def read_text(path: str | os.PathLike, what: str = "file",
                          "file") from None
 
 
+def path_text_problem(name: str) -> str | None:
+    """What makes ``name`` (a path written inside a file) unusable as a path, or None: a NUL
+    byte or control character, a name over 255 bytes, a path over 1024 (the OS would answer
+    with ``ValueError`` or ``Errno 36`` deep inside some reader)."""
+    if "\x00" in name or any(ord(ch) < 32 for ch in name):
+        return "contains a NUL byte or a control character; give a plain file name"
+    try:
+        encoded = [os.fsencode(part) for part in Path(name).parts]
+    except UnicodeError:
+        return "cannot be a file name on this system; give a plain file name"
+    if sum(len(b) for b in encoded) > 1024 or any(len(b) > 255 for b in encoded):
+        return "is too long for a file name (255 bytes a name); give a shorter one"
+    return None
+
+
 def resolve_inside(folder: str | os.PathLike, name: object, where: str,
                    what: str = "file") -> Path:
     """The path a file names (``name``, read from a field of a file in ``folder``), checked
@@ -77,12 +93,9 @@ def resolve_inside(folder: str | os.PathLike, name: object, where: str,
         raise InputError(f"{where}: give the {what}'s name as text, relative to the folder "
                          f"{folder}")
     shown = one_line(repr(name), 120)
-    if "\x00" in name or any(ord(ch) < 32 for ch in name):
-        raise InputError(f"{where}: {shown} contains a NUL byte or control character; give "
-                         "a plain file name")
-    if len(os.fsencode(name)) > 1024 or any(len(os.fsencode(part)) > 255
-                                            for part in Path(name).parts):
-        raise InputError(f"{where}: {shown} is too long for a file name; give a shorter one")
+    problem = path_text_problem(name)
+    if problem:
+        raise InputError(f"{where}: {shown} {problem}")
     base = Path(folder)
     if Path(name).is_absolute():
         raise InputError(f"{where}: {shown} is an absolute path; name a file inside {base} "
