@@ -18,7 +18,7 @@ from pathlib import Path
 
 from drovisio.errors import InputError, one_line
 
-__all__ = ["check_pipeline_options", "check_record_folder", "open_sinks_of"]
+__all__ = ["check_pipeline_options", "check_record_folder", "check_source", "open_sinks_of"]
 
 
 def check_record_folder(path: str | os.PathLike) -> Path:
@@ -50,6 +50,32 @@ def check_record_folder(path: str | os.PathLike) -> Path:
     if not q.is_dir() or not os.access(q, os.W_OK | os.X_OK):
         raise InputError(f"{p}: --record: the folder {q} is not writable; choose another")
     return p
+
+
+def check_source(source: str) -> None:
+    """``--source``: a file, folder or recording is opened and closed again, as ``run`` opens
+    it (an empty folder, a file that is no video: one line now, not once the server runs);
+    cameras and stream URLs are not (``run`` keeps reconnecting to them).
+
+    Raises:
+        InputError: naming ``--source`` and what is wrong.
+    """
+    from drovisio.sources import reader_for
+
+    reader = reader_for(source)
+    if not getattr(reader, "finite", False):
+        return
+    try:
+        reader.open()
+    except InputError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a reader's own words, one line
+        raise InputError(f"{source}: --source: {one_line(e, 300)}") from None
+    finally:
+        try:
+            reader.close()
+        except Exception:  # noqa: BLE001,S110 - closing what may not have opened
+            pass
 
 
 def _target(spec: str | None):
@@ -89,9 +115,7 @@ def check_pipeline_options(args: argparse.Namespace, *, open_sinks: bool = True)
 
         mount = load_mount(args.mount)
     if getattr(args, "source", None):
-        from drovisio.sources import reader_for
-
-        reader_for(args.source)
+        check_source(args.source)
     target = _target(getattr(args, "target", None))
     if getattr(args, "record", None):
         check_record_folder(args.record)
