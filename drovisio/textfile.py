@@ -108,7 +108,10 @@ def resolve_inside(folder: str | os.PathLike, name: object, where: str,
     if not inside:
         raise InputError(f"{where}: {shown} is outside the folder {base}; only files inside "
                          "it are read: copy the file there")
-    return check_regular_file(p, what)
+    try:
+        return check_regular_file(p, what)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
 
 
 def read_inside(folder: str | os.PathLike, name: object, where: str, what: str = "file",
@@ -116,7 +119,11 @@ def read_inside(folder: str | os.PathLike, name: object, where: str, what: str =
     """The text of the file a file names (see :func:`resolve_inside`), read within
     ``max_bytes`` (default :attr:`~drovisio.errors.Limits.max_file_bytes`): the one reader of
     every path that comes from inside a file (a recording's manifest, a protocol)."""
-    return read_text(resolve_inside(folder, name, where, what), what, max_bytes)
+    p = resolve_inside(folder, name, where, what)
+    try:
+        return read_text(p, what, max_bytes)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
 
 
 def _depth(obj: Any, limit: int) -> int:
