@@ -255,3 +255,40 @@ def test_study_listing_names_every_bad_report_and_lists_the_good(tmp_path_factor
                 assert name in skipped and name not in listed, (kind, js)
         for x in js["skipped"]:
             assert x["error"] and "\n" not in x["error"]
+
+
+# ------------------------------------------------------------------ a calibration session folder
+
+
+@pytest.mark.parametrize("kind", ["fifo", "digits", "sparse"])
+def test_a_calibration_session_folder_with_hostile_images_opens(tmp_path, ledger, kind):
+    """Images left in a session's folder (recovered after a crash) are read through the
+    bounded image reader: a FIFO or a 10 GB file named like an image, a capture number of
+    5,000 digits — the session opens, each is named, nothing blocks."""
+    from webtool.app import create_app
+    from webtool.services import close_services
+    from webtool.settings import Settings
+
+    settings = Settings(calibration_dir=tmp_path, source="0")
+    app = create_app(settings)
+    with TestClient(app, base_url=LOCAL, raise_server_exceptions=False) as c:
+        assert c.get("/api/calibration/state").status_code == 200
+    close_services(app)
+    sid = (tmp_path / "current").read_text().strip()
+    images = tmp_path / sid / "images"
+    images.mkdir(parents=True, exist_ok=True)
+    if kind == "fifo":
+        os.mkfifo(images / "capture-0007.jpg")
+    elif kind == "digits":
+        (images / ("capture-" + "9" * 200 + ".jpg")).write_bytes(b"\xff\xd8 not really")
+    else:
+        with open(images / "capture-0008.png", "wb") as f:
+            f.truncate(10 * 2**30)
+    app = create_app(settings)
+    ledger.tried_one("files inside files: calibration session folder")
+    with TestClient(app, base_url=LOCAL, raise_server_exceptions=False) as c:
+        r = c.get("/api/calibration/state")
+        if r.status_code >= 500:
+            ledger.failure("HTTP 500")
+        assert r.status_code == 200, r.text
+    close_services(app)
