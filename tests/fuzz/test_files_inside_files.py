@@ -292,3 +292,23 @@ def test_a_calibration_session_folder_with_hostile_images_opens(tmp_path, ledger
             ledger.failure("HTTP 500")
         assert r.status_code == 200, r.text
     close_services(app)
+
+
+@pytest.mark.parametrize("mesh", ["../../../../../../../../etc/passwd", "meshes/pipe.stl",
+                                  "meshes/missing.stl", "meshes/../../outside.stl"])
+def test_a_layouts_mesh_is_read_only_inside_the_layouts_folder(tmp_path, ledger, mesh):
+    from drovisio.layout import load_layout
+    from drovisio.meshes import load_layout_mesh
+    from drovisio.resources import layouts_dir
+
+    d = tmp_path / "lib" / "layouts"
+    (d / "meshes").mkdir(parents=True)
+    os.mkfifo(d / "meshes" / "pipe.stl")
+    (tmp_path / "lib" / "outside.stl").write_text("solid x\nendsolid x\n")
+    data = json.loads((layouts_dir() / "drick-aruco-centre.json").read_text())
+    data["mesh"] = mesh
+    (d / "x.json").write_text(json.dumps(data))
+    ledger.tried_one("files inside files: layout mesh")
+    with pytest.raises(InputError) as e:
+        load_layout_mesh(load_layout(d / "x.json"))
+    assert "mesh" in str(e.value) and "x.json" in str(e.value)
