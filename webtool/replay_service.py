@@ -19,6 +19,7 @@ from typing import Any
 
 from drovisio.errors import one_line
 from drovisio.mission.record import load_manifest, load_recording
+from drovisio.textfile import path_text_problem
 from webtool.errors import ServiceError
 from webtool.replay_scene import ReplayScene
 
@@ -154,6 +155,10 @@ class ReplayService:
 
     def _resolve(self, name: str | None, path: str | None) -> Path:
         d = self.folder()
+        for field, text in (("path", path), ("name", name)):
+            problem = path_text_problem(text) if text else None
+            if problem:
+                raise ServiceError(f"{field}: the {field} {problem}", 422)
         if path:
             p = Path(path)
             if not p.is_absolute():

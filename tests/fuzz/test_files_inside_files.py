@@ -312,3 +312,17 @@ def test_a_layouts_mesh_is_read_only_inside_the_layouts_folder(tmp_path, ledger,
     with pytest.raises(InputError) as e:
         load_layout_mesh(load_layout(d / "x.json"))
     assert "mesh" in str(e.value) and "x.json" in str(e.value)
+
+
+@pytest.mark.parametrize("body", [{"path": "a\x00b"}, {"name": "a\x00b"}, {"path": "p" * 300},
+                                  {"name": "\n"}])
+def test_replay_load_names_the_field_of_a_path_no_file_system_holds(tmp_path, ledger, body):
+    from webtool.app import create_app
+    from webtool.settings import Settings
+
+    with TestClient(create_app(Settings(replay_dir=tmp_path)), base_url=LOCAL,
+                    raise_server_exceptions=False) as c:
+        ledger.tried_one("listings: replay loads")
+        r = c.post("/api/replay/load", json=body)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"].startswith(next(iter(body)) + ":"), r.text
