@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -38,50 +37,101 @@ def _version() -> str:
         return "0+unknown"
 
 
+def one_line(text: object, limit: int = 400) -> str:
+    from drovisio.errors import one_line as fold
+
+    return fold(text, limit)
+
+
 def positive_int(text: str) -> int:
-    """argparse type: a whole number >= 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{v} must be 1 or more")
-    return v
+    """argparse type: a whole number from 1 to a billion (:mod:`drovisio.bounds`)."""
+    from drovisio.bounds import whole
+
+    return whole(1, 10**9)(text)
 
 
 def finite_float(text: str) -> float:
-    """argparse type: a finite number."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number")
-    return v
+    """argparse type: a finite number (at most 10⁹ in size)."""
+    from drovisio.bounds import number
+
+    return number(-1e9, 1e9)(text)
 
 
 def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    v = finite_float(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
-    return v
+    """argparse type: a finite number > 0 (at most 10⁹)."""
+    from drovisio.bounds import number
+
+    return number(0.0, 1e9, above=True)(text)
 
 
 def nonnegative_float(text: str) -> float:
-    """argparse type: a finite number ≥ 0."""
-    v = finite_float(text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text} must be a finite number, 0 or more")
-    return v
+    """argparse type: a finite number ≥ 0 (at most 10⁹)."""
+    from drovisio.bounds import number
+
+    return number(0.0, 1e9)(text)
+
+
+def mount_offset(text: str) -> float:
+    """argparse type: one coordinate of the camera's offset, metres, within the bound every
+    mount file is held to (:data:`drovisio.bounds.MOUNT_OFFSET_MAX_M`)."""
+    from drovisio.bounds import MOUNT_OFFSET_MAX_M, number
+
+    return number(-MOUNT_OFFSET_MAX_M, MOUNT_OFFSET_MAX_M, unit="m")(text)
+
+
+def seed_number(text: str) -> int:
+    """argparse type: a random seed, 0 to 2³²−1 (what numpy's generators take)."""
+    from drovisio.bounds import whole
+
+    return whole(0, 2**32 - 1)(text)
+
+
+def supersampling(text: str) -> int:
+    """argparse type: the renderer's samples per pixel and axis, 1 to
+    :data:`drovisio.bounds.MAX_SUPERSAMPLING` (its memory grows with the square)."""
+    from drovisio.bounds import MAX_SUPERSAMPLING, whole
+
+    return whole(1, MAX_SUPERSAMPLING)(text)
+
+
+def board_square(text: str) -> float:
+    """argparse type: a board square's side, metres (above 0, at most 1 m)."""
+    from drovisio.bounds import number
+
+    return number(0.0, 1.0, above=True, unit="m")(text)
+
+
+def _whole(lo: int, hi: int) -> Callable[[str], int]:
+    """argparse type: a whole number in ``lo..hi`` (parsed when used: --help stays light)."""
+    def parse(text: str) -> int:
+        from drovisio.bounds import whole
+
+        return whole(lo, hi)(text)
+
+    parse.__name__ = "whole number"
+    return parse
+
+
+def _bounded(lo: float, hi: float, above: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite number in ``[lo, hi]`` (``above``: ``lo`` excluded)."""
+    def parse(text: str) -> float:
+        from drovisio.bounds import number
+
+        return number(lo, hi, above=above)(text)
+
+    parse.__name__ = "number"
+    return parse
 
 
 def port_number(text: str) -> int:
     """argparse type: a TCP port, 1 to 65535."""
-    v = positive_int(text)
-    if v > 65535:
-        raise argparse.ArgumentTypeError(f"{v} is not a port (1 to 65535)")
-    return v
+    from drovisio.bounds import parse_whole
+
+    try:
+        return parse_whole(text, 1, 65535)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{one_line(text, 40)} is not a port (1 to 65535)") \
+            from None
 
 
 # --------------------------------------------------------------------------------------------
@@ -132,7 +182,7 @@ def _add_detect(p: argparse.ArgumentParser) -> None:
 def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--board", required=True, metavar="KIND:COLSxROWS",
                    help="calibration target, e.g. chessboard:9x6 (inner corners, columns x rows)")
-    p.add_argument("--square", required=True, type=positive_float, metavar="METRES",
+    p.add_argument("--square", required=True, type=board_square, metavar="METRES",
                    help="side of one board square in metres, e.g. 0.025")
     p.add_argument("--report", metavar="REPORT.json",
                    help="write the calibration report (errors, rejected views, verdict) here")
@@ -159,7 +209,7 @@ def _add_calibrate_board(p: argparse.ArgumentParser) -> None:
                    help="chessboard:9x6 (default) or charuco:7x5 (inner corners)")
     p.add_argument("--paper", default="A4", choices=("A4", "A3", "Letter"),
                    help="paper size (default A4); the board is as large as fits")
-    p.add_argument("--square", type=positive_float, metavar="METRES",
+    p.add_argument("--square", type=board_square, metavar="METRES",
                    help="side of one square on paper (default: the largest whole mm that fits)")
 
 
@@ -170,7 +220,7 @@ def _add_calibrate_mount(p: argparse.ArgumentParser) -> None:
                         "dricks)")
     p.add_argument("--aligned", action="store_true",
                    help="the code's x axis points toward the drone's nose: measure the pan too")
-    p.add_argument("--offset", nargs=3, type=finite_float, default=(0.0, 0.0, 0.0),
+    p.add_argument("--offset", nargs=3, type=mount_offset, default=(0.0, 0.0, 0.0),
                    metavar=("FORWARD", "RIGHT", "DOWN"),
                    help="the camera's centre from the body origin, metres (measured with a "
                         "tape; default 0 0 0)")
@@ -206,7 +256,8 @@ def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
                         "(its last measurement, stamped with that measurement's time). Off by "
                         "default: autopilots filter line-of-sight measurements and expect "
                         "silence when the target is not seen")
-    p.add_argument("--max-age", type=positive_float, default=0.5, metavar="SECONDS",
+    p.add_argument("--max-age", type=_bounded(0.0, 3600.0, above=True), default=0.5,
+                   metavar="SECONDS",
                    help="drop a brick not seen for this long (default 0.5 s)")
 
 
@@ -257,7 +308,7 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     c.add_argument("scenario", metavar="SCENARIO", help=scenario_help)
     c.add_argument("--fault", action="append", metavar="NAME",
                    help="run only this fault case (name prefix, e.g. 'missed grab'); repeatable")
-    c.add_argument("--seed", type=int, default=0, help="simulator seed (default: 0)")
+    c.add_argument("--seed", type=seed_number, default=0, help="simulator seed (default: 0)")
     c.add_argument("--json", metavar="FILE", help="also write the table as JSON here")
     s = sub.add_parser(
         "simulate", help="simulate one mission and record it for 3D replay",
@@ -273,19 +324,20 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     s.add_argument("--vision", choices=("model", "render"), default="model",
                    help="detector model (fast, default) or renders through the real detectors")
     s.add_argument("--record", required=True, metavar="DIR", help="folder to write the run to")
-    s.add_argument("--seed", type=int, default=0, help="simulator seed (default: 0)")
+    s.add_argument("--seed", type=seed_number, default=0, help="simulator seed (default: 0)")
     s.add_argument("--fault", action="append", metavar="NAME",
                    help="inject the faults of a fault case (see `check`); repeatable")
-    s.add_argument("--bricks", type=positive_int, metavar="N",
+    s.add_argument("--bricks", type=_whole(1, 10_000), metavar="N",
                    help="build only the first N bricks")
-    s.add_argument("--ss", type=positive_int, default=2,
+    s.add_argument("--ss", type=supersampling, default=2,
                    help="render: samples per pixel per axis (default: 2)")
-    s.add_argument("--render-rate", type=positive_float, default=4.0, metavar="HZ",
+    s.add_argument("--render-rate", type=_bounded(0.0, 120.0, above=True), default=4.0,
+                   metavar="HZ",
                    help="render: frames per second while vision is in use (default: 4)")
     s.add_argument("--render-bricks", metavar="IDS",
                    help="render: only while working on these bricks (comma-separated); the "
                         "others use the detector model")
-    s.add_argument("--heading-bias", type=finite_float, metavar="DEG",
+    s.add_argument("--heading-bias", type=_bounded(-180.0, 180.0), metavar="DEG",
                    help="compass bias of the simulated autopilot (default: 1)")
     s.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
     d = sub.add_parser(
@@ -331,12 +383,12 @@ def _add_study(p: argparse.ArgumentParser) -> None:
     r.add_argument("--out", required=True, metavar="DIR", help="folder for the report")
     r.add_argument("--quick", action="store_true",
                    help="fewer steps and frames: a two-minute look")
-    r.add_argument("--frames", type=positive_int, metavar="N",
+    r.add_argument("--frames", type=_whole(1, 100_000), metavar="N",
                    help="frames per step (default: the protocol's; 8 rendered, 3 quick)")
     r.add_argument("--methods", metavar="LIST",
                    help="comma-separated: drovisio-codes, drovisio-codes-image, "
                         "drovisio-dots, drovisio-dots-image, opencv, apriltag3 (default: all)")
-    r.add_argument("--memory-seconds", type=nonnegative_float, metavar="S",
+    r.add_argument("--memory-seconds", type=_bounded(0.0, 86400.0), metavar="S",
                    help="length of each method's memory run (default 20, quick 3; the "
                         "thesis ran 1800)")
     e = sub.add_parser(
@@ -348,7 +400,7 @@ def _add_study(p: argparse.ArgumentParser) -> None:
                "  drovisio study run --protocol my_study/protocol.yaml --out my_study/report",
         formatter_class=fmt)
     e.add_argument("--out", required=True, metavar="DIR", help="folder to write")
-    e.add_argument("--frames", type=positive_int, metavar="N", help="frames per step (6)")
+    e.add_argument("--frames", type=_whole(1, 10_000), metavar="N", help="frames per step (6)")
 
 
 COMMANDS: dict[str, Command] = {
@@ -573,13 +625,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.argv_tail = argv[2:] if args.command == "study" else argv[1:]
     label = f"{PROG} {COMMANDS[args.command].spelled or args.command}"
     debug = args.debug or os.environ.get("DROVISIO_DEBUG", "") not in ("", "0")
-    from drovisio.errors import InputError, WriteError
+    from drovisio.errors import InputError, WriteError, limit_message
+    from drovisio.fileio import guard_outputs
 
     try:
+        guard_outputs(args)
         func = resolve(COMMANDS[args.command].entry_point)
         result = func(args)
     except KeyboardInterrupt:
         return 130
+    except SystemExit as exc:  # a benchmark's own parser: its usage line is said already
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     except BrokenPipeError:
         _quiet_stdout()
         return EXIT_BROKEN_PIPE
@@ -591,6 +647,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as e:  # noqa: BLE001 - the one place that reports what nobody expected
         if debug:
             raise
+        limit = limit_message(e)
+        if limit is not None:  # an OS or Python limit reached by the input: bad input
+            _say(label, limit)
+            return EXIT_BAD_INPUT
         where = _crash_report(args.command, e)
         _say(label, f"internal error: {type(e).__name__}: {e}"
                     + (f" (full traceback in {where}; --debug prints it; please report it)"

@@ -17,6 +17,7 @@ __all__ = [
     "Limits",
     "WriteError",
     "LIMITS",
+    "limit_message",
     "one_line",
 ]
 
@@ -70,6 +71,21 @@ class Limits:
         self.max_yaml_aliases = 100
         self.max_markers = 200
         self.max_body_bytes = 1024 * 1024
+        self.max_work_bytes = int(_env_float("DROVISIO_MAX_WORK_MIB",
+                                             _half_the_memory_mib()) * 2**20)
+        """Most memory one render may take (estimated before it starts): half this machine's
+        memory by default."""
+        self.max_digits = 30
+        """Most digits of an integer read from an argument or a file (Python refuses 4,300)."""
+        self.connect_timeout_s = _env_float("DROVISIO_CONNECT_TIMEOUT_S", 5.0)
+        """Deadline of every network connect made at start-up (a silent peer)."""
+
+
+def _half_the_memory_mib() -> float:
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**21
+    except (ValueError, OSError, AttributeError):  # not a POSIX system
+        return 2048.0
 
 
 def _env_float(name: str, default: float) -> float:
@@ -81,3 +97,36 @@ def _env_float(name: str, default: float) -> float:
 
 
 LIMITS = Limits()
+
+
+def limit_message(exc: BaseException) -> str | None:
+    """One line for an operating-system or Python limit that a hostile input reached (a name
+    over 255 bytes, a NUL byte in a path, an integer of thousands of digits, memory), or None
+    when ``exc`` is not one of those. The command line answers them with exit 2 and the web
+    tool with 422, like any bad input: they are never internal errors."""
+    import errno
+
+    if isinstance(exc, MemoryError):
+        return ("not enough memory for this input; give a smaller one (or raise "
+                "DROVISIO_MAX_WORK_MIB on a machine with more)")
+    if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+        name = f"{exc.filename}: " if exc.filename is not None else ""
+        name = one_line(name, 160)
+        if exc.errno == errno.ENAMETOOLONG:
+            return (f"{name}the name is too long for the file system (at most 255 bytes a "
+                    "name, 4096 a path); choose a shorter one")
+        if exc.errno == errno.ELOOP:
+            return f"{name}too many symbolic links; give the file itself"
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return f"{name}the disk is full; free some space and try again"
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            return f"{name}not allowed ({exc.strerror}); choose another file or folder"
+        return None
+    if isinstance(exc, ValueError) and not isinstance(exc, InputError):
+        text = str(exc)
+        if "embedded null" in text or "null character" in text:
+            return "a path contains a NUL byte; give a real file name"
+        if "integer string conversion" in text or "digits" in text and "limit" in text:
+            return ("a number has thousands of digits; give a number of at most "
+                    f"{LIMITS.max_digits} digits")
+    return None

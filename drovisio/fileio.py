@@ -19,10 +19,14 @@ import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from drovisio.errors import WriteError
+from drovisio.errors import WriteError, one_line
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "check_output_path",
-           "output_folder"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "check_output_name",
+           "check_output_path", "guard_outputs", "output_folder", "save_figure", "write_video"]
+
+NAME_MAX = 255
+"""Longest file name (bytes) on the file systems a drone or laptop uses (ext4, btrfs, vfat)."""
+PATH_MAX = 4096
 
 
 def _umask() -> int:
@@ -46,34 +50,146 @@ def _explain(path: Path, e: OSError) -> WriteError:
     return WriteError(f"{path}: not written: {why} (any previous file is kept)", e.errno or 0)
 
 
+def check_output_name(path: str | os.PathLike, what: str = "--out") -> Path:
+    """Refuse an output name the file system cannot hold (a NUL byte, a control character, a
+    name over 255 bytes, a path over 4096) before any work is done: the OS would only say so
+    at the end, after the work, as ``Errno 36``.
+
+    Raises:
+        WriteError: one line naming the option and what to do.
+    """
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    shown = one_line(repr(text) if any(ord(ch) < 32 for ch in text) else text, 120)
+    if not text:
+        raise WriteError(f"{what}: empty name; give a file name", errno.EINVAL)
+    if "\x00" in text:
+        raise WriteError(f"{shown}: {what}: the name contains a NUL byte; give a real file "
+                         "name", errno.EINVAL)
+    if any(ord(ch) < 32 or ord(ch) == 127 for ch in text):
+        raise WriteError(f"{shown}: {what}: the name contains a control character (a line "
+                         "break, a tab); give a plain file name", errno.EINVAL)
+    try:
+        parts = [os.fsencode(part) for part in Path(text).parts]
+        whole = os.fsencode(os.path.abspath(text))
+    except UnicodeError:
+        raise WriteError(f"{shown}: {what}: the name cannot be written on this file system "
+                         "(invalid characters); give a plain file name", errno.EINVAL) from None
+    longest = max((len(b) for b in parts), default=0)
+    if longest > NAME_MAX:
+        raise WriteError(f"{shown}: {what}: a name of {longest} bytes; the file system "
+                         f"allows {NAME_MAX}: choose a shorter one", errno.ENAMETOOLONG)
+    if len(whole) >= PATH_MAX:
+        raise WriteError(f"{shown}: {what}: the path is {len(whole)} bytes long; the file "
+                         f"system allows {PATH_MAX - 1}: choose a shorter one",
+                         errno.ENAMETOOLONG)
+    return Path(text)
+
+
+def _stat(p: Path) -> os.stat_result | None:
+    try:
+        return p.stat()
+    except (OSError, ValueError):
+        return None
+
+
 def check_output_path(path: str | os.PathLike, what: str = "--out",
                       not_same_as: Mapping[str, str | os.PathLike] | None = None,
                       folder_must_exist: bool = False) -> Path:
-    """Refuse an output path that is a folder or would overwrite one of ``not_same_as``
-    (e.g. an input or the camera file), or (``folder_must_exist``) whose folder is missing,
-    before any work is done.
+    """Refuse an output path that is a folder, a name the file system cannot hold, or would
+    overwrite one of ``not_same_as`` (e.g. an input or the camera file), or
+    (``folder_must_exist``) whose folder is missing, before any work is done.
 
     Raises:
         WriteError: the path cannot be an output.
     """
-    p = Path(path)
-    if p.is_dir():
+    p = check_output_name(path, what)
+    st = _stat(p)
+    if st is not None and stat.S_ISDIR(st.st_mode):
         raise WriteError(f"{p}: {what} is a folder; give a file name", errno.EISDIR)
-    if p.exists() and not p.is_file():
+    if st is not None and not stat.S_ISREG(st.st_mode):
         raise WriteError(f"{p}: {what} is not a regular file; give a file name", errno.EINVAL)
-    if folder_must_exist and not p.absolute().parent.is_dir():
+    parent = _stat(p.absolute().parent)
+    if folder_must_exist and (parent is None or not stat.S_ISDIR(parent.st_mode)):
         raise WriteError(f"{p}: {what}: the folder does not exist; create it or choose "
                          "another", errno.ENOENT)
+    if parent is not None and stat.S_ISDIR(parent.st_mode) and not os.access(
+            p.absolute().parent, os.W_OK | os.X_OK):
+        raise WriteError(f"{p}: {what}: the folder is not writable; choose another",
+                         errno.EACCES)
+    _not_an_input(p, what, not_same_as)
+    return p
+
+
+def _not_an_input(p: Path, what: str,
+                  not_same_as: Mapping[str, str | os.PathLike] | None) -> None:
     for label, other in (not_same_as or {}).items():
         o = Path(other)
         try:
             same = o.exists() and p.exists() and os.path.samefile(p, o)
-        except OSError:
+        except (OSError, ValueError):
             same = False
         if same or os.path.abspath(p) == os.path.abspath(o):
             raise WriteError(f"{p}: {what} is the same file as {label}; writing it would "
                              "destroy it: choose another name", errno.EEXIST)
-    return p
+
+
+#: options that name files a command reads, in every command (argparse destinations)
+INPUT_OPTIONS = ("camera", "layout", "mount", "gravity_file", "inputs", "images", "protocol",
+                 "scenario", "source")
+#: options that name a file a command writes
+OUTPUT_FILE_OPTIONS = ("out", "pdf", "report", "json")
+#: options that name a folder a command writes into
+OUTPUT_FOLDER_OPTIONS = ("record",)
+#: commands whose ``--out`` is a folder
+FOLDER_OUT_COMMANDS = ("study", "synth")
+
+
+def guard_outputs(args: object) -> None:
+    """The one output guard of the command line, run before any command starts: every output
+    option (``--out``, ``--pdf``, ``--report``, ``--json``, ``--record``, a ``jsonl:PATH``
+    sink) must be a name the file system can hold and must not be one of the command's inputs
+    (``calibrate mount --camera cam.yaml --out cam.yaml`` would replace the camera file).
+
+    Args:
+        args: The parsed command line (an ``argparse.Namespace``).
+
+    Raises:
+        WriteError: one line naming the option and what to do.
+    """
+    inputs: dict[str, str] = {}
+    for name in INPUT_OPTIONS:
+        v = getattr(args, name, None)
+        for item in (v if isinstance(v, (list, tuple)) else [v]):
+            if isinstance(item, (str, os.PathLike)) and os.fspath(item):
+                opt = "input" if name in ("inputs", "images") else f"--{name.replace('_', '-')}"
+                inputs.setdefault(f"{opt} {os.fspath(item)}", os.fspath(item))
+    command = getattr(args, "command", "")
+    outputs: list[tuple[str, str | os.PathLike, bool]] = []
+    for name in OUTPUT_FILE_OPTIONS:
+        v = getattr(args, name, None)
+        if isinstance(v, (str, os.PathLike)):
+            outputs.append((f"--{name}", v, command in FOLDER_OUT_COMMANDS and name == "out"))
+    for name in OUTPUT_FOLDER_OPTIONS:
+        v = getattr(args, name, None)
+        if isinstance(v, (str, os.PathLike)):
+            outputs.append((f"--{name}", v, True))
+    for spec in getattr(args, "sink", None) or []:
+        if isinstance(spec, str) and spec.strip().startswith("jsonl:") \
+                and spec.strip() != "jsonl:-":
+            # appended to (it may be a device): only its name and the inputs are checked
+            p = check_output_name(spec.strip()[len("jsonl:"):], "--sink jsonl:PATH")
+            _not_an_input(p, "--sink jsonl:PATH", inputs)
+    for what, path, folder in outputs:
+        p = check_output_name(path, what)
+        if folder:
+            st = _stat(p)
+            if st is not None and not stat.S_ISDIR(st.st_mode):
+                raise WriteError(f"{p}: {what} is a file; give a folder", errno.ENOTDIR)
+            _not_an_input(p, what, inputs)
+        else:
+            check_output_path(p, what, inputs)
 
 
 def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:
@@ -217,3 +333,79 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, **kw) -> Path:
 def atomic_write_text(path: str | os.PathLike, text: str, **kw) -> Path:
     """:func:`atomic_write_bytes` of UTF-8 ``text``."""
     return atomic_write_bytes(path, text.encode("utf-8"), **kw)
+
+
+def save_figure(fig, path: str | os.PathLike, **savefig_kw) -> Path:
+    """A matplotlib figure written through :func:`atomic_write` (matplotlib writes in place:
+    a full disk would leave the old figure truncated). The format is the path's suffix."""
+    path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            fig.savefig(f, format=fmt, **savefig_kw)
+            f.flush()
+
+    def verify(tmp: Path) -> None:
+        if fmt == "png":
+            with open(tmp, "rb") as f:
+                if f.read(8) != b"\x89PNG\r\n\x1a\n":
+                    raise ValueError("not a PNG file")
+
+    return atomic_write(path, write, suffix=path.suffix or ".png", verify=verify)
+
+
+def write_image(path: str | os.PathLike, image, params: list[int] | None = None) -> Path:
+    """An OpenCV image written through :func:`atomic_write` and decoded back (``cv2.imwrite``
+    writes in place and says only False on a full disk)."""
+    import cv2
+
+    path = Path(path)
+    ok, buf = cv2.imencode(path.suffix or ".png", image, params or [])
+    if not ok:
+        raise WriteError(f"{path}: not written: OpenCV cannot encode an image as "
+                         f"{path.suffix!r}; use .png or .jpg", errno.EINVAL)
+    return atomic_write_bytes(path, buf.tobytes())
+
+
+def write_video(path: str | os.PathLike, frames, fps: float, size: tuple[int, int],
+                fourcc: str = "mp4v") -> Path:
+    """A video written through :func:`atomic_write`: OpenCV's VideoWriter writes in place
+    (and says nothing on a full disk), so it writes beside, the video is opened back and its
+    frames counted, and only then it replaces the old file.
+
+    Args:
+        path: The video file (its suffix chooses the container).
+        frames: BGR images of ``size`` (width, height), pixels.
+        fps: Frames per second written in the container.
+        size: (width, height) of every frame, pixels.
+        fourcc: The codec's four characters.
+    """
+    import cv2
+
+    path = Path(path)
+    frames = list(frames)
+
+    def write(tmp: Path) -> None:
+        w = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*fourcc), float(fps),
+                            (int(size[0]), int(size[1])))
+        if not w.isOpened():
+            raise OSError(errno.EIO, "OpenCV cannot write this video (codec or container)")
+        try:
+            for img in frames:
+                w.write(img)
+        finally:
+            w.release()
+
+    def verify(tmp: Path) -> None:
+        cap = cv2.VideoCapture(str(tmp))
+        try:
+            n = 0
+            while n < len(frames) and cap.read()[0]:
+                n += 1
+        finally:
+            cap.release()
+        if n != len(frames):
+            raise ValueError(f"{n} of {len(frames)} frames could be read back")
+
+    return atomic_write(path, write, suffix=path.suffix or ".mp4", verify=verify)

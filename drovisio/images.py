@@ -56,6 +56,8 @@ def header_size(data: bytes) -> tuple[int, int] | None:
     only); None when the format is not one Pillow knows."""
     from PIL import Image
 
+    if _is_radiance(data):  # Pillow does not know Radiance .hdr; OpenCV does
+        return _radiance_size(data)
     # Pillow only reads the header here; Drovisio's own cap (decode_image) decides, with a
     # message that gives the size
     Image.MAX_IMAGE_PIXELS = None
@@ -66,6 +68,45 @@ def header_size(data: bytes) -> tuple[int, int] | None:
                 return int(im.size[0]), int(im.size[1])
     except Exception:  # noqa: BLE001 - unknown or broken header: OpenCV decides
         return None
+
+
+def _is_radiance(data: bytes) -> bool:
+    return data[:10] == b"#?RADIANCE" or data[:6] == b"#?RGBE"
+
+
+def _radiance_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) of a Radiance .hdr header (``-Y H +X W`` after the blank line)."""
+    head = data[:8192]
+    end = head.find(b"\n\n")
+    if end < 0:
+        return None
+    line = head[end + 2:].split(b"\n", 1)[0].split()
+    if len(line) != 4 or not all(t.isdigit() and len(t) <= 9 for t in line[1::2]):
+        return None
+    dims = {line[0][-1:]: int(line[1]), line[2][-1:]: int(line[3])}
+    if set(dims) != {b"X", b"Y"}:
+        return None
+    return dims[b"X"], dims[b"Y"]
+
+
+def _decode_through_file(data: bytes, suffix: str) -> np.ndarray | None:
+    """Decode a format OpenCV cannot decode from memory (Radiance .hdr) through our own
+    temporary file, removed whatever happens (OpenCV's own copy is left in /tmp when its
+    decoder fails)."""
+    import tempfile
+
+    import cv2
+
+    fd, name = tempfile.mkstemp(prefix="drovisio-decode-", suffix=suffix)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        try:
+            return cv2.imread(name, cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            return None
+    finally:
+        os.unlink(name)
 
 
 def to_bgr8(img: np.ndarray) -> tuple[np.ndarray, list[str]]:
@@ -137,17 +178,16 @@ def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray, list[str]]:
         raise ImageError("corrupt JPEG: the file is cut short (copy it again from the camera)")
     size = header_size(data)
     if size is not None:
-        w, h = size
-        if w <= 0 or h <= 0:
-            raise ImageError(f"the image header gives an empty size {w}x{h}")
-        if w * h > LIMITS.max_image_pixels or max(w, h) > LIMITS.max_image_side:
-            raise ImageError(f"the image is {w}x{h} ({w * h / 1e6:.0f} Mpx), more than the "
-                             f"{LIMITS.max_image_pixels / 1e6:.0f} Mpx Drovisio decodes; "
-                             "resize it (or set DROVISIO_MAX_IMAGE_MPX)")
-    try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
+        _check_size(*size)
+    elif _is_radiance(data):
+        raise ImageError("a Radiance .hdr file whose header gives no size; is it whole?")
+    if _is_radiance(data):
+        img = _decode_through_file(data, ".hdr")
+    else:
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
     if img is None or img.size == 0:
         raise ImageError("cannot be read as an image (corrupt, truncated or not an image)")
     return to_bgr8(img)
@@ -171,8 +211,35 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
         raise ImageError("is a folder")
     if not stat.S_ISREG(st.st_mode):
         raise ImageError("not a regular file (a pipe or a device)")
+    cap = max_image_file_bytes()
     try:
-        data = p.read_bytes()
+        with open(p, "rb") as f:
+            head = f.read(64 * 1024)
+            size = header_size(head)  # the header before the body: nothing huge is read
+            if size is not None:
+                _check_size(*size)
+            if st.st_size > cap:
+                raise ImageError(f"the file is {st.st_size / 2**20:.0f} MiB, more than the "
+                                 f"{cap / 2**20:.0f} MiB of the largest image Drovisio "
+                                 "decodes; is it an image?")
+            data = head + f.read(cap + 1 - len(head))
     except OSError as e:
         raise ImageError(f"cannot read: {e.strerror or e}") from None
+    if len(data) > cap:
+        raise ImageError(f"the file grew past {cap / 2**20:.0f} MiB while being read")
     return decode_image(data, p.name)
+
+
+def max_image_file_bytes() -> int:
+    """Largest image file read: the largest image Drovisio decodes, uncompressed, at 16 bits
+    and 4 channels (8 bytes a pixel), and never less than 64 MiB."""
+    return max(LIMITS.max_image_pixels * 8, 64 * 2**20)
+
+
+def _check_size(w: int, h: int) -> None:
+    if w <= 0 or h <= 0:
+        raise ImageError(f"the image header gives an empty size {w}x{h}")
+    if w * h > LIMITS.max_image_pixels or max(w, h) > LIMITS.max_image_side:
+        raise ImageError(f"the image is {w}x{h} ({w * h / 1e6:.0f} Mpx), more than the "
+                         f"{LIMITS.max_image_pixels / 1e6:.0f} Mpx Drovisio decodes; "
+                         "resize it (or set DROVISIO_MAX_IMAGE_MPX)")

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from drovisio.errors import InputError
 from drovisio.fileio import atomic_write
 
 __all__ = [
@@ -153,6 +154,10 @@ def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[P
     return written
 
 
+MAX_MESH_BYTES = 256 * 2**20
+"""Largest mesh file a layout may name (a brick's mesh is a few MB at most)."""
+
+
 def load_layout_mesh(layout) -> trimesh.Trimesh | None:  # noqa: ANN001 (MarkerLayout)
     """The mesh of a layout, scaled to metres.
 
@@ -166,19 +171,32 @@ def load_layout_mesh(layout) -> trimesh.Trimesh | None:  # noqa: ANN001 (MarkerL
         The mesh in metres (brick frame), or None if the layout names no mesh.
 
     Raises:
-        FileNotFoundError: the mesh file is missing and is not a shipped one.
+        InputError: the mesh file is missing (and is not a shipped one), not a regular file,
+            outside the layout's folder or too large.
     """
     path = layout.mesh_path()
     if path is None:
         return None
+    # a path from inside a file: only inside the layout's folder, a regular file, bounded
+    source = getattr(layout, "_source", None)
+    base = Path(source).parent if source is not None else Path.cwd()
+    where = f"{source or layout.name}: mesh"
+    if not path.is_relative_to(base.resolve()):
+        raise InputError(f"{where}: {layout.mesh!r} is outside the layout's folder {base}; "
+                         "put the mesh beside the layout (e.g. meshes/NAME.stl)")
     if path.is_file():
+        size = path.stat().st_size
+        if size > MAX_MESH_BYTES:
+            raise InputError(f"{where}: {path} is {size / 2**20:.0f} MiB, more than the "
+                             f"{MAX_MESH_BYTES // 2**20} MiB of a brick's mesh; simplify it")
         mesh = trimesh.load_mesh(path, force="mesh")
         if layout.scale_to_m != 1.0:
             mesh.apply_scale(layout.scale_to_m)
         return mesh
     mesh = shipped_mesh(path.name)
     if mesh is None:
-        raise FileNotFoundError(f"{path}: mesh of layout {layout.name!r} not found")
+        raise InputError(f"{where}: {path} not found (or not a regular file); put the mesh "
+                         "beside the layout or remove the mesh field")
     return mesh
 
 

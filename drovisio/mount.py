@@ -45,6 +45,7 @@ from pydantic import (
     model_validator,
 )
 
+from drovisio.bounds import MOUNT_OFFSET_MAX_M
 from drovisio.errors import InputError
 from drovisio.geometry import ned_from_body, rot_y, rot_z, transform
 from drovisio.textfile import read_structured
@@ -88,8 +89,8 @@ class MountAngles(BaseModel):
     @field_validator("offset_m")
     @classmethod
     def _near(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        if max(abs(x) for x in v) > 10:
-            raise ValueError("offset larger than 10 m: give it in metres")
+        if max(abs(x) for x in v) > MOUNT_OFFSET_MAX_M:
+            raise ValueError(f"offset larger than {MOUNT_OFFSET_MAX_M:g} m: give it in metres")
         return v
 
 
@@ -140,8 +141,9 @@ class MountFile(BaseModel):
             raise ValueError(f"rotation part is not orthonormal (max |RᵀR − I| = {err:.2g})")
         if np.linalg.det(R) < 0:
             raise ValueError("rotation part is a reflection (det < 0)")
-        if np.abs(T[:3, 3]).max() > 10:
-            raise ValueError("translation larger than 10 m: units must be metres")
+        if np.abs(T[:3, 3]).max() > MOUNT_OFFSET_MAX_M:
+            raise ValueError(f"translation larger than {MOUNT_OFFSET_MAX_M:g} m: units must "
+                             "be metres")
         return T.tolist()
 
 
@@ -301,22 +303,35 @@ def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
                                    np.inf))
         return c[:2] + d[:, :2] * s[:, None]
 
-    poly = meet(camera.rays(border))
+    with np.errstate(all="ignore"):  # extreme lenses: rays that are not numbers are dropped
+        poly = meet(camera.rays(border))
+    finite = np.isfinite(poly).all(axis=1)
+    dropped = int((~finite).sum())
+    poly = poly[finite]
     axis = R[:, 2]
     centre = None
     if axis[2] > 1e-9:
         centre = (c[:2] + axis[:2] * (height_m - c[2]) / axis[2]).tolist()
+        if not np.isfinite(centre).all():
+            centre = None
     # straight below the body origin: in view when it projects inside the image
     below_cam = mount.camera_from_body @ np.array([0.0, 0.0, height_m, 1.0])
     inside = False
     if below_cam[2] > 1e-9:
-        uv = camera.project(below_cam[None, :3])[0]
-        inside = bool(0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1)
+        with np.errstate(all="ignore"):
+            uv = camera.project(below_cam[None, :3])[0]
+        inside = bool(np.isfinite(uv).all() and 0 <= uv[0] <= w - 1 and 0 <= uv[1] <= h - 1)
     dist = np.linalg.norm(poly, axis=1)
-    return {"polygon": np.round(poly, 4).tolist(),
-            "centre": None if centre is None else [round(float(v), 4) for v in centre],
-            "below": inside, "nearest_m": 0.0 if inside else round(float(dist.min()), 3),
-            "farthest_m": round(float(dist.max()), 3)}
+    out = {"polygon": np.round(poly, 4).tolist(),
+           "centre": None if centre is None else [round(float(v), 4) for v in centre],
+           "below": inside,
+           "nearest_m": 0.0 if inside or not len(dist) else round(float(dist.min()), 3),
+           "farthest_m": round(float(dist.max()), 3) if len(dist) else 0.0}
+    if dropped:  # the domain says so rather than sending numbers that are not JSON
+        out["note"] = (f"{dropped} of {len(finite)} border rays of this camera file give no "
+                       "point on the ground (its lens coefficients are extreme); check the "
+                       "camera file")
+    return out
 
 
 def down_camera_mount() -> Mount:

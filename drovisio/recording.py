@@ -28,6 +28,8 @@ from pathlib import Path
 
 import cv2
 
+from drovisio.fileio import atomic_write_text
+
 __all__ = ["RECORDING_SCHEMA", "Recorder", "read_index"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
@@ -50,7 +52,7 @@ class Recorder:
                     manifest[key] = dst.name
                 except OSError:
                     pass
-        (self.folder / "recording.json").write_text(json.dumps(manifest, indent=1))
+        atomic_write_text(self.folder / "recording.json", json.dumps(manifest, indent=1))
         self._index = open(self.folder / "frames.jsonl", "a", encoding="utf-8")
         self.quality = int(jpeg_quality)
         self._q: queue.Queue = queue.Queue(maxsize=max_queue)

@@ -33,6 +33,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.camera_file import save_camera
+from drovisio.fileio import atomic_write_bytes, atomic_write_text, write_image
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.resources import sample_sessions_dir
 from drovisio.scenes import gravity_in_camera
@@ -92,14 +93,14 @@ def write_calibration_session(out: Path, camera: Camera) -> None:
             camera, T, square=0.025, ground=Ground(("concrete", "grass")[k % 2], k),
             effects=Effects(blur_sigma_px=0.7, noise_sigma=1.5, seed=k))
         name = f"view_{k:02d}.jpg"
-        cv2.imwrite(str(out / name), img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        write_image(out / name, img, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         views.append({"file": name, "camera_from_board": T.tolist(),
                       "corners_px": np.round(corners, 5).tolist()})
         _progress(f"  calibration view {k + 1}/20")
     truth = {"board": "chessboard:9x6", "square": 0.025, "camera": "../camera.yaml",
              "note": "corners_px are the true projections of the inner corners, row-major",
              "views": views}
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic_write_text(out / "truth.json", json.dumps(truth, indent=1))
 
 
 def approach_scene() -> tuple[list[BrickInstance], dict]:
@@ -179,14 +180,16 @@ def write_approach_session(out: Path, camera: Camera) -> None:
                 _progress(f"  approach frame {i + 1}/{n} ({(time.time() - t0) / (i + 1):.2f} "
                           "s/frame)")
         writer.release()
-        (out / "approach.mp4").write_bytes(video_tmp.read_bytes())
-    (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
-    (out / "gravity.jsonl").write_text("\n".join(gravity_lines) + "\n")
+        atomic_write_bytes(out / "approach.mp4", video_tmp.read_bytes())
+    atomic_write_text(out / "truth.jsonl", "\n".join(truth_lines) + "\n")
+    atomic_write_text(out / "gravity.jsonl", "\n".join(gravity_lines) + "\n")
     from drovisio.mount import Mount
 
     note = "camera 20° tilted forward, 8 cm ahead and 5 cm below the body origin"
-    (out / "mount.json").write_text(json.dumps(Mount(mount, note=note).to_file(), indent=1))
-    (out / "scene.json").write_text(json.dumps({"fps": FPS, "frames": n, **meta}, indent=1))
+    atomic_write_text(out / "mount.json", json.dumps(Mount(mount, note=note).to_file(),
+                                                     indent=1))
+    atomic_write_text(out / "scene.json", json.dumps({"fps": FPS, "frames": n, **meta},
+                                                     indent=1))
 
 
 def write_demo_mission(out: Path) -> None:

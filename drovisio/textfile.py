@@ -17,20 +17,25 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "read_structured",
-           "read_text"]
+__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "path_text_problem",
+           "read_inside",
+           "read_structured", "read_text", "resolve_inside"]
 
 
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
     """``path`` if it is a regular file; a clear error for a missing path, a folder, or a FIFO,
     socket or device (reading those can block forever)."""
     p = Path(path)
+    if "\x00" in str(p):
+        raise InputError(f"{one_line(repr(str(p)), 120)}: the {what}'s name contains a NUL "
+                         "byte; give a real file name")
     try:
         st = p.stat()
     except FileNotFoundError:
         raise InputError(f"{p}: {what} not found") from None
     except OSError as e:
-        raise InputError(f"{p}: cannot read the {what} ({e.strerror or e})") from None
+        raise InputError(f"{one_line(p, 160)}: cannot read the {what} ({e.strerror or e})") \
+            from None
     if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: is a folder; give the {what} itself")
     if not stat.S_ISREG(st.st_mode):
@@ -57,6 +62,68 @@ def read_text(path: str | os.PathLike, what: str = "file",
     except UnicodeDecodeError as e:
         raise InputError(f"{p}: not UTF-8 text (byte {e.start}); the {what} must be a text "
                          "file") from None
+
+
+def path_text_problem(name: str) -> str | None:
+    """What makes ``name`` (a path written inside a file) unusable as a path, or None: a NUL
+    byte or control character, a name over 255 bytes, a path over 1024 (the OS would answer
+    with ``ValueError`` or ``Errno 36`` deep inside some reader)."""
+    if "\x00" in name or any(ord(ch) < 32 for ch in name):
+        return "contains a NUL byte or a control character; give a plain file name"
+    try:
+        encoded = [os.fsencode(part) for part in Path(name).parts]
+    except UnicodeError:
+        return "cannot be a file name on this system; give a plain file name"
+    if sum(len(b) for b in encoded) > 1024 or any(len(b) > 255 for b in encoded):
+        return "is too long for a file name (255 bytes a name); give a shorter one"
+    return None
+
+
+def resolve_inside(folder: str | os.PathLike, name: object, where: str,
+                   what: str = "file") -> Path:
+    """The path a file names (``name``, read from a field of a file in ``folder``), checked
+    before anything is opened: a relative name of a regular file that stays inside ``folder``
+    (no ``..``, no absolute path, no link out of it), with no NUL byte, a name the file system
+    can hold. ``where`` is ``FILE: FIELD`` for the message.
+
+    Raises:
+        InputError: ``where: what is wrong and what to do``.
+    """
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{where}: give the {what}'s name as text, relative to the folder "
+                         f"{folder}")
+    shown = one_line(repr(name), 120)
+    problem = path_text_problem(name)
+    if problem:
+        raise InputError(f"{where}: {shown} {problem}")
+    base = Path(folder)
+    if Path(name).is_absolute():
+        raise InputError(f"{where}: {shown} is an absolute path; name a file inside {base} "
+                         "(relative to it)")
+    p = base / name
+    try:
+        inside = p.resolve().is_relative_to(base.resolve())
+    except (OSError, RuntimeError):  # a loop of links
+        inside = False
+    if not inside:
+        raise InputError(f"{where}: {shown} is outside the folder {base}; only files inside "
+                         "it are read: copy the file there")
+    try:
+        return check_regular_file(p, what)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
+def read_inside(folder: str | os.PathLike, name: object, where: str, what: str = "file",
+                max_bytes: int | None = None) -> str:
+    """The text of the file a file names (see :func:`resolve_inside`), read within
+    ``max_bytes`` (default :attr:`~drovisio.errors.Limits.max_file_bytes`): the one reader of
+    every path that comes from inside a file (a recording's manifest, a protocol)."""
+    p = resolve_inside(folder, name, where, what)
+    try:
+        return read_text(p, what, max_bytes)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
 
 
 def _depth(obj: Any, limit: int) -> int:
@@ -92,6 +159,13 @@ def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
     def no_constant(name: str) -> Any:
         raise InputError(f"{source}: {name} is not a number JSON allows; give a finite number")
 
+    def bounded_int(digits: str) -> int:
+        if len(digits.lstrip("-")) > LIMITS.max_digits:
+            raise InputError(f"{source}: a number of {len(digits)} digits; give at most "
+                             f"{LIMITS.max_digits}")
+        return int(digits)
+
+    kw.setdefault("parse_int", bounded_int)
     try:
         data = json.loads(text, parse_constant=no_constant, **kw)
     except RecursionError:
@@ -131,6 +205,9 @@ def parse_yaml(text: str, source: str, loader: type[BoundedYamlLoader] | None = 
         data = yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
     except RecursionError:
         raise InputError(f"{source}: nested too deeply to be a Drovisio file") from None
+    except ValueError as e:  # PyYAML converts numbers with int(): 4,300 digits is its limit
+        raise InputError(f"{source}: {one_line(e, 160)}; give numbers of at most "
+                         f"{LIMITS.max_digits} digits") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

@@ -8,8 +8,8 @@ this order:
    is what a DNS-rebinding page sends (its own domain, now pointing at 127.0.0.1): refused
    with 403, unless the request carries a valid token.
 2. **Origin.** Every write (POST, PUT, PATCH, DELETE) and every WebSocket from a browser
-   carries ``Origin``; it must be the tool's own (scheme-less comparison of the ``Origin``
-   host:port with ``Host``). A page on any other origin gets 403, **even on loopback** and
+   carries ``Origin``; it must be the tool's own (the ``Origin``'s scheme is the request's,
+   its host:port the ``Host``). A page on any other origin gets 403, **even on loopback** and
    even with a token in a cookie (CSRF). ``Sec-Fetch-Site: cross-site`` is refused too.
    Programs that send no ``Origin`` (scripts, curl) are judged by host and token alone.
 3. **Token.** With ``token=None`` (the default, bound to 127.0.0.1) nothing more is asked.
@@ -140,15 +140,23 @@ class AccessMiddleware:
         return _is_ip(host) or host in self.names
 
     @staticmethod
-    def _same_origin(origin: str, host_header: str | None) -> bool:
+    def _same_origin(origin: str, host_header: str | None, scheme: str = "http") -> bool:
+        """An origin is its scheme, host and port: ``https://127.0.0.1:PORT`` is another
+        site than the ``http://`` tool on the same port (a TLS page there is not ours)."""
         if not host_header or origin in ("", "null"):
             return False
-        netloc = urlsplit(origin).netloc
-        if not netloc:
+        try:
+            parts = urlsplit(origin.strip())
+        except ValueError:
+            return False
+        netloc = parts.netloc
+        o_scheme = parts.scheme.lower()
+        own = {"ws": "http", "wss": "https"}.get(scheme.lower(), scheme.lower())
+        if not netloc or o_scheme != own:
             return False
         o_host, o_port = _split_host(netloc)
         h_host, h_port = _split_host(host_header)
-        default = "443" if origin.lower().startswith("https:") else "80"
+        default = "443" if own == "https" else "80"
         return o_host == h_host and (o_port or default) == (h_port or default)
 
     def _token_level(self, scope: Scope, headers: dict[str, str]) -> tuple[str | None, bool]:
@@ -190,7 +198,8 @@ class AccessMiddleware:
             return
         if writes:
             origin = headers.get("origin")
-            if origin is not None and not self._same_origin(origin, host):
+            if origin is not None and not self._same_origin(origin, host,
+                                                            scope.get("scheme", "http")):
                 await self._forbidden(scope, send, f"request from another site ({origin}) "
                                       "refused: only the tool's own pages may change it")
                 return

@@ -20,12 +20,14 @@ from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
 from webtool.access import AccessMiddleware
 from webtool.errors import install_error_handlers
+from webtool.responses import JSONResponse
 from webtool.routes import calibration, designer, health, live, mount, pages, replay, study
 from webtool.services import lifespan
 from webtool.settings import Settings
 
-#: routes whose body is a file (their own limits apply)
-_UPLOADS = ("/api/designer/mesh", "/api/calibration/upload")
+#: routes whose body is a file (their own limits apply: the services' per-file and per-request
+#: caps); every route that takes an UploadFile must be here (a test walks the routes)
+_UPLOADS = ("/api/designer/mesh", "/api/calibration/upload", "/api/mount/measure")
 
 
 def drovisio_version() -> str:
@@ -101,6 +103,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         redoc_url=None,
         openapi_url="/api/openapi.json",
         lifespan=lifespan,
+        default_response_class=JSONResponse,  # JSON-safe: no route can answer NaN
     )
     app.state.settings = settings
     app.state.templates = Jinja2Templates(directory=str(templates_dir()))

@@ -57,7 +57,7 @@ from drovisio.camera import Camera
 from drovisio.camera_file import load_camera, save_camera
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
-from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file
+from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file, read_image
 from drovisio.sources import PlaybackReader, Reader, list_folder, reader_for
 from drovisio.textfile import parse_json, read_text
 from webtool.errors import ServiceError
@@ -331,6 +331,10 @@ class CalibrationService:
                 return False
             sess = CalibrationSession.from_state(data["session"], self._config(sid),
                                                  self._camera_guess())
+            # the image names inside session.json name files in this session's folder only
+            for name in [v.name for v in sess.views]:
+                if not isinstance(name, str) or _safe_name(name) != name:
+                    raise ValueError(f"images: {name!r} is not a plain file name")
         except (OSError, ValueError, KeyError, TypeError) as e:
             # keep the broken file for inspection; the images are still there
             try:
@@ -387,7 +391,7 @@ class CalibrationService:
         for d in (self.folder / "images", self.folder / "deleted"):
             if d.is_dir():
                 nums += [int(m.group(1)) for f in d.iterdir()
-                         if (m := re.match(r"capture-(\d+)", f.name))]
+                         if (m := re.match(r"capture-(\d{1,9})(?!\d)", f.name))]
         self._capture_counter = max(nums) + 1
         atomic_write_bytes(self.root / "current", self.session_id.encode())
 
@@ -401,7 +405,10 @@ class CalibrationService:
             if f.name in known or f.name.startswith(".") or \
                     f.suffix.lower() not in IMAGE_SUFFIXES:
                 continue
-            img, why = _decode(f.read_bytes(), f.name)
+            try:   # bounded: a FIFO or a 20 GB file named like an image is not read
+                img, why = read_image(f)[0], None
+            except ImageError as e:
+                img, why = None, str(e)
             if img is None:
                 self.session.add_rejected(f.name, why)
                 continue
@@ -677,8 +684,10 @@ class CalibrationService:
         v = next((v for v in self.session.views if v.id == view_id), None)
         if v is None:
             raise ServiceError(f"view #{view_id} is not in this session", 404)
-        path = self.images_dir / v.name
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+        try:
+            img = read_image(self.images_dir / _safe_name(v.name))[0]
+        except ImageError:
+            img = None
         missing = img is None
         if missing:  # only the corners, on grey (not cached: the image may still be coming)
             img = np.full((v.detection.image_size[1], v.detection.image_size[0], 3), 200,

@@ -7,6 +7,8 @@ with a plain-words message and its status; nothing a user can cause gives a 500.
 * :class:`~drovisio.errors.WriteError` (a file could not be written; nothing was lost) → 507;
 * :class:`~drovisio.designer.model.DesignError` (an impossible design edit) → 422;
 * a request body that does not fit its schema → 422, one line naming the field;
+* an OS or Python limit a request reached (a name over 255 bytes, a NUL byte in a path, an
+  integer of thousands of digits) → 422, one line;
 * anything else is a bug: 500 with one line, the traceback in the server log.
 """
 
@@ -16,9 +18,9 @@ import logging
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
 
-from drovisio.errors import InputError, WriteError, one_line
+from drovisio.errors import InputError, WriteError, limit_message, one_line
+from webtool.responses import JSONResponse
 
 __all__ = ["ServiceError", "install_error_handlers"]
 
@@ -75,6 +77,9 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def _bug(request: Request, exc: Exception) -> JSONResponse:
+        limit = limit_message(exc)
+        if limit is not None:  # an OS or Python limit the request reached: bad input
+            return _answer(413 if isinstance(exc, MemoryError) else 422, limit)
         log.error("internal error on %s %s", request.method, request.url.path, exc_info=exc)
         return _answer(500, f"internal error ({type(exc).__name__}); the server log has the "
                             "details")

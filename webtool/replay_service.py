@@ -10,7 +10,6 @@ Only recordings inside the recordings folder can be loaded.
 from __future__ import annotations
 
 import bisect
-import json
 import logging
 import math
 import threading
@@ -18,7 +17,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from drovisio.mission.record import SCHEMA_ID, load_recording
+from drovisio.errors import one_line
+from drovisio.mission.record import load_manifest, load_recording
+from drovisio.textfile import path_text_problem
 from webtool.errors import ServiceError
 from webtool.replay_scene import ReplayScene
 
@@ -26,6 +27,15 @@ __all__ = ["Playback", "ReplayService"]
 
 log = logging.getLogger(__name__)
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
+
+
+def _text(v: object) -> str | None:
+    """A manifest's text field as text (a number or object there is shown, never trusted)."""
+    return None if v is None else one_line(v, 120)
+
+
+def _count(v: object) -> int:
+    return len(v) if isinstance(v, list) else 0
 
 
 def _describe(e: dict) -> str:
@@ -72,7 +82,7 @@ class Playback:
         self.manifest = manifest
         self.ticks = ticks
         self.times = [float(tk["t"]) for tk in ticks]
-        self.duration = float(manifest.get("duration_s") or self.times[-1])
+        self.duration = max(float(manifest.get("duration_s") or self.times[-1]), self.times[0])
         self.t = self.times[0]
         self.playing = False
         self.speed = 1.0
@@ -90,7 +100,8 @@ class Playback:
         return out if limit is None else out[-limit:]
 
     def placed(self) -> list[str]:
-        return sorted({e["brick"] for e in self.events_so_far() if e.get("kind") == "placed"})
+        return sorted({str(e.get("brick")) for e in self.events_so_far()
+                       if e.get("kind") == "placed"})
 
     def advance(self, dt: float) -> None:
         if self.playing:
@@ -130,20 +141,24 @@ class ReplayService:
         for m in sorted(d.glob("*/manifest.json")) + sorted(d.glob("manifest.json")):
             item: dict[str, Any] = {"name": m.parent.name if m.parent != d else ".",
                                     "path": str(m.parent)}
+            # entry by entry through the loader's own checks: a bad one is named, not fatal
             try:
-                js = json.loads(m.read_text())
-                if js.get("schema") != SCHEMA_ID:
-                    raise ValueError(f"schema is not {SCHEMA_ID}")
-                item.update(scenario=js.get("scenario"), duration_s=js.get("duration_s"),
-                            outcome=js.get("outcome"), bricks=len(js.get("bricks", [])),
-                            ok=True)
+                js = load_manifest(m.parent)
+                bricks = js.get("bricks", [])
+                item.update(scenario=_text(js.get("scenario")),
+                            duration_s=js.get("duration_s"), outcome=_text(js.get("outcome")),
+                            bricks=len(bricks) if isinstance(bricks, list) else 0, ok=True)
             except (OSError, ValueError) as e:
-                item.update(ok=False, error=str(e))
+                item.update(ok=False, error=one_line(e, 300))
             out.append(item)
         return out
 
     def _resolve(self, name: str | None, path: str | None) -> Path:
         d = self.folder()
+        for field, text in (("path", path), ("name", name)):
+            problem = path_text_problem(text) if text else None
+            if problem:
+                raise ServiceError(f"{field}: the {field} {problem}", 422)
         if path:
             p = Path(path)
             if not p.is_absolute():
@@ -169,13 +184,18 @@ class ReplayService:
         try:
             manifest, ticks = load_recording(p)
         except (ValueError, KeyError, OSError) as e:
-            raise ServiceError(f"bad recording {p}: {e}", 422) from None
+            raise ServiceError(f"bad recording {p}: {one_line(e, 300)}", 422) from None
         pb = Playback(p, manifest, ticks)
         with self._lock:
+            if self.scene is not None and self.scene.server is not None:
+                try:
+                    self.scene.load(manifest)
+                except (ValueError, KeyError, TypeError, IndexError, AttributeError) as e:
+                    # the playing recording stays loaded: a bad one never replaces it
+                    raise ServiceError(f"bad recording {p}: manifest.json: {one_line(e, 200)}",
+                                       422) from None
             self.pb = pb
             self._shown = -1
-            if self.scene is not None and self.scene.server is not None:
-                self.scene.load(manifest)
         self._ensure_thread()
         self._wake.set()
         return self.state()
@@ -233,7 +253,7 @@ class ReplayService:
                 "events": len(ev),
                 "last_events": [{"t": e.get("t"), "kind": e.get("kind"), "text": _describe(e)}
                                 for e in ev[-8:]],
-                "placed": pb.placed(), "bricks_total": len(pb.manifest.get("bricks", [])),
+                "placed": pb.placed(), "bricks_total": _count(pb.manifest.get("bricks")),
                 "scene_updates": self.scene.updates if self.scene is not None else 0,
             }
 

@@ -70,27 +70,15 @@ def _warm_up_in_background() -> None:
 
 
 def _check_inputs(args: argparse.Namespace) -> None:
-    """Bad set-up is said before the server starts (one line, exit 2), not on a page later."""
-    if args.camera:
-        from drovisio.camera_file import load_camera
+    """Bad set-up is said before the server starts (one line, exit 2), not on a page later:
+    the pipeline's options through the one check ``run`` uses (sinks opened and closed)."""
+    from drovisio.startup import check_pipeline_options
 
-        load_camera(args.camera)
-    if args.source:
-        from drovisio.sources import reader_for
-
-        reader_for(args.source)
+    check_pipeline_options(args)
     if getattr(args, "replay_dir", None) and not Path(args.replay_dir).is_dir():
         from drovisio.errors import InputError
 
         raise InputError(f"{args.replay_dir}: --replay-dir: no such folder")
-    if getattr(args, "layout", None):
-        from drovisio.layout import load_layouts
-
-        load_layouts(args.layout)
-    if getattr(args, "mount", None):
-        from drovisio.mount import load_mount
-
-        load_mount(args.mount)
 
 
 def _sample_missions() -> Path | None:
@@ -137,7 +125,15 @@ def run(args: argparse.Namespace) -> int:
     _check_port(settings.host, settings.port)
     _warm_up_in_background()
     install_log_redaction()
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level="info")
+    server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,
+                                           log_level="info"))
+    app.state.uvicorn_server = server  # the lifespan ends the server, never raises to it
+    server.run()
+    error = getattr(app.state, "startup_error", None)
+    if error:
+        from drovisio.errors import InputError
+
+        raise InputError(error)
     return 0
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import importlib
+import logging
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -39,6 +40,7 @@ SERVICES: dict[str, str] = {
     "replay": "webtool.replay_service:ReplayService",
 }
 _lock = threading.Lock()
+log = logging.getLogger("webtool")
 
 
 def get_service(app: FastAPI, name: str) -> Any:
@@ -79,10 +81,21 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     """The app's lifespan: services start on first use, except the live pipeline when it
     feeds sinks (the flight controller: it runs from the start, watched or not); every service
     made is closed at shutdown."""
+    app.state.startup_error = None
     if app.state.settings.flying:
-        svc = get_service(app, "live")
-        await asyncio.to_thread(svc.ensure_started)
-        if svc.error:
-            raise RuntimeError(f"the pipeline could not start: {svc.error}")
+        try:
+            svc = get_service(app, "live")
+            await asyncio.to_thread(svc.ensure_started)
+            error = svc.error
+        except Exception as e:  # noqa: BLE001 - never raised to uvicorn (a 29-frame traceback)
+            error = f"{type(e).__name__}: {e}"
+        if error:
+            # `drovisio serve` checked the options before; what fails here (a link lost in
+            # between) is said in one line and ends the server (exit 2), never a traceback
+            app.state.startup_error = f"the pipeline could not start: {error}"
+            log.error("%s", app.state.startup_error)
+            server = getattr(app.state, "uvicorn_server", None)
+            if server is not None:
+                server.should_exit = True
     yield
     await asyncio.to_thread(close_services, app)

@@ -7,18 +7,48 @@ the figures), as ``drovisio study run --out`` writes them.
 
 from __future__ import annotations
 
-import json
 import re
 import threading
 import time
 from pathlib import Path
 
+from drovisio.errors import InputError, one_line
 from drovisio.resources import sample_sessions_dir, user_data_dir
+from drovisio.textfile import parse_json, read_text
 from webtool.errors import ServiceError
 
 __all__ = ["StudyService"]
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,120}$")
+MAX_ENTRIES = 2000
+"""Most folder entries looked at for one listing (a folder of a million entries is not a
+study folder)."""
+
+
+def read_summary(path: Path) -> dict:
+    """The fields the listing shows from a report's ``summary.json``, read through the
+    bounded reader and checked.
+
+    Raises:
+        InputError: one line naming the file and the field.
+    """
+    s = parse_json(read_text(path, "study summary"), str(path))
+    if not isinstance(s, dict):
+        raise InputError(f"{path}: not a study summary (a JSON object)")
+    protocol = s.get("protocol")
+    frames = s.get("frames")
+    seconds = s.get("seconds")
+    skipped = s.get("skipped") or []
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int)
+                               or frames < 0):
+        raise InputError(f"{path}: frames: give a whole number, 0 or more")
+    if seconds is not None and (isinstance(seconds, bool)
+                                or not isinstance(seconds, (int, float)) or seconds < 0):
+        raise InputError(f"{path}: seconds: give a number of seconds, 0 or more")
+    if not isinstance(skipped, list):
+        raise InputError(f"{path}: skipped: give a list")
+    return {"protocol": None if protocol is None else one_line(protocol, 200),
+            "frames": frames, "seconds": seconds, "skipped": len(skipped)}
 
 
 class StudyService:
@@ -38,21 +68,28 @@ class StudyService:
 
     def reports(self) -> list[dict]:
         """The reports in the folder, newest first."""
-        out = []
-        if self.folder.is_dir():
-            for d in self.folder.iterdir():
-                f = d / "summary.json"
-                if not (d / "report.html").is_file() or not f.is_file():
+        return self.listing()["reports"]
+
+    def listing(self) -> dict:
+        """``{"reports": [...] newest first, "skipped": [{"name", "error"}]}``: every entry of
+        the folder read on its own through the summary's checks (:func:`read_summary`); a bad
+        one is skipped and named, never the whole listing lost."""
+        out: list[dict] = []
+        skipped: list[dict] = []
+        try:
+            entries = sorted(self.folder.iterdir()) if self.folder.is_dir() else []
+        except OSError as e:
+            return {"reports": [], "skipped": [{"name": str(self.folder),
+                                                "error": one_line(e, 200)}]}
+        for d in entries[:MAX_ENTRIES]:
+            try:
+                if not d.is_dir() or not (d / "report.html").is_file():
                     continue
-                try:
-                    s = json.loads(f.read_text(encoding="utf-8"))
-                except (OSError, ValueError):
-                    continue
-                out.append({"name": d.name, "protocol": s.get("protocol"),
-                            "frames": s.get("frames"), "seconds": s.get("seconds"),
-                            "skipped": len(s.get("skipped") or []),
-                            "written": f.stat().st_mtime})
-        return sorted(out, key=lambda r: -r["written"])
+                out.append({"name": d.name, **read_summary(d / "summary.json"),
+                            "written": (d / "summary.json").stat().st_mtime})
+            except (OSError, ValueError) as e:
+                skipped.append({"name": one_line(d.name, 120), "error": one_line(e, 300)})
+        return {"reports": sorted(out, key=lambda r: -r["written"]), "skipped": skipped}
 
     def report_file(self, name: str, file: str) -> Path:
         if not _NAME.match(name) or not re.match(r"^(report\.html|fig-6\.\d+\.png)$", file):

@@ -53,6 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drovisio.bounds import MAX_SUPERSAMPLING, whole
+
 FLIP_DEG = 20.0
 MIN_CODE_PX = 14.0
 #: recall is also reported by the size of a brick's largest countable code (px across)
@@ -67,26 +69,27 @@ def _parser() -> argparse.ArgumentParser:
         epilog="Example:\n  drovisio bench aruco --frames 80 --empty 200 --cache /tmp/aruco-frames"
                "\n  drovisio bench aruco --frames 5 --empty 10   # a quick look",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--frames", type=int, default=80,
+    p.add_argument("--frames", type=whole(1, 100_000), default=80,
                    help="frames per brick count (default 80)")
     p.add_argument("--bricks", default="1,4,16",
                    help="brick counts, comma-separated (default 1,4,16)")
-    p.add_argument("--empty", type=int, default=200,
+    p.add_argument("--empty", type=whole(0, 100_000), default=200,
                    help="frames with no brick (ground, clutter, props) for false positives "
                         "(default 200)")
-    p.add_argument("--seed", type=int, default=0, help="first scene seed (default 0)")
+    p.add_argument("--seed", type=whole(0, 2**32 - 1), default=0, help="first scene seed (default 0)")
     p.add_argument("--layout", action="append", metavar="LAYOUT.json",
                    help="layouts of the bricks (default: the shipped drick-aruco-centre and "
                         "drick-aruco-pyramids)")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=whole(1, 256), default=1,
                    help="OpenCV threads for both detectors (default 1)")
-    p.add_argument("--repeat", type=int, default=3,
+    p.add_argument("--repeat", type=whole(1, 1000), default=3,
                    help="timed runs per frame and detector, fastest kept (default 3)")
     p.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
                    help="cpu: CPU time of the calling thread (default; with --threads 1 it "
                         "is all the work, and other processes on the machine do not count); "
                         "wall: elapsed time")
-    p.add_argument("--ss", type=int, default=3, help="renderer supersampling (default 3)")
+    p.add_argument("--ss", type=whole(1, MAX_SUPERSAMPLING), default=3,
+                   help="renderer supersampling (default 3)")
     p.add_argument("--dictionary", metavar="DICT",
                    help="give every layout's codes this dictionary (same ids), e.g. "
                         "DICT_APRILTAG_36h11 to compare with AprilTag 3")

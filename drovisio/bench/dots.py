@@ -47,6 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drovisio.bounds import whole
+
 EXAMPLE = """example:
   drovisio bench dots                      # all parts, default frame counts (~15 min first run)
   drovisio bench dots --quick              # small counts, a couple of minutes
@@ -66,27 +68,27 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--parts", default=",".join(PARTS),
                    help=f"comma-separated parts to run (default: all of {','.join(PARTS)})")
     p.add_argument("--quick", action="store_true", help="small frame counts (a smoke run)")
-    p.add_argument("--frames", type=int, default=None,
+    p.add_argument("--frames", type=whole(1, 1_000_000), default=None,
                    help="frames of the accuracy part (default 300; quick 40)")
-    p.add_argument("--hidden-frames", type=int, default=None, help="default 200; quick 30")
-    p.add_argument("--clutter-frames", type=int, default=None, help="default 220; quick 30")
-    p.add_argument("--lighting-frames", type=int, default=None,
+    p.add_argument("--hidden-frames", type=whole(1, 1_000_000), default=None, help="default 200; quick 30")
+    p.add_argument("--clutter-frames", type=whole(1, 1_000_000), default=None, help="default 220; quick 30")
+    p.add_argument("--lighting-frames", type=whole(1, 1_000_000), default=None,
                    help="frames per gain × gamma cell (default 12; quick 2)")
-    p.add_argument("--timing-frames", type=int, default=None,
+    p.add_argument("--timing-frames", type=whole(1, 1_000_000), default=None,
                    help="frames per brick count (default 6; quick 3)")
-    p.add_argument("--timing-repeats", type=int, default=None,
+    p.add_argument("--timing-repeats", type=whole(1, 1_000_000), default=None,
                    help="timed runs per frame (default 40; quick 10)")
-    p.add_argument("--memory-frames", type=int, default=None,
+    p.add_argument("--memory-frames", type=whole(1, 1_000_000), default=None,
                    help="frames of the memory loop (default 20000; quick 2000)")
     p.add_argument("--memory-trace", action="store_true",
                    help="also trace Python's allocations in the memory part (slower)")
-    p.add_argument("--seed", type=int, default=0, help="first scene seed")
+    p.add_argument("--seed", type=whole(0, 2**32 - 1), default=0, help="first scene seed")
     p.add_argument("--layout", default=None,
                    help="layout file (default: the shipped drick-dots-2x3.json)")
     p.add_argument("--cache", default=None,
                    help="folder for rendered frames (default ~/.cache/drovisio/bench-dots)")
     p.add_argument("--no-cache", action="store_true", help="render every frame afresh")
-    p.add_argument("--threads", type=int, default=None,
+    p.add_argument("--threads", type=whole(1, 256), default=None,
                    help="cv2.setNumThreads for the timing part (default: OpenCV's own)")
     p.add_argument("--json", metavar="FILE", help="write all figures as JSON")
     return p

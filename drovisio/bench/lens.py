@@ -19,8 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drovisio.bounds import MAX_SUPERSAMPLING, whole
 from drovisio.camera import Camera
-from drovisio.cli import positive_int
 from drovisio.errors import InputError
 
 __all__ = ["FISHEYE_150", "detection_errors", "calibration_errors", "main"]
@@ -126,11 +126,11 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="drovisio bench lens", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default="detect,calibrate", help="detect, calibrate or both")
-    p.add_argument("--scenes", type=positive_int, default=40,
+    p.add_argument("--scenes", type=whole(1, 100_000), default=40,
                    help="scenes per detector (default 40)")
-    p.add_argument("--views", type=positive_int, default=20,
+    p.add_argument("--views", type=whole(3, 1000), default=20,
                    help="calibration views (default 20, at least 3)")
-    p.add_argument("--ss", type=positive_int, default=3,
+    p.add_argument("--ss", type=whole(1, MAX_SUPERSAMPLING), default=3,
                    help="renderer samples per pixel and axis (default 3, as the other "
                         "benchmarks; at 2 the aliased edges of 15-px codes through the "
                         "fisheye's rim add ~0.3 px of corner noise the lens does not make)")

@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from drovisio.bounds import number
 from drovisio.resources import layouts_dir, sample_sessions_dir
 from drovisio.sources import Pace
 
@@ -407,11 +408,11 @@ def main(argv: list[str]) -> int:
                     default="all")
     ap.add_argument("--send-held-targets", action="store_true",
                     help="wire: run drovisio with --send-held-targets (to compare)")
-    ap.add_argument("--fps", type=float, default=30.0, help="camera frame rate (default 30)")
-    ap.add_argument("--seconds", type=float, default=20.0, help="latency run length (s)")
-    ap.add_argument("--minutes", type=float, default=20.0,
+    ap.add_argument("--fps", type=number(0, 1000, above=True), default=30.0, help="camera frame rate (default 30)")
+    ap.add_argument("--seconds", type=number(0, 86400, above=True), default=20.0, help="latency run length (s)")
+    ap.add_argument("--minutes", type=number(0, 1440, above=True), default=20.0,
                     help="memory run length in stream minutes (default 20)")
-    ap.add_argument("--warmup-minutes", type=float, default=2.0)
+    ap.add_argument("--warmup-minutes", type=number(0, 1440), default=2.0)
     ap.add_argument("--json", metavar="FILE", help="also write the results here")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
@@ -449,5 +450,7 @@ def main(argv: list[str]) -> int:
               f"{r['rss_mb']['end_median']} MB at the end, growth {r['growth_mb']} MB "
               f"(slope {r['slope_mb_per_hour']} MB/h) — {'PASS' if r['pass'] else 'FAIL'}")
     if a.json:
-        Path(a.json).write_text(json.dumps(res, indent=1))
+        from drovisio.fileio import atomic_write_text
+
+        atomic_write_text(a.json, json.dumps(res, indent=1))
     return 0 if ok else 1

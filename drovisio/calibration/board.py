@@ -123,6 +123,34 @@ class BoardSpec:
                 "square_m": self.square}
 
 
+def _dictionary_name(text: str) -> str:
+    """OpenCV's spelling of a dictionary name typed in any case (``dict_apriltag_16h5`` →
+    ``DICT_APRILTAG_16h5``: AprilTag names are mixed-case)."""
+    want = text.strip().upper()
+    for name in dir(cv2.aruco):
+        if name.upper() == want and name.startswith("DICT_"):
+            return name
+    return text.strip()
+
+
+def dictionary_size(name: str) -> int:
+    """How many codes OpenCV's predefined dictionary ``name`` holds, read from the dictionary
+    object itself (``DICT_APRILTAG_16h5`` has 30, a name says nothing reliable).
+
+    Raises:
+        BoardSpecError: not one of OpenCV's predefined dictionaries.
+    """
+    value = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
+    try:
+        d = cv2.aruco.getPredefinedDictionary(value) if isinstance(value, int) else None
+    except cv2.error:
+        d = None
+    if d is None:
+        raise BoardSpecError(f"unknown ArUco dictionary {name!r} (e.g. DICT_4X4_50, "
+                             "DICT_5X5_100, DICT_APRILTAG_36h11)")
+    return int(d.bytesList.shape[0])
+
+
 def parse_board(spec: str, square: float) -> BoardSpec:
     """Parse ``chessboard:9x6`` (or ``charuco:9x6[:DICT[:RATIO]]``) and a square size in metres.
 
@@ -139,7 +167,7 @@ def parse_board(spec: str, square: float) -> BoardSpec:
         raise BoardSpecError(f"board spec {spec!r}: unknown kind {parts[0]!r}; {form}")
     if len(parts) < 2:
         raise BoardSpecError(f"board spec {spec!r}: missing the size; {form}")
-    m = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", parts[1])
+    m = re.fullmatch(r"\s*(\d{1,6})\s*[xX×]\s*(\d{1,6})\s*", parts[1])
     if not m:
         raise BoardSpecError(f"board spec {spec!r}: size {parts[1]!r} is not COLSxROWS; {form}")
     cols, rows = int(m.group(1)), int(m.group(2))
@@ -167,10 +195,11 @@ def parse_board(spec: str, square: float) -> BoardSpec:
         if len(parts) > 2:
             raise BoardSpecError(f"board spec {spec!r}: a chessboard takes no options; {form}")
         return BoardSpec("chessboard", cols, rows, sq)
-    dictionary = parts[2].upper() if len(parts) > 2 and parts[2] else "DICT_4X4_50"
-    if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
-        raise BoardSpecError(f"board spec {spec!r}: unknown ArUco dictionary {dictionary!r} "
-                             "(e.g. DICT_4X4_50, DICT_5X5_100)")
+    dictionary = _dictionary_name(parts[2]) if len(parts) > 2 and parts[2] else "DICT_4X4_50"
+    try:
+        dictionary_size(dictionary)
+    except BoardSpecError as e:
+        raise BoardSpecError(f"board spec {spec!r}: {e}") from None
     ratio = 0.75
     if len(parts) > 3:
         try:
@@ -185,8 +214,7 @@ def parse_board(spec: str, square: float) -> BoardSpec:
         raise BoardSpecError(f"board spec {spec!r}: too many fields; "
                              "charuco:COLSxROWS[:DICTIONARY[:MARKER_RATIO]]")
     n_markers = ((cols + 1) * (rows + 1)) // 2
-    size_match = re.search(r"_(\d+)$", dictionary)
-    dict_size = int(size_match.group(1)) if size_match else 1000
+    dict_size = dictionary_size(dictionary)  # from OpenCV's object: AprilTag names have no _N
     if n_markers > dict_size:
         raise BoardSpecError(f"board spec {spec!r}: the board needs {n_markers} markers but "
                              f"{dictionary} has {dict_size}")

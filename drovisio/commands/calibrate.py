@@ -281,7 +281,7 @@ def measure_mount_command(args: argparse.Namespace) -> int:
     from drovisio.camera_file import load_camera
     from drovisio.fileio import atomic_write_text, check_output_path
     from drovisio.layout import load_layout, shipped_layouts_dir
-    from drovisio.mount import Mount, body_from_camera_angles
+    from drovisio.mount import Mount, body_from_camera_angles, load_mount
 
     camera = load_camera(args.camera)
     paths = args.layout or [str(p) for p in sorted(shipped_layouts_dir().glob("*.json"))]
@@ -309,7 +309,9 @@ def measure_mount_command(args: argparse.Namespace) -> int:
                "the code's x axis toward the nose"))
     mount = Mount(body_from_camera_angles(m["tilt_deg"], pan, m["roll_deg"], args.offset),
                   note=note)
-    atomic_write_text(out, json.dumps(mount.to_file(), indent=1) + "\n")
+    # read back as `run --mount` reads it: a file it would refuse is never written
+    atomic_write_text(out, json.dumps(mount.to_file(), indent=1) + "\n",
+                      verify=lambda tmp: load_mount(tmp))
     print(f"tilt {m['tilt_deg']:.2f}°, roll {m['roll_deg']:.2f}°, pan "
           + (f"{pan:.2f}°" if args.aligned else "not measured")
           + f" (largest difference between pictures {m['spread_deg']:.2f}°); wrote {out}",

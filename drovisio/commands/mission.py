@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+from drovisio.fileio import atomic_write_text
+
 __all__ = ["run"]
 
 
@@ -81,7 +83,7 @@ def _check(args: argparse.Namespace) -> int:
         if not r.as_expected:
             print(f"  '{r.case.name}': expected {r.case.expect}, got {r.outcome}")
     if args.json:
-        Path(args.json).write_text(json.dumps([{
+        atomic_write_text(args.json, json.dumps([{
             "fault": r.case.name, "did": r.narrative, "outcome": r.outcome,
             "expected": r.case.expect,
             "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
@@ -148,7 +150,7 @@ def _diagram(args: argparse.Namespace) -> int:
 
     text = {"mermaid": diagram.mermaid, "dot": diagram.dot, "svg": diagram.svg}[args.format]()
     if args.out:
-        Path(args.out).write_text(text)
+        atomic_write_text(args.out, text)
         _err(f"wrote {args.out}")
     else:
         sys.stdout.write(text)

@@ -86,32 +86,20 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     from drovisio.mount import load_mount
     from drovisio.pipeline import Pipeline, detectors_for
     from drovisio.recording import Recorder
-    from drovisio.sinks import open_sink
     from drovisio.sinks.mavlink import MavlinkSink
     from drovisio.sinks.target import TargetSelector
     from drovisio.sources import FrameSource, reader_for
+    from drovisio.startup import check_pipeline_options, open_sinks_of
 
+    check_pipeline_options(args, open_sinks=False)   # the same check as `serve`'s
     camera = load_camera(args.camera)
     layouts = load_layouts(args.layout)
     if not any(lay.has_codes or lay.has_dots for lay in layouts):
         raise InputError("the layouts have neither codes nor dots: nothing to detect")
     mount = load_mount(args.mount) if getattr(args, "mount", None) else None
     reader = reader_for(args.source, loop=loop)
-    try:
-        target = TargetSelector(getattr(args, "target", None) or "nearest")
-    except ValueError as e:
-        raise InputError(f"--target: {e}") from None
-    sinks = []
-    try:
-        for spec in (args.sink or list(default_sinks)):
-            sinks.append(open_sink(spec, target=target,
-                                   autopilot=getattr(args, "autopilot", "ardupilot"),
-                                   mount=mount, layouts=layouts,
-                                   send_held=getattr(args, "send_held_targets", False)))
-    except Exception:
-        for s in sinks:
-            s.close()
-        raise
+    target = TargetSelector(getattr(args, "target", None) or "nearest")  # checked above
+    sinks = open_sinks_of(args, target, mount, layouts, default_sinks)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
 
     def attitude_gravity(t_mono: float):

@@ -48,10 +48,13 @@ from typing import Any
 
 import numpy as np
 
+from drovisio.errors import InputError
+from drovisio.fileio import atomic_write_text
 from drovisio.geometry import quat_wxyz
 from drovisio.mission.frames import site_from_body
 from drovisio.mission.machine import TRANSITIONS, State
 from drovisio.mission.sim import Trace, body_from_camera_for, camera_for
+from drovisio.textfile import parse_json, read_inside, read_text
 
 __all__ = ["SCHEMA_ID", "write_recording", "load_recording"]
 
@@ -93,14 +96,15 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
             "bricks": {b: _r(p[:3]) + [round(p[3], 5)] for b, p in tk.bricks.items()},
         }, separators=(",", ":")))
         pending = []
-    (out / "ticks.jsonl").write_text("\n".join(lines) + "\n")
-    if scn.source is not None and Path(scn.source).exists():
-        (out / "scenario.yaml").write_text(Path(scn.source).read_text())
+    # every file beside, checked, renamed: a full disk keeps an older run whole
+    atomic_write_text(out / "ticks.jsonl", "\n".join(lines) + "\n")
+    if scn.source is not None and Path(scn.source).is_file():
+        atomic_write_text(out / "scenario.yaml", read_text(scn.source, "scenario"))
     else:
         import yaml
 
-        (out / "scenario.yaml").write_text(yaml.safe_dump(scn.model_dump(by_alias=True),
-                                                          sort_keys=False))
+        atomic_write_text(out / "scenario.yaml", yaml.safe_dump(scn.model_dump(by_alias=True),
+                                                                sort_keys=False))
     cam = camera_for(scn)
     layouts = {}
     for name in scn.layouts:
@@ -144,16 +148,69 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
         "faults": [f.describe() for f in trace.faults],
         **(extra or {}),
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1))
     return out
 
 
-def load_recording(path: str | Path) -> tuple[dict, list[dict]]:
-    """(manifest, ticks) of a recording folder."""
-    p = Path(path)
-    manifest = json.loads((p / "manifest.json").read_text())
+MAX_TICKS_BYTES = 256 * 1024 * 1024
+"""Largest ticks file read (a 20-minute mission recorded every tick is ~30 MB)."""
+
+
+def load_manifest(path: str | Path) -> dict:
+    """The manifest of a recording folder, read through the bounded reader and checked.
+
+    Raises:
+        InputError: one line naming the file and the field.
+    """
+    mf = Path(path) / "manifest.json"
+    manifest = parse_json(read_text(mf, "recording manifest"), str(mf))
+    if not isinstance(manifest, dict):
+        raise InputError(f"{mf}: not a recording manifest (a JSON object)")
     if manifest.get("schema") != SCHEMA_ID:
-        raise ValueError(f"{p / 'manifest.json'}: schema: expected {SCHEMA_ID!r}")
-    ticks = [json.loads(line) for line in (p / manifest["ticks_file"]).read_text().splitlines()
-             if line.strip()]
+        raise InputError(f"{mf}: schema: expected {SCHEMA_ID!r}")
+    for key in ("duration_s",):
+        v = manifest.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(v) or v < 0):
+            raise InputError(f"{mf}: {key}: give a finite number of seconds, 0 or more")
+    return manifest
+
+
+def load_recording(path: str | Path) -> tuple[dict, list[dict]]:
+    """(manifest, ticks) of a recording folder. The ticks file the manifest names is read
+    through :func:`drovisio.textfile.read_inside` (a regular file inside the folder, its size
+    bounded: never ``/dev/zero``, a FIFO or ``../../etc/passwd``), every tick checked.
+
+    Raises:
+        InputError: one line naming the file and the field.
+    """
+    p = Path(path)
+    manifest = load_manifest(p)
+    where = f"{p / 'manifest.json'}: ticks_file"
+    text = read_inside(p, manifest.get("ticks_file"), where, "ticks file", MAX_TICKS_BYTES)
+    tf = p / str(manifest["ticks_file"])
+    ticks = []
+    last = -math.inf
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        tk = parse_json(line, f"{tf}: line {n}")
+        t = tk.get("t") if isinstance(tk, dict) else None
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+            raise InputError(f"{tf}: line {n}: t: give the tick's time, a finite number of "
+                             "seconds")
+        if t < last:
+            raise InputError(f"{tf}: line {n}: t: {t} is before the previous tick's {last}; "
+                             "ticks must be in time order")
+        last = t
+        events = tk.get("events", [])
+        if not isinstance(events, list) or not all(isinstance(e, dict) for e in events) \
+                or not isinstance(tk.get("bricks", {}), dict):
+            raise InputError(f"{tf}: line {n}: events must be a list and bricks an object")
+        if not isinstance(tk.get("state"), str) or not isinstance(tk.get("drone"), dict):
+            raise InputError(f"{tf}: line {n}: give the tick's state (text) and drone (an "
+                             "object)")
+        ticks.append(tk)
+    if not ticks:
+        raise InputError(f"{tf}: the recording has no ticks")
     return manifest, ticks

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -25,7 +26,10 @@ class JsonlSink:
             p = Path(path)
             try:
                 p.parent.mkdir(parents=True, exist_ok=True)
-                self._f = open(p, "a", encoding="utf-8", buffering=1)
+                # non-blocking open: a FIFO nobody reads fails at once (ENXIO), never hangs
+                fd = os.open(p, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NONBLOCK, 0o666)
+                os.set_blocking(fd, True)
+                self._f = os.fdopen(fd, "a", encoding="utf-8", buffering=1)
             except OSError as e:
                 raise SinkError(f"jsonl:{path}: cannot open for writing ({e.strerror or e})") \
                     from e

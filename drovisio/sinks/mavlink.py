@@ -202,6 +202,27 @@ def _check_host(name: str, dev: str) -> None:
         socket.getaddrinfo(host, int(port))
     except (socket.gaierror, UnicodeError) as e:
         raise SinkError(f"{name}: unknown host {host!r} ({e}); check the address") from None
+    if kind == "tcp":
+        _probe_tcp(name, host, int(port))
+
+
+def _probe_tcp(name: str, host: str, port: int) -> None:
+    """Connect once with a deadline before pymavlink does: its connect has none (a silent
+    peer blocks ~7 minutes) and it retries a refused one for seconds."""
+    import socket
+
+    from drovisio.errors import LIMITS
+
+    deadline = LIMITS.connect_timeout_s
+    try:
+        with socket.create_connection((host, port), timeout=deadline):
+            pass
+    except TimeoutError:
+        raise SinkError(f"{name}: no answer from {host}:{port} within {deadline:g} s; is the "
+                        "autopilot (or its TCP bridge) on and is the address right?") from None
+    except OSError as e:
+        raise SinkError(f"{name}: cannot connect to {host}:{port} ({e.strerror or e}); is "
+                        "the autopilot (or its TCP bridge) listening there?") from None
 
 
 def _split_connection(conn: str) -> tuple[str, int | None]:

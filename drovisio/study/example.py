@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from drovisio.fileio import atomic_write_text
+from drovisio.fileio import atomic_write_text, write_image, write_video
 from drovisio.study.protocol import PROTOCOL_SCHEMA, Step
 
 __all__ = ["write_recorded_example"]
@@ -36,16 +36,12 @@ def write_recorded_example(out: Path, frames: int = 6) -> Path:
         step = Step(figure=fig, layout=lay, vary=vary, value=value, frames=frames)
         layout = load_layout(shipped_layouts_dir() / f"{names[lay]}.json")
         imgs = [f.image for f in step_frames(step, layout, cam, 900 + i, out)]
-        if src.endswith(".mp4"):
-            w = cv2.VideoWriter(str(out / src), cv2.VideoWriter.fourcc(*"mp4v"), 10.0,
-                                (cam.width, cam.height))
-            for img in imgs:
-                w.write(img)
-            w.release()
+        if src.endswith(".mp4"):   # beside, checked, renamed: an old video survives a full disk
+            write_video(out / src, imgs, 10.0, (cam.width, cam.height))
         else:
             (out / src).mkdir(exist_ok=True)
             for k, img in enumerate(imgs):
-                cv2.imwrite(str(out / src / f"frame_{k:03d}.jpg"), img,
+                write_image(out / src / f"frame_{k:03d}.jpg", img,
                             [cv2.IMWRITE_JPEG_QUALITY, 92])
         steps.append({**step.model_dump(exclude_none=True), "source": src})
     protocol = {"schema": PROTOCOL_SCHEMA, "name": "recorded example",

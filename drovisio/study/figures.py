@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drovisio.fileio import save_figure
+
 __all__ = ["box_figure", "fps_figure", "memory_figure"]
 
 
@@ -111,8 +113,10 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
             drawn["panels"].append(panel)
     fig.suptitle(f"Fig. {fig_id}: {spec['title']}")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=90)
+    finally:
+        plt.close(fig)
     drawn["file"] = str(path)
     return drawn
 
@@ -135,8 +139,10 @@ def fps_figure(speed: list[dict], methods: dict, path: Path) -> dict:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=90)
+    finally:
+        plt.close(fig)
     return {"file": str(path), "lines": lines}
 
 
@@ -155,6 +161,8 @@ def memory_figure(memory: dict, methods: dict, path: Path) -> dict:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=90)
+    finally:
+        plt.close(fig)
     return {"file": str(path), "methods": sorted(memory)}

@@ -135,8 +135,9 @@ def _recorded(step: Step, base: Path) -> Iterator[StepFrame]:
                 raise InputError(f"{f}: {e}") from None
             yield StepFrame(img, truth, f.name)
         return
-    if not src.is_file():
-        raise InputError(f"{src}: no such video or folder (source of step {step.label})")
+    if not src.is_file():   # a FIFO or device is no video: reading it could block
+        raise InputError(f"{src}: no such video or folder, or not a regular file (source of "
+                         f"step {step.label})")
     cap = cv2.VideoCapture(str(src))
     try:
         got = 0

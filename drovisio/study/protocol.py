@@ -27,10 +27,17 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from drovisio.errors import InputError
-from drovisio.textfile import read_structured
+from drovisio.textfile import path_text_problem, read_structured
 
 __all__ = ["PROTOCOL_SCHEMA", "FIGURES", "LayoutRef", "Protocol", "ProtocolError", "Step",
            "default_protocol", "load_protocol"]
@@ -68,6 +75,15 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+def _plain_path(v: str | None) -> str | None:
+    """A path written in the protocol must be one the OS can open (no NUL byte, no name over
+    255 bytes): refused here, by field, not deep inside a reader."""
+    problem = None if v is None else path_text_problem(v)
+    if problem:
+        raise ValueError(f"the path {problem}")
+    return v
+
+
 class LayoutRef(_Model):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$",
                       description="Name the steps use.")
@@ -76,6 +92,8 @@ class LayoutRef(_Model):
     dictionary: str | None = Field(default=None, max_length=40, description=(
         "Give every code of the layout this dictionary (same ids), e.g. DICT_APRILTAG_36h11 "
         "so that AprilTag 3 can read it."))
+
+    _path = field_validator("layout")(_plain_path)
 
 
 class Step(_Model):
@@ -91,6 +109,8 @@ class Step(_Model):
     frames: int = Field(default=10, ge=1, le=10_000)
     source: str | None = Field(default=None, max_length=4096, description=(
         "Recorded step: a video file or a folder of images (relative to the protocol)."))
+
+    _path = field_validator("source")(_plain_path)
 
     @model_validator(mode="after")
     def _sane(self) -> Step:
@@ -127,6 +147,8 @@ class Protocol(_Model):
     steps: list[Step] = Field(min_length=1, max_length=2000)
     seed: int = Field(default=0, ge=0, le=2**31)
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, populate_by_name=True)
+
+    _path = field_validator("camera")(_plain_path)
 
     @model_validator(mode="after")
     def _names(self) -> Protocol:

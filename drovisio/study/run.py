@@ -108,6 +108,10 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
                          f"{', '.join(METHODS)}")
     camera = (load_camera(base / protocol.camera if not Path(protocol.camera).is_absolute()
                           else protocol.camera) if protocol.camera else Camera.drone_webcam())
+    from drovisio.synth import check_render_memory
+
+    if any(step.source is None for step in protocol.steps):  # a render's memory, up front
+        check_render_memory(camera, 2, f"{protocol.camera or 'the renderer'}'s image size")
     layouts = resolve_layouts(protocol, base)
     try:
         import pupil_apriltags  # noqa: F401

@@ -35,10 +35,11 @@ import json
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, File, Path, Query, UploadFile
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
 from webtool.calibration_service import CalibrationService
+from webtool.responses import JSONResponse
 from webtool.services import service
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])

@@ -53,12 +53,13 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Query, Request, WebSocket
 from fastapi import Path as PathParam
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drovisio.designer.model import DesignError
 from webtool.designer_service import MODE_LABELS, DesignerService
 from webtool.errors import ServiceError
+from webtool.responses import JSONResponse
 from webtool.services import get_service, service
 
 router = APIRouter(prefix="/api/designer", tags=["designer"])

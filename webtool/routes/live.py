@@ -27,13 +27,14 @@ import time
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisconnect
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.requests import HTTPConnection
 
 from webtool.access import access_level
 from webtool.errors import ServiceError
 from webtool.live_service import LEVELS, LiveService
+from webtool.responses import JSONResponse, json_safe
 from webtool.services import get_service
 from webtool.viser_proxy import viewer_router as viewer_router_for
 
@@ -147,9 +148,9 @@ async def live_ws(ws: WebSocket) -> None:
             now = time.monotonic()
             if now - last_state >= 0.2:
                 last_state = now
-                await ws.send_json({"type": "state", "access": access, "seq": seq,
-                                    "status": svc.status(), "bricks": svc.bricks_json(),
-                                    "stream": st.info()})
+                await ws.send_json(json_safe({
+                    "type": "state", "access": access, "seq": seq, "status": svc.status(),
+                    "bricks": svc.bricks_json(), "stream": st.info()}))
             if seq > sent_seq:
                 if st.ready():
                     st.fps = svc.stream_fps()

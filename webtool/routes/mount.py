@@ -24,13 +24,13 @@ import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, UploadFile
-from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from drovisio.mount import MountAngles
 from webtool.errors import ServiceError
 from webtool.live_service import LiveService
 from webtool.mount_service import MountService
+from webtool.responses import JSONResponse
 from webtool.services import get_service, service
 from webtool.viser_proxy import viewer_router as viewer_router_for
 

@@ -25,11 +25,11 @@ import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, Depends
-from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from webtool.errors import ServiceError
 from webtool.replay_service import ReplayService
+from webtool.responses import JSONResponse
 from webtool.services import get_service, service
 from webtool.viser_proxy import viewer_router as viewer_router_for
 

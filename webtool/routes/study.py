@@ -15,8 +15,9 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse
 
+from webtool.responses import JSONResponse
 from webtool.services import service
 from webtool.study_service import StudyService
 
@@ -29,8 +30,7 @@ Study = Annotated[StudyService, Depends(service("study"))]
 
 @router.get("/reports")
 def reports(svc: Study) -> JSONResponse:
-    return JSONResponse({"folder": str(svc.folder), "reports": svc.reports()},
-                        headers=NO_STORE)
+    return JSONResponse({"folder": str(svc.folder), **svc.listing()}, headers=NO_STORE)
 
 
 @router.post("/start", status_code=202)
