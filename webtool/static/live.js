@@ -24,6 +24,9 @@
     if (fc.length) {
       const k = fc[0];
       $("fig-fc").textContent = k.sent + " targets sent" + (k.held_not_sent ? ", " + k.held_not_sent + " frames without the target (nothing sent)" : "") + (k.errors ? ", " + k.errors + " failed" : "");
+      $("fc-note").textContent = k.note || "";
+      const bad = (k.check || []).filter((c) => c.status === "wrong" || c.status === "warn");
+      $("fc-check").textContent = !k.vehicle ? "" : bad.length ? "Autopilot check: " + bad.map((c) => c.item + ": " + c.text).join(" · ") : "Autopilot check: all read items ok (" + k.vehicle.autopilot + ", system " + k.vehicle.system + ").";
     }
     const s = msg.stream || {};
     $("fig-stream").textContent = fmt(s.kbps, " kbit/s", 0);
