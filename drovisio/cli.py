@@ -288,6 +288,37 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     s.add_argument("--heading-bias", type=finite_float, metavar="DEG",
                    help="compass bias of the simulated autopilot (default: 1)")
     s.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
+    g = sub.add_parser(
+        "landing", help="precision landing errors for a lens, a mount and a frame rate",
+        description="Simulate LAND-mode descents onto a brick with a model of ArduPilot's "
+                    "precision landing (PLND_LAG buffer, initialisation only after updates at "
+                    "most 0.5 s apart for 2 s, 2 s target timeout, descent on the last estimate "
+                    "once the brick leaves the picture) and print the touchdown error with "
+                    "this mount and with the camera straight down, and where the brick "
+                    "leaves the picture.",
+        epilog="Example:\n  drovisio mission landing --camera camera.yaml --mount mount.json "
+               "--rate 15 --wind 3\n  drovisio mission landing --tilt 20 --rate 1.5",
+        formatter_class=fmt)
+    g.add_argument("--camera", metavar="CAMERA_FILE",
+                   help="camera file (default: the 60° 640x480 drone webcam)")
+    g.add_argument("--mount", metavar="MOUNT_FILE", help="mount file (default: --tilt)")
+    g.add_argument("--tilt", type=finite_float, default=20.0, metavar="DEG",
+                   help="without --mount: forward tilt, camera 8 cm ahead and 5 cm below the "
+                        "body origin (default 20)")
+    g.add_argument("--layout", metavar="LAYOUT.json",
+                   help="the brick (default: drick-aruco-centre)")
+    g.add_argument("--rate", type=positive_float, default=15.0, metavar="HZ",
+                   help="frames the pipeline processes a second (default 15)")
+    g.add_argument("--detect-prob", type=positive_float, default=0.95, metavar="P",
+                   help="chance that a frame showing the brick detects it (default 0.95)")
+    g.add_argument("--wind", type=nonnegative_float, default=3.0, metavar="M/S",
+                   help="wind speed (default 3)")
+    g.add_argument("--latency-ms", type=nonnegative_float, default=50.0, metavar="MS",
+                   help="capture to LANDING_TARGET at the autopilot (default 50)")
+    g.add_argument("--plnd-lag-ms", type=nonnegative_float, metavar="MS",
+                   help="the autopilot's PLND_LAG (default: equal to the latency)")
+    g.add_argument("--runs", type=positive_int, default=20, help="landings (default 20)")
+    g.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     d = sub.add_parser(
         "diagram", help="print the state machine as Mermaid, Graphviz DOT or SVG",
         description="Draw the mission state machine from its transition table (the code).",
