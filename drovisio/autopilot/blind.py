@@ -67,18 +67,18 @@ def blind_height(camera: Camera, mount: Mount, layout: MarkerLayout, *, lowest_m
     seen = np.zeros(len(heights), bool)
     for group in _groups(layout):
         pts_b = BODY_FROM_ALIGNED_BRICK @ group.T                       # 3×K, brick at z = 0
-        ok = np.ones(len(heights), bool)
-        for k in range(pts_b.shape[1]):
-            p_body = np.repeat(pts_b[:, k:k + 1], len(heights), axis=1)
-            p_body[2] += heights + down                                  # below the body origin
-            p_cam = cam_from_body[:3, :3] @ p_body + cam_from_body[:3, 3:4]
-            z = p_cam[2]
-            front = z > 1e-6
-            r = np.hypot(p_cam[0], p_cam[1]) / np.where(front, z, 1.0)
-            px = camera.project(p_cam.T)
-            inside = ((px[:, 0] >= margin_px) & (px[:, 0] <= w - 1 - margin_px)
-                      & (px[:, 1] >= margin_px) & (px[:, 1] <= h - 1 - margin_px))
-            ok &= front & (r <= r_max) & inside
+        k = pts_b.shape[1]
+        # every corner at every height at once: (3, K·N), corner-major
+        p_body = np.repeat(pts_b, len(heights), axis=1)
+        p_body[2] += np.tile(heights + down, k)                          # below the body origin
+        p_cam = cam_from_body[:3, :3] @ p_body + cam_from_body[:3, 3:4]
+        z = p_cam[2]
+        front = z > 1e-6
+        r = np.hypot(p_cam[0], p_cam[1]) / np.where(front, z, 1.0)
+        px = camera.project(p_cam.T)
+        inside = ((px[:, 0] >= margin_px) & (px[:, 0] <= w - 1 - margin_px)
+                  & (px[:, 1] >= margin_px) & (px[:, 1] <= h - 1 - margin_px))
+        ok = (front & (r <= r_max) & inside).reshape(k, len(heights)).all(axis=0)
         seen |= ok
     if not seen.any():
         return BlindHeight(None, None, down)

@@ -264,6 +264,7 @@ class ParamReader:
         self.names = list(dict.fromkeys(names))
         self.values: dict[str, float] = {}
         self._asked: dict[str, tuple[int, float]] = {}
+        self._stale: set[str] = set()
         self.retry = retry
         self.attempts = attempts
 
@@ -277,6 +278,7 @@ class ParamReader:
         name = name.rstrip("\x00")
         if name in self.names:
             self.values[name] = float(msg.param_value)
+            self._stale.discard(name)
 
     def poll(self, now: float, vehicle: Vehicle | None, burst: int = 8) -> None:
         """Ask for up to ``burst`` parameters that are due (a serial link is slow)."""
@@ -284,9 +286,12 @@ class ParamReader:
             return
         n = 0
         for name in self.names:
-            if name in self.values:
+            if name in self.values and name not in self._stale:
                 continue
             k, t = self._asked.get(name, (0, -math.inf))
+            if k >= self.attempts and now - t >= self.retry and name in self._stale:
+                self.values.pop(name, None)     # gone since (hidden, or another firmware)
+                self._stale.discard(name)
             if k >= self.attempts or now - t < self.retry:
                 continue
             self._send(self._reader_for(vehicle, name))
@@ -302,10 +307,15 @@ class ParamReader:
                                         name.encode("ascii"), -1)
         return ask
 
+    def refresh(self) -> None:
+        """Ask for every parameter again (values kept until answered anew)."""
+        self._asked.clear()
+        self._stale = set(self.values)
+
     def done(self, now: float) -> bool:
         """Every parameter answered, or asked ``attempts`` times and not answered since."""
         for n in self.names:
-            if n in self.values:
+            if n in self.values and n not in self._stale:
                 continue
             k, t = self._asked.get(n, (0, now))
             if k < self.attempts or now - t < self.retry:

@@ -57,9 +57,12 @@ def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | 
     finally:
         timer.cancel()
         pipeline.close()
-    span = max(time.monotonic() - t0, 1e-6)
     lat = sorted(latency)[len(latency) // 2] if latency else None
-    return lat, len(measured) / span
+    # between the first and the last measurement: the start-up (camera opening, first
+    # frames) is not the rate the autopilot will see
+    if len(measured) >= 2 and measured[-1] > measured[0]:
+        return lat, (len(measured) - 1) / (measured[-1] - measured[0])
+    return lat, len(measured) / max(time.monotonic() - t0, 1e-6)
 
 
 def _blind(args: argparse.Namespace) -> tuple[float | None, list[str]]:

@@ -317,7 +317,8 @@ class MavlinkSink:
         self.streams = StreamKeeper(self._send_with, source_system,
                                     needs_position=autopilot == "px4", start=time.monotonic())
         self.params = ParamReader(self._send_with, param_names(autopilot, self._serial))
-        self._said: set[str] = set()
+        self.param_refresh_s = 15.0
+        self._params_since = time.monotonic()
         self._send_heartbeat()
         self._thread = threading.Thread(target=self._reader, daemon=True, name="mavlink-rx")
         self._thread.start()
@@ -364,6 +365,9 @@ class MavlinkSink:
                 elif t == "HEARTBEAT" and self.streams.vehicle is not None:
                     self.vehicle.autopilot_sysid = self.streams.vehicle.system
             self.streams.poll(now)
+            if self.params.done(now) and now - self._params_since > self.param_refresh_s:
+                self.params.refresh()         # someone may have fixed a parameter since
+                self._params_since = now
             self.params.poll(now, self.streams.vehicle, burst=2)
             if now >= next_hb:
                 self._send_heartbeat()

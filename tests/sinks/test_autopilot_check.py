@@ -110,9 +110,15 @@ def test_measures_latency_rate_and_blind_height_on_the_sample_video(vehicle, ard
                  "--layout", str(REPO / "marker_layouts" / "drick-aruco-centre.json"),
                  "--mount", str(APPROACH / "mount.json"), "--seconds", "2"])
     out = capsys.readouterr().out
-    assert code == 1, out            # PLND_LAG 0.25 is far from the measured latency
-    lines = {ln.split(":")[0].split()[-1]: ln for ln in out.splitlines()}
+    lines = {ln[8:].split(":")[0].split()[-1]: ln for ln in out.splitlines()
+             if ln.split()[0] in ("ok", "wrong", "warn", "unknown")}
+    # the figures depend on this machine's load; what is checked is what follows from them
     rate = float(lines["rate"].split("detection rate: ")[1].split(" Hz")[0])
-    assert 5.0 < rate <= 16.0        # the video is 15 fps and shows the brick throughout
-    assert lines["PLND_LAG"].startswith("wrong") and "→ set 0." in lines["PLND_LAG"]
+    assert 0.0 < rate <= 15.0 * 1.1          # never faster than the 15 fps video
+    latency_ms = float(lines["latency"].split("capture to send ")[1].split(" ms")[0])
+    lag = plnd_lag_for(latency_ms / 1e3)
+    assert f"set PLND_LAG = {lag:.2f}" in out
+    wrong = abs(0.25 - lag) > max(0.01, 0.25 * lag)
+    assert lines["PLND_LAG"].startswith("wrong" if wrong else "ok")
+    assert (code == 1) == (wrong or rate < 3.0)
     assert "leaves the picture 1.6" in out or "leaves the picture 1.7" in out

@@ -32,5 +32,8 @@ def test_live_status_carries_the_autopilot_check(vehicle, ardupilot_ok, tmp_path
         assert got["PLND_ORIENT"]["status"] == "wrong"
         assert "0 → set 25" in got["PLND_ORIENT"]["text"]
         assert got["PLND_TYPE"]["status"] == "ok" and got["ATTITUDE"]["status"] == "ok"
-        # the sample session shows the brick: the sink measured its own latency and rate
-        assert got["detection rate"]["status"] in ("ok", "warn")
+        # the sample session shows the brick: the sink measured its own latency and rate (their
+        # values depend on this machine's load: only that they were measured)
+        assert got["detection rate"]["status"] != "unknown" and "Hz" in got["detection rate"][
+            "text"]
+        assert got["latency"]["status"] == "ok" and "PLND_LAG 0." in got["latency"]["text"]

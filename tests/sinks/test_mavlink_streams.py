@@ -112,3 +112,19 @@ def test_mavlink_spec_ids():
         parse_mavlink_spec("udpout:127.0.0.1:14550?sysid=256")
     with pytest.raises(SinkError, match="unknown option 'system'"):
         parse_mavlink_spec("udpout:127.0.0.1:14550?system=2")
+
+
+def test_the_sinks_check_follows_a_fixed_parameter(vehicle, ardupilot_ok):
+    v = vehicle(params=dict(ardupilot_ok, PLND_ORIENT=0))
+    sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
+    sink.param_refresh_s = 0.5
+
+    def orient():
+        return {f["item"]: f for f in sink.check()}["PLND_ORIENT"]["status"]
+
+    try:
+        assert _wait(lambda: orient() == "wrong")
+        v.params["PLND_ORIENT"] = 25          # fixed from the ground station meanwhile
+        assert _wait(lambda: orient() == "ok")
+    finally:
+        sink.close()
