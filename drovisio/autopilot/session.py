@@ -7,6 +7,8 @@ the streams the sink needs and measures how fast they come, all within one deadl
 
 from __future__ import annotations
 
+import contextlib
+import io
 import time
 from dataclasses import dataclass
 
@@ -55,9 +57,12 @@ def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,
         raise InputError(str(e)) from None
     mavutil = mavutil2()
     try:
-        conn = mavutil.mavlink_connection(dev, source_system=ids.get("sysid", 1),
-                                          source_component=ids.get("compid", 191),
-                                          **({"baud": baud} if baud else {}))
+        # pymavlink prints its TCP retries on stdout: the one line below says it instead
+        with contextlib.redirect_stdout(io.StringIO()):
+            conn = mavutil.mavlink_connection(dev, source_system=ids.get("sysid", 1),
+                                              source_component=ids.get("compid", 191),
+                                              retries=max(1, int(timeout_s)),
+                                              **({"baud": baud} if baud else {}))
     except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
         raise InputError(f"{connection}: cannot open the MAVLink connection ({e})") from None
     link = _Link(conn)

@@ -122,3 +122,11 @@ def test_measures_latency_rate_and_blind_height_on_the_sample_video(vehicle, ard
     assert lines["PLND_LAG"].startswith("wrong" if wrong else "ok")
     assert (code == 1) == (wrong or rate < 3.0)
     assert "leaves the picture 1.6" in out or "leaves the picture 1.7" in out
+
+
+def test_a_refused_tcp_link_is_one_line_on_stderr_only(capsys):
+    assert main(["autopilot", "check", "tcp:127.0.0.1:1", "--timeout", "1"]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == ""
+    lines = cap.err.strip().splitlines()
+    assert len(lines) == 1 and "tcp:127.0.0.1:1: cannot open the MAVLink connection" in lines[0]
