@@ -274,10 +274,9 @@ class MavlinkSink:
             raise SinkError(f"unknown autopilot {autopilot!r}: ardupilot or px4")
         self.name = f"mavlink:{connection}"
         connection, ids = parse_mavlink_spec(connection)
-        source_system = ids.get("sysid", source_system)
+        follow = ids.get("sysid", source_system)    # None: the first autopilot heard
+        source_system = follow or 1
         source_component = ids.get("compid", source_component)
-        self.vehicle_system = source_system
-        """The vehicle followed (None: the first autopilot heard)."""
         self.autopilot = autopilot
         self.target = target or TargetSelector()
         self.mount = mount
@@ -305,7 +304,7 @@ class MavlinkSink:
         _check_host(self.name, dev)
         try:
             kw = {"baud": baud} if baud else {}
-            self.conn = mavutil.mavlink_connection(dev, source_system=source_system or 1,
+            self.conn = mavutil.mavlink_connection(dev, source_system=source_system,
                                                    source_component=source_component,
                                                    autoreconnect=True, **kw)
         except Exception as e:
@@ -314,7 +313,7 @@ class MavlinkSink:
         from drovisio.autopilot.link import ParamReader, StreamKeeper
 
         self._serial = baud is not None or dev.startswith(("/dev/", "COM"))
-        self.streams = StreamKeeper(self._send_with, source_system,
+        self.streams = StreamKeeper(self._send_with, follow,
                                     needs_position=autopilot == "px4", start=time.monotonic())
         self.params = ParamReader(self._send_with, param_names(autopilot, self._serial))
         self.param_refresh_s = 15.0
