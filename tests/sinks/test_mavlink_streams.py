@@ -128,3 +128,20 @@ def test_the_sinks_check_follows_a_fixed_parameter(vehicle, ardupilot_ok):
         assert _wait(lambda: orient() == "ok")
     finally:
         sink.close()
+
+
+def test_asks_again_when_a_stream_stops(vehicle):
+    """An autopilot reboot forgets the intervals: the sink asks again, the stream comes back."""
+    v = vehicle(interval="accept")
+    sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
+    sink.streams.missing_after = 1.0
+    try:
+        assert _wait(lambda: sink.attitude_at(time.monotonic()) is not None)
+        asked = sum(c.command == 511 and int(c.param1) == 30 for c in v.commands)
+        v.rates.clear()                              # rebooted: streams nothing again
+        assert _wait(lambda: sink.attitude_at(time.monotonic()) is None)
+        assert _wait(lambda: sum(c.command == 511 and int(c.param1) == 30
+                                 for c in v.commands) > asked)
+        assert _wait(lambda: sink.attitude_at(time.monotonic()) is not None)
+    finally:
+        sink.close()
