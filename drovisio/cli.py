@@ -340,6 +340,37 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     s.add_argument("--heading-bias", type=_bounded(-180.0, 180.0), metavar="DEG",
                    help="compass bias of the simulated autopilot (default: 1)")
     s.add_argument("-v", "--verbose", action="store_true", help="print events as they happen")
+    g = sub.add_parser(
+        "landing", help="precision landing errors for a lens, a mount and a frame rate",
+        description="Simulate LAND-mode descents onto a brick with a model of ArduPilot's "
+                    "precision landing (PLND_LAG buffer, initialisation only after updates at "
+                    "most 0.5 s apart for 2 s, 2 s target timeout, descent on the last estimate "
+                    "once the brick leaves the picture) and print the touchdown error with "
+                    "this mount and with the camera straight down, and where the brick "
+                    "leaves the picture.",
+        epilog="Example:\n  drovisio mission landing --camera camera.yaml --mount mount.json "
+               "--rate 15 --wind 3\n  drovisio mission landing --tilt 20 --rate 1.5",
+        formatter_class=fmt)
+    g.add_argument("--camera", metavar="CAMERA_FILE",
+                   help="camera file (default: the 60° 640x480 drone webcam)")
+    g.add_argument("--mount", metavar="MOUNT_FILE", help="mount file (default: --tilt)")
+    g.add_argument("--tilt", type=finite_float, default=20.0, metavar="DEG",
+                   help="without --mount: forward tilt, camera 8 cm ahead and 5 cm below the "
+                        "body origin (default 20)")
+    g.add_argument("--layout", metavar="LAYOUT.json",
+                   help="the brick (default: drick-aruco-centre)")
+    g.add_argument("--rate", type=positive_float, default=15.0, metavar="HZ",
+                   help="frames the pipeline processes a second (default 15)")
+    g.add_argument("--detect-prob", type=positive_float, default=0.95, metavar="P",
+                   help="chance that a frame showing the brick detects it (default 0.95)")
+    g.add_argument("--wind", type=nonnegative_float, default=3.0, metavar="M/S",
+                   help="wind speed (default 3)")
+    g.add_argument("--latency-ms", type=nonnegative_float, default=50.0, metavar="MS",
+                   help="capture to LANDING_TARGET at the autopilot (default 50)")
+    g.add_argument("--plnd-lag-ms", type=nonnegative_float, metavar="MS",
+                   help="the autopilot's PLND_LAG (default: equal to the latency)")
+    g.add_argument("--runs", type=positive_int, default=20, help="landings (default 20)")
+    g.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     d = sub.add_parser(
         "diagram", help="print the state machine as Mermaid, Graphviz DOT or SVG",
         description="Draw the mission state machine from its transition table (the code).",
@@ -349,6 +380,44 @@ def _add_mission(p: argparse.ArgumentParser) -> None:
     d.add_argument("--format", choices=("mermaid", "dot", "svg"), default="mermaid",
                    help="output format (default: mermaid)")
     d.add_argument("--out", metavar="FILE", help="write here instead of stdout")
+
+
+def _add_autopilot(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="autopilot_action", metavar="ACTION", required=True)
+    c = sub.add_parser(
+        "check", help="compare the flight controller's precision-landing set-up with what "
+                      "Drovisio sends",
+        description="Connect to the flight controller as the mavlink: sink would, read its type "
+                    "and precision-landing parameters (ArduPilot PLND_*, the serial port's "
+                    "protocol; PX4 LTEST_*/PLD_*), ask for the streams Drovisio needs and "
+                    "measure them; with --source/--camera/--layout also measure the "
+                    "capture-to-send latency (PLND_LAG) and how often the target is seen (the "
+                    "landing filter needs 2 Hz). One line per item: ok, or wrong -> the value "
+                    "to set and why. Exit 0 all ok, 1 something to fix, 2 bad input or no "
+                    "autopilot on the connection.",
+        epilog="Example:\n  drovisio autopilot check udpin:0.0.0.0:14550\n"
+               "  drovisio autopilot check /dev/ttyAMA0,921600 --source 0 --camera camera.yaml "
+               "\\\n      --layout marker_layouts/drick-aruco-centre.json --mount mount.json",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("connection", metavar="CONNECTION",
+                   help="pymavlink connection, as after mavlink: in --sink (udpin:0.0.0.0:14550, "
+                        "tcp:127.0.0.1:5760, /dev/ttyAMA0,921600; ?sysid=N&compid=M)")
+    c.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="the LANDING_TARGET flavour Drovisio will send (as run --autopilot)")
+    c.add_argument("--timeout", type=positive_float, default=5.0, metavar="SECONDS",
+                   help="wait this long for the vehicle, then for its parameters (default 5)")
+    c.add_argument("--source", metavar="SOURCE", help="camera or video to measure latency and "
+                   "detection rate on (with --camera and --layout)")
+    c.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
+    c.add_argument("--layout", action="append", metavar="LAYOUT.json", help="layout; repeatable")
+    c.add_argument("--mount", metavar="MOUNT_FILE",
+                   help="camera mount (also gives the height at which the brick leaves the "
+                        "picture)")
+    c.add_argument("--target", default="nearest", metavar="TARGET", help="as run --target")
+    c.add_argument("--seconds", type=positive_float, default=5.0,
+                   help="how long to measure the pipeline (default 5)")
+    c.add_argument("--latency-ms", type=nonnegative_float, metavar="MS",
+                   help="capture-to-send latency measured elsewhere (instead of --source)")
 
 
 def _add_synth(p: argparse.ArgumentParser) -> None:
@@ -512,6 +581,17 @@ COMMANDS: dict[str, Command] = {
                     "  drovisio mission simulate wall-2-courses --record runs/wall\n"
                     "  drovisio mission diagram --format mermaid",
             add_arguments=_add_mission,
+        ),
+        Command(
+            name="autopilot",
+            summary="check the flight controller's precision-landing set-up over MAVLink",
+            description="Before the first flight: is the autopilot (ArduPilot or PX4) set up "
+                        "for the LANDING_TARGET messages Drovisio sends?",
+            example="drovisio autopilot check udpin:0.0.0.0:14550\n"
+                    "  drovisio autopilot check /dev/ttyAMA0,921600 --source 0 "
+                    "--camera camera.yaml \\\n"
+                    "      --layout marker_layouts/drick-aruco-centre.json --mount mount.json",
+            add_arguments=_add_autopilot,
         ),
         Command(
             name="synth",

@@ -69,6 +69,9 @@ def test_calibrate_mount_command_writes_the_mount_file(tmp_path, capsys):
     assert rc == 0, err
     assert "pad0.png: 1 code brick(s) lying flat (landing-pad)" in err
     assert "broken.jpg: skipped" in err and "Traceback" not in err
+    # where a straight descent onto each brick goes blind with this mount, and straight down
+    line = [ln for ln in err.splitlines() if ln.startswith("landing on a drick-aruco-centre")][0]
+    assert "with this mount (tilt 25°) the brick" in line and "looking straight down" in line
     m = load_mount(out).angles()
     assert abs(m["tilt_deg"] - 25.0) < 0.5 and abs(m["pan_deg"] - 3.0) < 0.5
     assert abs(m["roll_deg"] + 2.0) < 0.5 and m["offset_m"] == [0.08, 0.0, 0.05]

@@ -66,6 +66,7 @@ class MountService:
         self.height_m = 1.5
         self.saved = self.loaded_from == str(self.save_path)
         self._camera = None
+        self._blind_layouts: list | None = None
 
     def _initial(self) -> tuple[str | None, Mount]:
         s = self.settings
@@ -102,9 +103,29 @@ class MountService:
         return {"angles": self.angles.model_dump(), "height_m": self.height_m,
                 "body_from_camera": [[round(v, 6) + 0.0 for v in row]
                                      for row in m.body_from_camera.tolist()],
-                "footprint": fp, "file": str(self.save_path), "loaded_from": self.loaded_from,
+                "footprint": fp, "blind": self._blind(m, cam),
+                "file": str(self.save_path), "loaded_from": self.loaded_from,
                 "saved": self.saved, "camera": {"width": cam.width, "height": cam.height,
                                                 "hfov_deg": round(cam.hfov_deg(), 1)}}
+
+    def _blind(self, m: Mount, cam) -> list[dict]:
+        """Per layout: the camera height above the brick at which a straight descent onto it
+        loses it from the picture, with this mount and looking straight down."""
+        from drovisio.autopilot.blind import blind_height
+
+        if not cam.size_known:
+            return []
+        if self._blind_layouts is None:
+            self._blind_layouts = self._layouts()
+        a = m.angles()
+        down = Mount.from_angles(0.0, 0.0, a["roll_deg"], a["offset_m"])
+        out = []
+        for lay in self._blind_layouts:
+            b, d = blind_height(cam, m, lay), blind_height(cam, down, lay)
+            out.append({"layout": lay.name, "leaves_at_m": b.leaves_at_m,
+                        "straight_down_leaves_at_m": d.leaves_at_m,
+                        "seen": b.highest_seen_m is not None})
+        return out
 
     def preview(self, angles: MountAngles, height_m: float) -> dict:
         """Show ``angles`` (not saved yet) with the ground ``height_m`` below."""

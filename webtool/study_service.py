@@ -124,7 +124,7 @@ class StudyService:
             path = sample_sessions_dir() / "study" / "protocol.yaml"
             protocol = load_protocol(path)
             res = run_study(protocol, path.parent, memory_seconds=2.0, speed_bricks=(1, 5),
-                            speed_frames=1, progress=say)
+                            speed_frames=1, progress=say, landing_runs=3)
             out = self.folder / name
             write_report(res, out, f"drovisio study run --protocol {path} --out {out}",
                          path.read_text(encoding="utf-8"))

@@ -316,4 +316,9 @@ def measure_mount_command(args: argparse.Namespace) -> int:
           + (f"{pan:.2f}°" if args.aligned else "not measured")
           + f" (largest difference between pictures {m['spread_deg']:.2f}°); wrote {out}",
           file=sys.stderr)
+    if camera.size_known:   # where a straight descent onto each brick goes blind
+        from drovisio.autopilot.blind import blind_heights_text
+
+        for lay in layouts:
+            print(blind_heights_text(camera, mount, lay), file=sys.stderr)
     return 0

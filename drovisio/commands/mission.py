@@ -6,6 +6,9 @@
 * ``simulate SCENARIO [--vision model|render] --record DIR`` — one run, recorded for replay
   (:mod:`drovisio.mission.record`); prints the placements and their errors.
 * ``diagram [--format mermaid|dot|svg]`` — the machine drawn from its transition table.
+* ``landing`` — ArduPilot's precision landing onto a brick for a lens, a mount, a detection
+  rate and a wind (:mod:`drovisio.autopilot.precland`); ``check`` prints the same for the
+  scenario's drone.
 """
 
 from __future__ import annotations
@@ -88,10 +91,52 @@ def _check(args: argparse.Namespace) -> int:
             "expected": r.case.expect,
             "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
             "placements": r.trace.placements} for r in results], indent=1))
+    for line in _landing_lines(scn, args.seed):
+        print(line)
     _err(f"{len(results)} case(s) in {time.perf_counter() - t0:.1f} s: "
          + ("every safety rule held, every outcome as expected" if not bad else
             f"{len(bad)} case(s) FAILED"))
     return 1 if bad else 0
+
+
+def _landing_lines(scn, seed: int, runs: int = 10) -> list[str]:
+    """The scenario's drone landing on its first brick type with ArduPilot's precision
+    landing (:mod:`drovisio.autopilot.precland`)."""
+    from drovisio.autopilot.precland import LandingParams, landing_report
+    from drovisio.mission.sim import body_from_camera_for, camera_for
+    from drovisio.mission.vision import DetectorModelParams
+    from drovisio.mount import Mount
+
+    layout = scn.layout(scn.layouts[0])
+    params = LandingParams(rate_hz=DetectorModelParams().rate_hz, seed=seed)
+    return landing_report(camera_for(scn), Mount(body_from_camera_for(scn)), layout, params,
+                          runs)
+
+
+def _landing(args: argparse.Namespace) -> int:
+    from drovisio.autopilot.precland import LandingParams, landing_report
+    from drovisio.camera import Camera
+    from drovisio.camera_file import load_camera
+    from drovisio.layout import load_layout, shipped_layouts_dir
+    from drovisio.mount import Mount, load_mount
+
+    camera = load_camera(args.camera) if args.camera else Camera.drone_webcam()
+    if not camera.size_known:
+        from drovisio.errors import InputError
+
+        raise InputError(f"{args.camera}: image_width/image_height: the landing model needs "
+                         "the image size; add it to the camera file")
+    if args.mount:
+        mount = load_mount(args.mount)
+    else:
+        mount = Mount.from_angles(args.tilt, offset_m=(0.08, 0.0, 0.05))
+    layout = load_layout(args.layout or shipped_layouts_dir() / "drick-aruco-centre.json")
+    p = LandingParams(rate_hz=args.rate, wind_mps=args.wind, latency_s=args.latency_ms / 1e3,
+                      plnd_lag_s=None if args.plnd_lag_ms is None else args.plnd_lag_ms / 1e3,
+                      detect_prob=args.detect_prob, seed=args.seed)
+    for line in landing_report(camera, mount, layout, p, args.runs):
+        print(line)
+    return 0
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -165,5 +210,7 @@ def run(args: argparse.Namespace) -> int:
         return _simulate(args)
     if action == "diagram":
         return _diagram(args)
-    _err("drovisio mission: give an action: check, simulate or diagram (see --help)")
+    if action == "landing":
+        return _landing(args)
+    _err("drovisio mission: give an action: check, simulate, landing or diagram (see --help)")
     return 2

@@ -22,7 +22,7 @@ import time
 
 from drovisio.errors import InputError
 
-__all__ = ["build_pipeline", "run", "sink_failures", "status_line"]
+__all__ = ["build_pipeline", "new_notes", "run", "sink_failures", "status_line"]
 
 
 def _err(msg: str) -> None:
@@ -70,6 +70,18 @@ def status_line(st: dict, elapsed: float) -> str:
             f"{target}{extra}")
 
 
+def new_notes(st: dict, said: set[str]) -> str:
+    """The sinks' notes not yet said (each is said once: the MAVLink link's missing
+    streams), as `` | sink: note`` for the status line."""
+    out = ""
+    for s in st.get("sinks", []):
+        note = s.get("note")
+        if note and note not in said:
+            said.add(note)
+            out += f" | {s.get('sink', '?')}: {note}"
+    return out
+
+
 def build_pipeline(args: argparse.Namespace, loop: bool = False,
                    default_sinks: tuple[str, ...] = ("jsonl:-",)):
     """The pipeline a ``drovisio run`` namespace describes (also used by ``drovisio serve``
@@ -101,6 +113,13 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     target = TargetSelector(getattr(args, "target", None) or "nearest")  # checked above
     sinks = open_sinks_of(args, target, mount, layouts, default_sinks)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
+    if mav is not None and mount is not None and camera.size_known:
+        from drovisio.autopilot.blind import blind_height
+
+        # the highest over the layouts: PX4's final-approach altitude must cover it
+        heights = [b.leaves_at_m for b in (blind_height(camera, mount, lay) for lay in layouts)
+                   if b.leaves_at_m is not None]
+        mav.blind_height_m = max(heights) if heights else None
 
     def attitude_gravity(t_mono: float):
         """Gravity in the camera frame: the autopilot's roll/pitch if the link gives them,
@@ -149,9 +168,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     quiet = getattr(args, "quiet", False)
 
+    said: set[str] = set()
+
     def on_status(st: dict) -> None:
         if not quiet:
-            print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
+            print(status_line(st, time.monotonic() - t0) + new_notes(st, said), file=sys.stderr,
+                  flush=True)
 
     names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
     _err(f"source {args.source}; detectors {names}; sinks "

@@ -35,7 +35,18 @@ frame), ``size_x``/``size_y`` = the angles the brick's length and width subtend,
 (its track number for bricks without id), ``type = LANDING_TARGET_TYPE_VISION_FIDUCIAL``.
 
 The sink also sends a ``HEARTBEAT`` (``MAV_TYPE_ONBOARD_CONTROLLER``) every second, so that
-routers and the autopilot know the component and stream its data back.
+routers and the autopilot know the component and stream its data back, and asks the vehicle
+for ``ATTITUDE`` and ``LOCAL_POSITION_NED`` (:class:`drovisio.autopilot.link.StreamKeeper`:
+``SET_MESSAGE_INTERVAL``, falling back to ``REQUEST_DATA_STREAM``): autopilots stream nothing
+to a companion unless asked. When a stream still does not arrive, :meth:`MavlinkSink.status`
+carries a ``note`` saying so and what the pose assumes. It also reads the vehicle's
+precision-landing parameters and compares them (``check``, :mod:`drovisio.autopilot.check`).
+
+Ids: ``mavlink:CONNECTION?sysid=N&compid=M``. ``sysid`` is our system id and, as MAVLink has
+it for a companion computer, the vehicle's: the sink then takes ``ATTITUDE``,
+``LOCAL_POSITION_NED`` and ``HEARTBEAT`` only from that system's autopilot (several vehicles
+on one router). Without it the sink speaks as system 1 and follows the first autopilot it
+hears. ``compid`` is our component id (default 191, ``MAV_COMP_ID_ONBOARD_COMPUTER``).
 """
 
 from __future__ import annotations
@@ -62,6 +73,7 @@ __all__ = [
     "VehicleState",
     "landing_target_fields",
     "mavutil2",
+    "parse_mavlink_spec",
 ]
 
 MAV_FRAME_LOCAL_NED = 1
@@ -225,6 +237,27 @@ def _probe_tcp(name: str, host: str, port: int) -> None:
                         "the autopilot (or its TCP bridge) listening there?") from None
 
 
+def parse_mavlink_spec(spec: str) -> tuple[str, dict[str, int]]:
+    """``udpout:127.0.0.1:14550?sysid=2&compid=191`` → (connection, {"sysid": 2, ...}).
+
+    Raises:
+        SinkError: an unknown option or an id outside 1-255 (named).
+    """
+    conn, sep, query = spec.partition("?")
+    opts: dict[str, int] = {}
+    if not sep:
+        return conn, opts
+    for part in query.split("&"):
+        key, eq, value = part.partition("=")
+        if key not in ("sysid", "compid"):
+            raise SinkError(f"mavlink:{spec}: unknown option {key!r}: use ?sysid=N&compid=M")
+        if not eq or not value.strip().isdigit() or not 1 <= int(value) <= 255:
+            raise SinkError(f"mavlink:{spec}: {key}: expected a whole number 1-255, "
+                            f"got {value!r}")
+        opts[key] = int(value)
+    return conn, opts
+
+
 def _split_connection(conn: str) -> tuple[str, int | None]:
     """``/dev/ttyAMA0,921600`` → (device, baud)."""
     dev, sep, baud = conn.rpartition(",")
@@ -243,19 +276,28 @@ class MavlinkSink:
         target: The shared target selector (used when the output carries no target).
         mount: Camera mount (without one: camera looking straight down, image top forward).
         layouts: Layouts (their dimensions give ``size_x``/``size_y``).
-        source_system, source_component: Our MAVLink ids.
+        source_system, source_component: Our MAVLink ids (``?sysid=``/``?compid=`` in the
+            connection override them). A given system id is also the vehicle's: only its
+            autopilot's messages are read. None: system 1, following the first autopilot
+            heard.
         max_state_age: Oldest attitude/position (s) used for a frame (PX4 mode).
+        blind_height_m: The camera height at which the target leaves the picture with this
+            mount (for the PX4 check), if known.
     """
 
     def __init__(self, connection: str, autopilot: str = "ardupilot",
                  target: TargetSelector | None = None, mount: Mount | None = None,
-                 layouts=None, source_system: int = 1,
+                 layouts=None, source_system: int | None = None,
                  source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
                  max_state_age: float = 0.3, heartbeat_period: float = 1.0,
-                 send_held: bool = False):
+                 send_held: bool = False, blind_height_m: float | None = None):
         if autopilot not in ("ardupilot", "px4"):
             raise SinkError(f"unknown autopilot {autopilot!r}: ardupilot or px4")
         self.name = f"mavlink:{connection}"
+        connection, ids = parse_mavlink_spec(connection)
+        follow = ids.get("sysid", source_system)    # None: the first autopilot heard
+        source_system = follow or 1
+        source_component = ids.get("compid", source_component)
         self.autopilot = autopilot
         self.target = target or TargetSelector()
         self.mount = mount
@@ -265,6 +307,9 @@ class MavlinkSink:
         self.max_state_age = max_state_age
         self.heartbeat_period = heartbeat_period
         self.vehicle = VehicleState()
+        self.blind_height_m = blind_height_m
+        self._latency: deque[float] = deque(maxlen=90)
+        self._measured_at: deque[float] = deque(maxlen=64)
         self.send_held = send_held
         self.held_not_sent = 0
         """Frames whose target was held over (not measured): nothing sent for them."""
@@ -285,6 +330,15 @@ class MavlinkSink:
                                                    autoreconnect=True, **kw)
         except Exception as e:
             raise SinkError(f"{self.name}: cannot open the MAVLink connection ({e})") from e
+        from drovisio.autopilot.check import param_names
+        from drovisio.autopilot.link import ParamReader, StreamKeeper
+
+        self._serial = baud is not None or dev.startswith(("/dev/", "COM"))
+        self.streams = StreamKeeper(self._send_with, follow,
+                                    needs_position=autopilot == "px4", start=time.monotonic())
+        self.params = ParamReader(self._send_with, param_names(autopilot, self._serial))
+        self.param_refresh_s = 15.0
+        self._params_since = time.monotonic()
         self._send_heartbeat()
         self._thread = threading.Thread(target=self._reader, daemon=True, name="mavlink-rx")
         self._thread.start()
@@ -300,25 +354,41 @@ class MavlinkSink:
             self.errors += 1
             self.last_error = f"heartbeat: {e}"
 
+    def _send_with(self, fn) -> None:
+        """Send one request (stream, parameter) through the shared connection."""
+        try:
+            with self._lock:
+                fn(self.conn.mav)
+        except Exception as e:  # noqa: BLE001 - a request that fails is asked again
+            self.errors += 1
+            self.last_error = f"request: {e}"
+
     def _reader(self) -> None:
         next_hb = time.monotonic() + self.heartbeat_period
         while not self._stop.is_set():
             try:
-                msg = self.conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "HEARTBEAT"],
-                                           blocking=True, timeout=0.2)
+                msg = self.conn.recv_match(blocking=True, timeout=0.05)
             except Exception as e:  # noqa: BLE001 - link hiccup: note it, keep reading
                 self.last_error = f"receive: {e}"
                 self._stop.wait(0.2)
                 msg = None
             now = time.monotonic()
-            if msg is not None:
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                self.streams.on_message(msg, now)
+                self.params.on_message(msg, self.streams.vehicle)
                 t = msg.get_type()
-                if t == "ATTITUDE":
+                # only our vehicle's state: several vehicles may share a router
+                if t == "ATTITUDE" and self.streams.from_vehicle(msg):
                     self.vehicle.add_attitude(now, msg.roll, msg.pitch, msg.yaw)
-                elif t == "LOCAL_POSITION_NED":
+                elif t == "LOCAL_POSITION_NED" and self.streams.from_vehicle(msg):
                     self.vehicle.add_position(now, msg.x, msg.y, msg.z)
-                elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
-                    self.vehicle.autopilot_sysid = msg.get_srcSystem()
+                elif t == "HEARTBEAT" and self.streams.vehicle is not None:
+                    self.vehicle.autopilot_sysid = self.streams.vehicle.system
+            self.streams.poll(now)
+            if self.params.done(now) and now - self._params_since > self.param_refresh_s:
+                self.params.refresh()         # someone may have fixed a parameter since
+                self._params_since = now
+            self.params.poll(now, self.streams.vehicle, burst=2)
             if now >= next_hb:
                 self._send_heartbeat()
                 next_hb = now + self.heartbeat_period
@@ -334,6 +404,8 @@ class MavlinkSink:
             return
         T_cb = brick.measured_camera_from_brick()
         t_wall, t_mono = output.t, output.t_mono
+        if T_cb is not None:
+            self._measured_at.append(t_mono)
         if T_cb is None:                 # held over: not seen in this frame
             if not self.send_held or brick.last_measured is None:
                 self.held_not_sent += 1
@@ -354,6 +426,8 @@ class MavlinkSink:
                     f["type"], f["position_valid"])
             self.sent += 1
             self.sent_position_valid += int(f["position_valid"])
+            if T_cb is not None and brick.measured:
+                self._latency.append(time.monotonic() - t_mono)
         except Exception as e:  # noqa: BLE001 - never let the link stop the pipeline
             self.errors += 1
             self.last_error = str(e)
@@ -366,9 +440,48 @@ class MavlinkSink:
         except Exception:  # noqa: BLE001
             pass
 
+    def detection_hz(self, now: float, window: float = 5.0) -> float | None:
+        """How often the target was measured over the last ``window`` s (None: too soon)."""
+        recent = [t for t in self._measured_at if now - t <= window]
+        if len(recent) >= 2:
+            return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
+        return 0.0 if now - self.streams.started >= window else None
+
+    def facts(self):
+        """What the sink knows for :func:`drovisio.autopilot.check.evaluate`."""
+        from drovisio.autopilot.check import Facts
+        from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED
+
+        now = time.monotonic()
+        v = self.streams.vehicle
+        asked = v is not None and self.params.done(now)
+        att = self.streams.streams[MSG_ATTITUDE]
+        pos = self.streams.streams[MSG_LOCAL_POSITION_NED]
+        return Facts(flavour=self.autopilot, autopilot=None if v is None else v.autopilot,
+                     system=None if v is None else v.system, params=dict(self.params.values),
+                     params_asked=asked, serial=self._serial,
+                     attitude_hz=att.rate(now) if att.first_request is not None else None,
+                     position_hz=pos.rate(now) if pos.first_request is not None else None,
+                     latency_s=float(np.median(self._latency)) if self._latency else None,
+                     detection_hz=self.detection_hz(now), blind_height_m=self.blind_height_m)
+
+    def check(self) -> list[dict]:
+        """The autopilot check on what this link saw (the live page shows it)."""
+        from drovisio.autopilot.check import evaluate
+
+        return [f.to_json() for f in evaluate(self.facts())]
+
     def status(self) -> dict:
+        now = time.monotonic()
+        v = self.streams.vehicle
         return {"sink": self.name, "autopilot": self.autopilot, "sent": self.sent,
                 "position_valid": self.sent_position_valid, "errors": self.errors,
                 "held_not_sent": self.held_not_sent,
                 "last_error": self.last_error,
-                "attitude": self.vehicle.attitude_at(time.monotonic(), 1.0) is not None}
+                "attitude": self.vehicle.attitude_at(now, 1.0) is not None,
+                "vehicle": None if v is None else {"system": v.system,
+                                                   "component": v.component,
+                                                   "autopilot": v.autopilot_name},
+                "streams": self.streams.status(now),
+                "note": self.streams.note,
+                "check": self.check()}

@@ -93,6 +93,7 @@ def write_report(result, out: Path, command: str, protocol_text: str) -> dict:
             "not_applicable": result.not_applicable, "left_out": result.left_out,
             "frames": len({(r["step"], r["frame"]) for r in result.records}),
             "summary": summary, "speed": result.speed, "memory_growth_mb": growth,
+            "landing": result.landing,
             "figures": drawn,
             "thesis": {f: {"thesis": t, "ours": _ours(summary, f, METHODS)}
                        for f, t in THESIS.items()}}
@@ -124,6 +125,12 @@ def _html(data: dict, out: Path, protocol_text: str) -> str:
     left = "".join(f"<li>{e(m)}: {e(w)}</li>" for m, w in data["left_out"].items())
     na = "".join(f"<li>{e(lay)}: {e(m)} — {e(w)}</li>" for lay, d in
                  data["not_applicable"].items() for m, w in d.items())
+    land = "".join(
+        f"<tr><td>{e(x['layout'])}</td><td>{x['tilt_deg']:.0f}°</td><td>{x['rate_hz']:g}</td>"
+        f"<td>{x['median_error_m'] * 100:.1f}</td><td>{x['p90_error_m'] * 100:.1f}</td>"
+        f"<td>{x['initialised'] * 100:.0f}%</td><td>"
+        + ("–" if x["blind_height_m"] is None else f"{x['blind_height_m']:.2f}")
+        + "</td></tr>" for x in data.get("landing", []))
     mem = ", ".join(f"{e(m)} {g:+.2f} MB" for m, g in data["memory_growth_mb"].items()) or "—"
     ver = ", ".join(f"{e(k)} {e(str(v))}" for k, v in data["versions"].items())
     mach = ", ".join(f"{e(k)}: {e(str(v))}" for k, v in data["machine"].items())
@@ -149,6 +156,15 @@ in each figure, and drawn); OpenCV and AprilTag 3 flag nothing.</p>
 <h2>Frame rate (Fig. 6.10)</h2>
 <table><tr><th>method</th><th>layout</th><th>bricks</th><th>frames/s</th></tr>{speed}</table>
 <p>Memory over the run (Fig. 6.11), growth from the start: {mem}</p>
+<h2>Precision landing (ArduPilot model)</h2>
+<p>LAND-mode descents onto the brick with ArduPilot's precision landing fed by Drovisio at the
+frame rate above (PLND_LAG equal to a 50 ms latency, initialisation after updates at most
+0.5 s apart for 2 s, 2 s target timeout, descent on the last estimate once the brick leaves
+the picture), 3 m/s wind, camera 8 cm ahead of the body origin; blind height: the camera's
+height above the brick when it leaves the picture.</p>
+<table><tr><th>layout</th><th>camera tilt</th><th>detections/s</th><th>touchdown error median
+(cm)</th><th>p90 (cm)</th><th>filter initialised</th><th>blind height (m)</th></tr>{land or
+'<tr><td colspan="7">not run</td></tr>'}</table>
 <h2>What was left out</h2><ul>{left or '<li>no method</li>'}</ul>
 <h3>Methods that cannot read a layout</h3><ul>{na or '<li>none</li>'}</ul>
 <h3>Steps skipped</h3><ul>{skipped}</ul>

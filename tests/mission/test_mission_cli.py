@@ -19,7 +19,7 @@ def _write(scn, path):
 
 
 def test_help_has_examples(capsys):
-    for action in ("check", "simulate", "diagram"):
+    for action in ("check", "simulate", "diagram", "landing"):
         assert cli.main(["mission", action, "--help"]) == 0
         out = capsys.readouterr().out
         assert "Example:" in out and f"drovisio mission {action}" in out.split("Example:")[1]
@@ -51,6 +51,10 @@ def test_check_prints_the_table_and_exits_0(small, tmp_path, capsys):
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "missed grab" in out and "three failed drops" in out and "all held" in out
+    # the scenario's drone landing with ArduPilot's precision landing, and straight down
+    landing = [ln for ln in out.splitlines() if ln.startswith("precision landing on a")]
+    assert len(landing) == 2 and "touchdown error median" in landing[0]
+    assert "leaves the picture" in landing[0] and "straight down" in landing[1]
     rows = json.loads((tmp_path / "t.json").read_text())
     assert [r["outcome"] for r in rows] == ["completed", "safe_zone"]
 
@@ -87,3 +91,12 @@ def test_check_exits_1_when_an_outcome_is_not_the_expected_one(small, tmp_path, 
     assert cli.main(["mission", "check", path]) == 1
     out = capsys.readouterr().out
     assert "expected safe_zone, got completed" in out
+
+
+def test_landing_prints_errors_for_a_mount_and_warns_below_2_hz(capsys):
+    assert cli.main(["mission", "landing", "--tilt", "20", "--runs", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "this mount (tilt 20°)" in out and "straight down" in out and "WARNING" not in out
+    assert cli.main(["mission", "landing", "--rate", "1.5", "--runs", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "initialised in 0% of them" in out and "WARNING: 1.4 detections a second" in out

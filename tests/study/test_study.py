@@ -52,7 +52,8 @@ def _small_protocol(frames: int = 2) -> dict:
 def small_study(tmp_path_factory):
     out = tmp_path_factory.mktemp("study")
     proto = load_protocol(_write(out / "p.yaml", _small_protocol()))
-    res = run_study(proto, out, memory_seconds=1.0, speed_bricks=(1, 3), speed_frames=1)
+    res = run_study(proto, out, memory_seconds=1.0, speed_bricks=(1, 3), speed_frames=1,
+                    landing_runs=3)
     data = write_report(res, out / "report", "drovisio study run --protocol p.yaml", "text")
     return res, data, out / "report"
 
@@ -280,3 +281,18 @@ def test_cli_writes_into_a_folder_and_refuses_what_is_not_one(tmp_path, capsys):
     folder.mkdir()
     assert cli.main(["study", "example", "--out", str(folder), "--frames", "1"]) == 0
     assert (folder / "protocol.yaml").is_file()
+
+
+def test_the_report_shows_landing_errors_per_mount(small_study):
+    res, data, report = small_study
+    rows = {(x["layout"], x["tilt_deg"]): x for x in data["landing"]}
+    assert {t for _, t in rows} == {0.0, 20.0}
+    for x in rows.values():
+        assert x["runs"] == 3 and 0.0 <= x["median_error_m"] <= x["p90_error_m"]
+        assert 0 < x["rate_hz"] <= 30.0
+    code = [k for k in rows if k[0] == "code"]
+    assert code, rows.keys()
+    # looking straight down keeps the brick longer than the 20° mount
+    assert rows[("code", 0.0)]["blind_height_m"] < rows[("code", 20.0)]["blind_height_m"]
+    html = (report / "report.html").read_text()
+    assert "Precision landing (ArduPilot model)" in html and "blind height" in html

@@ -134,3 +134,15 @@ def test_non_finite_and_too_many_pictures(client):
     many = [("files", (f"p{i}.png", b"x", "image/png")) for i in range(21)]
     r = client.post(f"{API}/measure", files=many)
     assert r.status_code == 422 and "at most 20" in r.json()["detail"]
+
+
+def test_the_mount_page_says_where_the_landing_goes_blind(client):
+    st = client.get(API).json()
+    blind = {b["layout"]: b for b in st["blind"]}
+    centre = blind["drick-aruco-centre"]
+    assert 1.6 < centre["leaves_at_m"] < 1.8          # the sample mount: 20° forward
+    assert centre["straight_down_leaves_at_m"] < 0.4
+    st = client.post(API + "/preview", json={"angles": _angles(0.0, offset=(0.08, 0.0, 0.05)),
+                                            "height_m": 1.5}).json()
+    centre = {b["layout"]: b for b in st["blind"]}["drick-aruco-centre"]
+    assert centre["leaves_at_m"] == pytest.approx(centre["straight_down_leaves_at_m"])

@@ -21,6 +21,8 @@
     if (f.centre) t += "; the image centre falls " + fmt(f.centre[0], 2) + " m ahead, " + fmt(f.centre[1], 2) + " m right.";
     else t += "; the image centre is above the horizon.";
     $("ground-text").textContent = t;
+    const bl = (st.blind || []).map((b) => b.layout + ": " + (!b.seen ? "never in the picture on the way down" : b.leaves_at_m === null ? "in view all the way down" : "out of the picture below " + fmt(b.leaves_at_m, 2) + " m") + " (straight down: " + (b.straight_down_leaves_at_m === null ? "in view all the way down" : fmt(b.straight_down_leaves_at_m, 2) + " m") + ")");
+    $("blind-text").textContent = bl.length ? "Landing straight onto a brick, camera height above it where the brick leaves the picture (below it the autopilot lands blind, on its last estimate) — " + bl.join("; ") + "." : "";
     $("matrix").textContent = st.body_from_camera.map((r) => r.map((v) => fmt(v, 4).padStart(8)).join(" ")).join("\n");
     $("mount-file").textContent = st.file;
     $("save-msg").className = "msg";

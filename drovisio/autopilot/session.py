@@ -1,0 +1,119 @@
+"""``drovisio autopilot check``'s conversation with the vehicle, every wait bounded.
+
+Opens the link as Drovisio's sink would (same ids), sends its HEARTBEAT, waits for the
+vehicle's, reads the parameters :func:`drovisio.autopilot.check.param_names` lists, asks for
+the streams the sink needs and measures how fast they come, all within one deadline.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import time
+from dataclasses import dataclass
+
+from drovisio.autopilot.check import Facts, param_names
+from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, ParamReader, StreamKeeper
+from drovisio.errors import InputError
+
+__all__ = ["NoVehicle", "read_vehicle"]
+
+
+class NoVehicle(InputError):
+    """Nothing answered on the connection within the deadline."""
+
+
+@dataclass
+class _Link:
+    conn: object
+
+    def send(self, fn) -> None:
+        fn(self.conn.mav)  # type: ignore[attr-defined]
+
+
+def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,
+                 stream_s: float = 2.0) -> Facts:
+    """Read what :func:`drovisio.autopilot.check.evaluate` needs from the vehicle.
+
+    Args:
+        connection: ``mavlink:`` connection string, optionally ``?sysid=N&compid=M``.
+        flavour: What Drovisio sends (``ardupilot`` or ``px4``).
+        timeout_s: Deadline for the vehicle's HEARTBEAT, then again for its parameters.
+        stream_s: Seconds over which the streams' rates are measured once they come.
+
+    Raises:
+        NoVehicle: no autopilot HEARTBEAT within ``timeout_s`` (one line naming the
+            connection and what to look at).
+        InputError: a connection string that cannot be opened.
+    """
+    from drovisio.sinks.base import SinkError
+    from drovisio.sinks.mavlink import _check_host, _split_connection, mavutil2, parse_mavlink_spec
+
+    try:
+        conn_str, ids = parse_mavlink_spec(connection)
+        dev, baud = _split_connection(conn_str)
+        _check_host(connection, dev)
+    except SinkError as e:
+        raise InputError(str(e)) from None
+    mavutil = mavutil2()
+    try:
+        # pymavlink prints its TCP retries on stdout: the one line below says it instead
+        with contextlib.redirect_stdout(io.StringIO()):
+            conn = mavutil.mavlink_connection(dev, source_system=ids.get("sysid", 1),
+                                              source_component=ids.get("compid", 191),
+                                              retries=max(1, int(timeout_s)),
+                                              **({"baud": baud} if baud else {}))
+    except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
+        raise InputError(f"{connection}: cannot open the MAVLink connection ({e})") from None
+    link = _Link(conn)
+    m = mavutil.mavlink
+    t0 = time.monotonic()
+    keeper = StreamKeeper(link.send, ids.get("sysid"), needs_position=flavour == "px4",
+                          start=t0, missing_after=max(1.0, stream_s))
+    serial = baud is not None or dev.startswith(("/dev/", "COM"))
+    params = ParamReader(link.send, param_names(flavour, serial), retry=0.4, attempts=3)
+    next_hb = 0.0
+    deadline = t0 + timeout_s
+    streams_from: float | None = None
+    try:
+        while True:
+            now = time.monotonic()
+            if now >= next_hb:
+                link.send(lambda mav: mav.heartbeat_send(m.MAV_TYPE_ONBOARD_CONTROLLER,
+                                                         m.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                         m.MAV_STATE_ACTIVE))
+                next_hb = now + 1.0
+            if keeper.vehicle is None and now >= deadline:
+                who = f"system {ids['sysid']}'s autopilot" if "sysid" in ids else "an autopilot"
+                raise NoVehicle(f"{connection}: no HEARTBEAT from {who} within "
+                                f"{timeout_s:g} s: check the address (udpin: to listen, "
+                                "udpout: to send first), the cable and baud rate, and that "
+                                "the flight controller's port speaks MAVLink")
+            if keeper.vehicle is not None and deadline <= t0 + timeout_s:
+                deadline = now + timeout_s        # a second deadline for the parameters
+            a = keeper.streams[MSG_ATTITUDE]
+            if streams_from is None and a.first_request is not None:
+                streams_from = now
+            streams_done = streams_from is not None and now - streams_from >= stream_s + 1.0
+            if keeper.vehicle is not None and (params.done(now) and streams_done
+                                               or now >= deadline):
+                break
+            msg = conn.recv_match(blocking=True, timeout=0.05)
+            now = time.monotonic()
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                keeper.on_message(msg, now)
+                params.on_message(msg, keeper.vehicle)
+            keeper.poll(now)
+            params.poll(now, keeper.vehicle)
+        v = keeper.vehicle
+        now = time.monotonic()
+        pos = keeper.streams[MSG_LOCAL_POSITION_NED]
+        return Facts(flavour=flavour, autopilot=v.autopilot, system=v.system,
+                     params=dict(params.values), params_asked=True, serial=serial,
+                     attitude_hz=keeper.streams[MSG_ATTITUDE].rate(now, stream_s),
+                     position_hz=pos.rate(now, stream_s))
+    finally:
+        try:
+            conn.close()
+        except Exception:  # noqa: BLE001
+            pass

@@ -1,0 +1,120 @@
+"""``drovisio autopilot check CONNECTION``: is the flight controller set up for Drovisio?
+
+Reads the autopilot's type and its precision-landing parameters over MAVLink, asks for the
+streams the sink needs and measures them, and (with ``--source``, ``--camera``, ``--layout``)
+measures Drovisio's capture-to-send latency and how often it sees the target on the current
+scene; prints one line per item, ``ok`` / ``wrong`` → the value to set and why.
+
+Exit status: 0 all ok; 1 something to set or to watch; 2 bad input, or no autopilot answered
+on the connection within ``--timeout`` (the connection named leads nowhere).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+
+from drovisio.errors import InputError
+
+__all__ = ["measure_pipeline", "run"]
+
+
+def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
+    """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
+    target measurements per second)."""
+    from drovisio.commands.run import build_pipeline
+
+    ns = argparse.Namespace(source=args.source, camera=args.camera, layout=args.layout,
+                            mount=args.mount, sink=[], record=None, target=args.target,
+                            autopilot=args.autopilot, max_age=0.5, pace="realtime")
+    pipeline = build_pipeline(ns, default_sinks=())
+    measured: list[float] = []
+    latency: list[float] = []
+
+    class _Probe:
+        name = "probe"
+
+        def send(self, out) -> None:
+            t = out.target
+            if t is not None and t.measured:
+                measured.append(out.t_mono)
+                latency.append(time.monotonic() - out.t_mono)
+
+        def close(self) -> None:
+            pass
+
+        def status(self) -> dict:
+            return {"sink": "probe", "errors": 0}
+
+    pipeline.sinks.append(_Probe())
+    timer = threading.Timer(seconds, pipeline.stop)
+    t0 = time.monotonic()
+    timer.start()
+    try:
+        pipeline.run()
+    finally:
+        timer.cancel()
+        pipeline.close()
+    lat = sorted(latency)[len(latency) // 2] if latency else None
+    # between the first and the last measurement: the start-up (camera opening, first
+    # frames) is not the rate the autopilot will see
+    if len(measured) >= 2 and measured[-1] > measured[0]:
+        return lat, (len(measured) - 1) / (measured[-1] - measured[0])
+    return lat, len(measured) / max(time.monotonic() - t0, 1e-6)
+
+
+def _blind(args: argparse.Namespace) -> tuple[float | None, list[str]]:
+    if not (args.mount and args.camera and args.layout):
+        return None, []
+    from drovisio.autopilot.blind import blind_height, blind_heights_text
+    from drovisio.camera_file import load_camera
+    from drovisio.layout import load_layouts
+    from drovisio.mount import load_mount
+
+    cam = load_camera(args.camera)
+    if not cam.size_known:
+        return None, []
+    mount = load_mount(args.mount)
+    worst, lines = None, []
+    for lay in load_layouts(args.layout):
+        b = blind_height(cam, mount, lay)
+        lines.append(blind_heights_text(cam, mount, lay))
+        if b.leaves_at_m is not None:
+            worst = b.leaves_at_m if worst is None else max(worst, b.leaves_at_m)
+    return worst, lines
+
+
+def run(args: argparse.Namespace) -> int:
+    from drovisio.autopilot.check import evaluate, plnd_lag_for, verdict
+    from drovisio.autopilot.session import read_vehicle
+
+    if args.autopilot_action != "check":
+        raise InputError("expected an action: check")
+    if (args.source is None) != (args.camera is None) or (args.source and not args.layout):
+        raise InputError("--source, --camera and --layout go together (to measure the latency "
+                         "and the detection rate on the current scene)")
+    blind, blind_lines = _blind(args)
+    latency, rate = (None, None)
+    if args.source:
+        latency, rate = measure_pipeline(args, args.seconds)
+    if args.latency_ms is not None:
+        latency = args.latency_ms / 1e3
+    facts = read_vehicle(args.connection, args.autopilot, timeout_s=args.timeout)
+    facts.latency_s = latency
+    facts.detection_hz = rate
+    facts.blind_height_m = blind
+    findings = evaluate(facts)
+    for f in findings:
+        print(f.line())
+    for line in blind_lines:
+        print(f"note    {line}")
+    if latency is not None:
+        print(f"note    set PLND_LAG = {plnd_lag_for(latency):.2f} (ArduPilot) for the measured "
+              f"{latency * 1e3:.0f} ms capture-to-send latency")
+    code = verdict(findings)
+    print(("all ok" if code == 0 else
+           f"{sum(f.status in ('wrong', 'warn') for f in findings)} item(s) to fix or watch"),
+          file=sys.stderr)
+    return code
