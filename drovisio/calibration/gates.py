@@ -1,20 +1,26 @@
 """Per-view gates: is this view worth keeping? Each gate returns a verdict with its reason.
 
-* **Sharpness / motion blur** — measured where it matters, on the board's own edges: across the
-  middle of every square side between two detected corners the intensity profile is sampled
-  (averaged along the side) and its 10–90 % rise width is taken, in pixels. Edges are grouped by
-  their direction in the image (quantised to 8 bins over 180°); the view's blur is the median
-  width of the worst direction with at least 4 edges. A defocused view has wide edges in every
-  direction; a motion-blurred one in the direction of the motion. A sharp view has widths of
-  1.3 px (renders) to 2.2–3.2 px (OpenCV's sample webcam views); a 13 px motion streak makes
-  them ~10.5 px, a 5 px one 4.3 px, a Gaussian defocus of σ = 2 px 5.3 px. The gate rejects
-  above :data:`MAX_EDGE_WIDTH_PX` (4 px, or 0.5 % of the image diagonal on larger images) — or
-  above 0.45 × the square side for boards so small that the profile cannot be measured. Motion blur still "detects", but it smears the corners
-  along the motion and biases the focal length. On a ChArUco board the white squares hold
-  markers, so a square side has only (1 − marker ratio)/2 of a square of white beside it: there
-  the profile is fitted as a blurred white bar of that width between the black square and the
-  marker's border (σ on a grid, levels by least squares), width = 2.563 σ (sharp renders
-  1.7–3.4 px, σ = 1.5 px defocus 4.4 px, an 8 px motion streak 6.5 px).
+* **Sharpness / motion blur** — measured where it matters, on the board's own edges, as a
+  camera's optics spread them: across the middle of every square side between two detected
+  corners, 9 intensity profiles are sampled; each is located at its own 50 % crossing
+  (sub-pixel) and shifted onto it before they are averaged (the slanted-edge method: the line
+  between two corners is not exactly on the edge, and averaging misregistered profiles widens
+  the edge), and the 10–90 % rise of that edge-spread function is the edge's width, pixels
+  (a Gaussian blur of σ gives 2.56 σ). Edges are grouped by their direction in the image
+  (quantised to 8 bins over 180°); the view's blur is the median width of the worst direction
+  with at least 4 edges. A defocused view has wide edges in every direction; a motion-blurred
+  one in the direction of the motion. Measured: OpenCV's ChArUco tutorial photo 1.0 px (the
+  same Gaussian-blurred by σ = 1 / 1.5 px: 2.8 / 4.1 px), OpenCV's 13 webcam views 2.2–3.0 px
+  (blurred by σ = 1.5 px: 4.5–5.0 px), renders 1.3 px, a 13 px motion streak ~10 px. The gate
+  rejects above :data:`MAX_EDGE_WIDTH_PX` (4 px, or 0.5 % of the image diagonal on larger
+  images) — or above 0.45 × the square side for boards so small that the profile cannot be
+  measured. Motion blur still "detects", but it smears the corners along the motion and
+  biases the focal length. On a ChArUco board the white squares hold markers, so a square
+  side has only (1 − marker ratio)/2 of a square of white beside it: there the white level
+  is the peak of that margin, nothing beyond the marker's border is used, and the width is
+  read through the same measurement of a Gaussian-blurred bar of the margin's width (a narrow
+  margin never reaches white under blur; renders: sharp 2.0–2.1 px, σ = 1.5 px 4.1–4.2 px,
+  an 8 px motion streak 5.0–6.1 px).
 * **Size** — squares smaller than 6 px are not refined reliably.
 * **Stillness** — between two consecutive frames of a live stream, the board's corners may move
   at most :data:`MAX_MOTION_PX` (1.5 px, the largest corner displacement; at 30 fps that is at
@@ -27,6 +33,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -90,54 +97,125 @@ def _edge_list(det: Detection, board: BoardSpec) -> list[tuple[np.ndarray, np.nd
     return edges
 
 
-def _rise_width(profile: np.ndarray, step: float) -> float:
-    """10–90 % rise distance of a step profile (either polarity), pixels; NaN if flat."""
-    n = profile.size
-    k = max(2, n // 8)
-    lo, hi = float(np.mean(profile[:k])), float(np.mean(profile[-k:]))
-    if abs(hi - lo) < 8.0:  # no measurable step (8 grey levels)
+def _esf_width(samp: np.ndarray, s: np.ndarray, white_lim: float | None, step: float
+               ) -> float:
+    """10–90 % rise of the edge-spread function of one board edge, pixels; NaN when the edge
+    has no measurable contrast (8 grey levels).
+
+    Args:
+        samp: (lines, n) intensity profiles across the edge, sampled at ``s``.
+        s: (n,) signed distance from the corner-to-corner line, pixels (step ``step``).
+        white_lim: How far the white side may be used (a ChArUco square side has only the
+            margin before the marker's border); None: as far as the dark side.
+
+    Each line's edge is located at its 50 % crossing (sub-pixel) and the lines are shifted
+    onto it before they are averaged (the slanted-edge method: a line between two corners
+    is not exactly on the edge, and averaging misregistered lines would widen it); the
+    levels are the dark plateau and the white plateau (the white margin's peak on a ChArUco
+    board), and the width is the distance between the 10 % and 90 % crossings either side of
+    the 50 % one, interpolated between samples.
+    """
+    hw = float(-s[0])
+    near = np.abs(s) <= min(2.0, hw)
+    if samp[:, (s > 0) & near].mean() < samp[:, (s < 0) & near].mean():
+        samp, s = samp[:, ::-1], -s[::-1]            # white side toward +s
+    if white_lim is not None:
+        keep = s <= white_lim
+        samp, s = samp[:, keep], s[keep]
+    dark = s < -0.5 * hw
+    white = (s > 0.5 * hw) if white_lim is None else (s > 0)
+    if not dark.any() or not white.any():
         return math.nan
-    p = (profile - lo) / (hi - lo)  # 0 → 1
-    p = np.maximum.accumulate(p)  # monotone envelope against noise
-    s = np.arange(n) * step
 
-    def cross(level: float) -> float:
-        idx = int(np.searchsorted(p, level))
-        if idx <= 0:
-            return s[0]
-        if idx >= n:
-            return s[-1]
-        a, b = p[idx - 1], p[idx]
-        return s[idx - 1] + (level - a) / max(b - a, 1e-9) * step
+    def levels(p: np.ndarray) -> tuple[float, float]:
+        lo = float(np.median(p[..., dark]))
+        hi = float(np.median(p[..., white])) if white_lim is None else float(p[..., white].max())
+        return lo, hi
 
-    return float(cross(0.9) - cross(0.1))
+    def crossing(p: np.ndarray, level: float, start: int, direction: int) -> float:
+        """Where ``p`` (rising) crosses ``level`` walking from index ``start``."""
+        i = start
+        if direction < 0:
+            while i > 0 and p[i] > level:
+                i -= 1
+            j = i + 1
+        else:
+            while i < p.size - 1 and p[i] < level:
+                i += 1
+            j, i = i, i - 1
+        if i < 0 or j >= p.size:
+            return math.nan
+        a, b = p[i], p[j]
+        return float(s[i] + (level - a) / (b - a) * step) if b != a else float(s[i])
+
+    shifts = []
+    for p in samp:
+        lo, hi = levels(p)
+        if hi - lo < 8.0:
+            continue
+        mid = 0.5 * (lo + hi)
+        above = p >= mid
+        ups = np.flatnonzero(~above[:-1] & above[1:])   # rising crossings of the middle
+        if ups.size == 0:
+            continue
+        k = int(ups[np.argmin(np.abs(s[ups]))])
+        shifts.append((p, s[k] + (mid - p[k]) / max(p[k + 1] - p[k], 1e-9) * step))
+    if len(shifts) < max(2, len(samp) // 2):
+        return math.nan
+    xs = np.array([x for _, x in shifts])
+    med = float(np.median(xs))
+    # each line shifted onto the median edge; a line across a defect (>1.5 px off) is out
+    good = [np.interp(s, s - (x - med), p) for p, x in shifts if abs(x - med) <= 1.5]
+    if not good:
+        return math.nan
+    esf = np.mean(good, axis=0)
+    lo, hi = levels(esf)
+    if hi - lo < 8.0:
+        return math.nan
+    q = (esf - lo) / (hi - lo)
+    i50 = int(np.argmin(np.abs(s - med)))
+    w = crossing(q, 0.9, i50, +1) - crossing(q, 0.1, i50, -1)
+    if white_lim is None or not math.isfinite(w):
+        return w
+    # a margin narrow against the blur never reaches the white level: its peak is lower and
+    # the rise measured against it shorter. Invert the measurement of a Gaussian-blurred bar
+    # of the margin's width (same levels, same crossings) to the width of a free edge.
+    sig, wm = _bar_table()
+    rel = w / white_lim
+    if rel <= wm[0]:
+        return w
+    return _W_PER_SIGMA * white_lim * float(np.interp(rel, wm, sig))
 
 
-_SIGMAS = np.geomspace(0.2, 12.0, 64)
 _W_PER_SIGMA = 2.5631  # 10–90 % rise of a Gaussian-blurred step, in σ
 
 
-def _margin_width(profile: np.ndarray, s: np.ndarray, margin: float) -> float:
-    """10–90 % width of the edge of a ChArUco square side: the profile (s from the black
-    square, across the edge at 0, into the white margin of width ``margin`` before the
-    marker's black border) is fitted as ``lo + amp·(Φ(s/σ) − Φ((s − m)/σ))`` over a grid of
-    σ, the levels by linear least squares for each (all σ at once); NaN without a clear white
-    margin (amp < 8 grey levels)."""
-    z0 = s[None, :] / _SIGMAS[:, None]
-    z1 = (s[None, :] - margin) / _SIGMAS[:, None]
-    # Φ by the tanh approximation (as the code fit's)
-    B = 0.5 * (np.tanh(z0 * (0.7978845608 + 0.0356774081 * z0 * z0))
-               - np.tanh(z1 * (0.7978845608 + 0.0356774081 * z1 * z1)))      # (σ, n)
-    bm = B.mean(axis=1, keepdims=True)
-    pm = float(profile.mean())
-    Bc = B - bm
-    vb = (Bc * Bc).sum(axis=1)
-    cov = Bc @ (profile - pm)
-    amp = cov / np.maximum(vb, 1e-12)
-    sse = float(((profile - pm) ** 2).sum()) - amp * cov        # residual of each σ
-    sse = np.where((amp >= 8.0) & (vb > 1e-9), sse, np.inf)
-    k = int(np.argmin(sse))
-    return _W_PER_SIGMA * float(_SIGMAS[k]) if np.isfinite(sse[k]) else math.nan
+@functools.lru_cache(maxsize=1)
+def _bar_table() -> tuple[np.ndarray, np.ndarray]:
+    """(σ, measured width) for a white bar 1 px wide between two black regions, blurred by a
+    Gaussian of σ and measured as :func:`_esf_width` measures (levels: the dark plateau and
+    the bar's peak), up to where the width stops growing with σ. Everything scales with the
+    bar's width: a bar of m px has σ·m and width·m."""
+    sigmas = np.geomspace(0.02, 2.0, 160)
+    s = np.linspace(-6.0 * sigmas[-1], 1.0, 8001)
+
+    def phi(z: np.ndarray) -> np.ndarray:   # Φ by the tanh approximation (error < 2e-4)
+        return 0.5 * (1.0 + np.tanh(z * (0.7978845608 + 0.0356774081 * z * z)))
+
+    q_all = phi(s[None, :] / sigmas[:, None]) - phi((s[None, :] - 1.0) / sigmas[:, None])
+    sig: list[float] = []
+    out: list[float] = []
+    for sg, q in zip(sigmas, q_all):
+        top = int(np.argmax(q))
+        r = q[: top + 1] / q[top]
+        if r.size < 3 or np.any(np.diff(r) < 0):
+            break
+        w = float(np.interp(0.9, r, s[: top + 1]) - np.interp(0.1, r, s[: top + 1]))
+        if out and w <= out[-1]:
+            break
+        sig.append(float(sg))
+        out.append(w)
+    return np.array(sig), np.array(out)
 
 
 def edge_sharpness(image: np.ndarray, det: Detection, board: BoardSpec) -> EdgeSharpness:
@@ -155,24 +233,16 @@ def edge_sharpness(image: np.ndarray, det: Detection, board: BoardSpec) -> EdgeS
         nrm = np.array([-d[1], d[0]])
         half = 0.45 * L
         s = np.arange(-half, half + 1e-9, step)
-        ts = np.linspace(0.3, 0.7, 7)
+        ts = np.linspace(0.3, 0.7, 9)
         mids = a[None, :] + ts[:, None] * v[None, :]
         pts = mids[:, None, :] + s[None, :, None] * nrm[None, None, :]
         mx = pts[..., 0].astype(np.float32)
         my = pts[..., 1].astype(np.float32)
         samp = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        if board.kind == "charuco":
-            # the white square holds a marker: white only for (1 − ratio)/2 of a square
-            prof = samp.mean(axis=0)
-            margin = (1.0 - board.marker_ratio) / 2.0 * L
-            if prof[s > 0][:8].mean() < prof[s < 0][-8:].mean():
-                prof, s_or = prof[::-1], -s[::-1]      # white side toward +s
-            else:
-                s_or = s
-            keep = s_or <= margin + 0.5 * margin       # into the marker's black border
-            w = _margin_width(prof[keep], s_or[keep], margin)
-        else:
-            w = _rise_width(samp.mean(axis=0), step)
+        # a ChArUco white square holds a marker: white only for (1 − ratio)/2 of a square
+        white_lim = ((1.0 - board.marker_ratio) / 2.0 * L if board.kind == "charuco"
+                     else None)
+        w = _esf_width(samp.astype(np.float64), s, white_lim, step)
         if math.isfinite(w):
             widths.append(w)
             angles.append(math.degrees(math.atan2(nrm[1], nrm[0])) % 180.0)

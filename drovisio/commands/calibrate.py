@@ -11,7 +11,8 @@ JSON of :mod:`drovisio.calibration.report`. Progress goes to stderr, one line pe
 
 Exit codes: 0 calibrated (even when the verdict is "not ok": the verdict is in the report and
 on stderr); 1 nothing could be calibrated (no board found, too few usable views, degenerate
-views); 2 bad arguments (board spec, missing path, no images, an output that is an input or
+views, or a solve that did not converge or that the views do not determine: one line says
+the cause and the fix, and no camera file is written); 2 bad arguments (board spec, missing path, no images, an output that is an input or
 another output, a full disk: nothing already saved is replaced).
 
 The same picture given twice (the board within 0.5 px of a kept view) is refused, as on the

@@ -15,6 +15,21 @@ from drovisio.camera import Camera
 REPO_ROOT = Path(__file__).resolve().parents[2]
 OPENCV_LEFT = Path(os.environ.get("DROVISIO_OPENCV_LEFT",
                                   REPO_ROOT.parent / "shared" / "datasets" / "opencv-left"))
+REAL = Path(os.environ.get("DROVISIO_REAL_DATA",
+                           REPO_ROOT.parent / "shared" / "datasets" / "real"))
+
+
+def real_data(*parts: str) -> Path:
+    """A file or folder of ../shared/datasets/real (its README: sources, references); skips
+    the test when absent (fails instead where DROVISIO_REQUIRE_SHARED=1: CI has it)."""
+    p = REAL.joinpath(*parts)
+    if not p.exists():
+        msg = (f"real data {p} is absent; set DROVISIO_REAL_DATA to the datasets/real folder "
+               "to run this test")
+        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return p
 
 #: Board of the rendered sessions (drovisio.calibration.synthetic.DEFAULT_BOARD).
 RENDER_SEED = 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import cv2
 import pytest
 
 from drovisio.calibration.board import detect
@@ -120,3 +121,58 @@ def test_charuco_sharpness_is_measured_in_the_margin_around_the_markers():
                        seed=4)):
         got = widths(fx)
         assert got and not any(ok for ok, _ in got), got
+
+
+# ------------------------------------------------------------------ real photos, real blur
+@pytest.fixture(scope="module")
+def charuco_photo():
+    from drovisio.calibration.board import parse_board
+
+    from .conftest import real_data
+
+    img = cv2.imread(str(real_data("charuco", "choriginal.jpg")))
+    return img, parse_board("charuco:4x6:DICT_6X6_250:0.5", 0.04)
+
+
+def test_opencvs_charuco_photo_is_sharp_and_its_blurred_copy_is_not(charuco_photo):
+    """OpenCV's ChArUco tutorial photo: its edges rise in ~1 px (the old bar fit said 5.2 px).
+    Blurred by a known Gaussian the width follows 2.56·√(σ² + σ₀²) and σ = 1.5 px is
+    rejected."""
+    img, board = charuco_photo
+    g, es = gate_sharpness(img, detect(img, board), board)
+    assert g.ok and 0.6 < es.width_px < 1.6, es                  # measured 1.01 px
+    s0 = es.width_px / 2.5631
+    for sigma, ok in ((1.0, True), (1.5, False)):
+        blurred = cv2.GaussianBlur(img, (0, 0), sigma)
+        det = detect(blurred, board)
+        assert det is not None
+        g, es = gate_sharpness(blurred, det, board)
+        expected = 2.5631 * math.hypot(sigma, s0)                  # 2.75 / 3.96 px
+        assert g.ok is ok and abs(es.width_px - expected) < 0.3, (sigma, es)  # 2.82 / 4.09
+
+
+def test_opencv_webcam_views_blurred_by_a_known_sigma_are_rejected(opencv_images,
+                                                                    opencv_board):
+    for name in ("left01.jpg", "left07.jpg", "left12.jpg"):
+        img = opencv_images[name]
+        sharp = gate_sharpness(img, detect(img, opencv_board), opencv_board)[1].width_px
+        blurred = cv2.GaussianBlur(img, (0, 0), 1.5)
+        g, es = gate_sharpness(blurred, detect(blurred, opencv_board), opencv_board)
+        # measured: 2.67 / 2.26 / 2.23 px sharp, 4.74 / 4.50 / 4.53 px blurred
+        expected = 2.5631 * math.hypot(1.5, sharp / 2.5631)
+        assert not g.ok and abs(es.width_px - expected) < 0.35, (name, sharp, es)
+
+
+def test_calibrate_keeps_the_charuco_photo(charuco_photo, tmp_path, capsys):
+    from drovisio import cli
+
+    from .conftest import real_data
+
+    rc = cli.main(["calibrate", "--board", "charuco:4x6:DICT_6X6_250:0.5", "--square", "0.04",
+                   "--out", str(tmp_path / "c.yaml"),
+                   str(real_data("charuco", "choriginal.jpg"))])
+    err = capsys.readouterr().err
+    assert "choriginal.jpg: 24 corners" in err and "edges 1.0 px" in err
+    assert "rejected" not in err
+    # one view is too few to solve: said in one line, exit 1 (DESIGN.md's contract)
+    assert rc == 1 and "only 1 usable view(s)" in err
