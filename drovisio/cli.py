@@ -192,7 +192,13 @@ def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
                         "(WebSocket feed); repeatable"
                         + (" (with a sink, the pipeline runs from the start, watched or not)"
                            if serving else " (default jsonl:-)"))
-    p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
+    p.add_argument("--record", metavar="DIR|FILE.mcap",
+                   help="also record the frames and results here: a folder (Drovisio's own "
+                        "form) or an .mcap file (ROS 2 messages, for ros2 bag and Foxglove)")
+    p.add_argument("--record-images", choices=("jpeg", "png"), default="jpeg",
+                   help="images of an .mcap recording: jpeg (quality 95, default) or png "
+                        "(lossless: a replay sees exactly the frames the run saw; ~4x larger "
+                        "and slower to write)")
     p.add_argument("--target", default="nearest", metavar="TARGET",
                    help="brick sent to the flight controller: nearest (default), LAYOUT, "
                         "LAYOUT:INSTANCE, track:N or none; changeable at run time"

@@ -504,6 +504,7 @@ class LiveService:
         res = []
         from drovisio.fusion import so3_log
         from drovisio.mount import down_camera_mount
+        from drovisio.pose.covariance import parent_covariance, uncertainty_words
 
         for b in out.bricks:
             d = b.to_json()
@@ -516,6 +517,8 @@ class LiveService:
             R = T[:3, :3]
             d["yaw_deg"] = round(math.degrees(math.atan2(R[1, 0], R[0, 0])), 2)
             d["target"] = out.target is not None and b.track == out.target.track
+            d["uncertainty"] = uncertainty_words(
+                None if b.covariance is None else parent_covariance(b.rvec, b.covariance))
             res.append(d)
         return res
 

@@ -124,8 +124,15 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     gravity = attitude_gravity if mount is not None else None
 
     source = FrameSource(reader, pace=getattr(args, "pace", "realtime"))
-    recorder = None
-    if getattr(args, "record", None):
+    recorder: object | None = None
+    if getattr(args, "record", None) and str(args.record).lower().endswith(".mcap"):
+        from drovisio.ros.mcap_recorder import McapRecorder
+        from drovisio.ros.messages import RosMessages
+
+        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts),
+                                source=args.source,
+                                image_format=getattr(args, "record_images", "jpeg"))
+    elif getattr(args, "record", None):
         recorder = Recorder(args.record, source=args.source, camera_file=args.camera,
                             mount_file=getattr(args, "mount", None))
 
