@@ -20,6 +20,9 @@ from drovisio.sources import EndOfStream, RawFrame
 __all__ = ["McapReader", "iter_images"]
 
 IMAGE_TYPE = "sensor_msgs/msg/CompressedImage"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: Largest record (or decompressed chunk) read, bytes; ours are ~1–3 MB.
+MAX_RECORD_BYTES = 256 << 20
 
 
 def iter_images(path: str | Path, topic: str | None = None
@@ -37,7 +40,9 @@ def iter_images(path: str | Path, topic: str | None = None
     channels: dict[int, tuple[str, int]] = {}
     chosen = topic
     with open(path, "rb") as f:
-        reader = StreamReader(f, skip_magic=False, emit_chunks=True)
+        # bounded: a damaged or hostile length never allocates more than this
+        reader = StreamReader(f, skip_magic=False, emit_chunks=True,
+                              record_size_limit=MAX_RECORD_BYTES)
         records = reader.records
         while True:
             try:
@@ -48,6 +53,8 @@ def iter_images(path: str | Path, topic: str | None = None
                 return   # the cut end of a killed recording
             inner = [rec]
             if isinstance(rec, Chunk):
+                if rec.uncompressed_size > MAX_RECORD_BYTES:
+                    return
                 try:
                     inner = list(breakup_chunk(rec, validate_crc=True))
                 except Exception:  # noqa: BLE001 - a damaged chunk ends the replay
@@ -90,6 +97,11 @@ class McapReader:
         self.index = 0
 
     def open(self) -> None:
+        with open(self.path, "rb") as f:
+            magic = f.read(8)
+        if magic != MCAP_MAGIC:
+            raise OSError("not an MCAP file (it does not begin with MCAP's magic bytes): give "
+                          "a recording written by drovisio run --record FILE.mcap or ros2 bag")
         self._it = iter_images(self.path, self.topic)
         self._t0 = None
         self._offset = 0.0
@@ -97,8 +109,8 @@ class McapReader:
         try:
             first = next(self._it)
         except StopIteration:
-            raise OSError(f"{self.path}: the recording holds no images "
-                          "(sensor_msgs/msg/CompressedImage)") from None
+            raise OSError("the recording holds no complete image "
+                          "(sensor_msgs/msg/CompressedImage) to replay") from None
         self._pending: tuple | None = first
 
     def read(self) -> RawFrame | None:

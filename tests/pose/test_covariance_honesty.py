@@ -9,7 +9,8 @@ pose. One noise draw per scene: the errors of one geometry are correlated (part 
 the detector's bias), so only new scenes add information. The median of χ²(6) is 5.35; with
 n ≈ 55 bricks the sample median's standard deviation is ≈ 0.6, the ±30 % band ±2.7 of them.
 Measured on 40 scenes (93 bricks): median 4.9, and 9.7 % beyond χ²(6)'s 0.99 quantile
-(16.8) — the tail is heavier than a Gaussian's (the detector's bias, not noise).
+(16.8) — the tail is heavier than a Gaussian's (the detector's bias, not noise). The colour-dot
+bricks are checked the same way.
 """
 
 from __future__ import annotations
@@ -79,3 +80,44 @@ def test_the_ros_covariance_is_as_honest(errors):
     np.testing.assert_allclose(d2_ros, d2, rtol=1e-6)
     assert abs(float(np.median(d2_ros)) - CHI2_6_MEDIAN) <= 0.3 * CHI2_6_MEDIAN
 
+
+
+@pytest.fixture(scope="module")
+def dot_errors():
+    """d² of every colour-dot brick found (either half-turn of the symmetric 2×3 pattern)."""
+    from drovisio.detect.dots import detect_dots
+    from drovisio.fusion import pose_candidates
+
+    layouts = load_layouts([shipped_layouts_dir() / "drick-dots-2x3.json"])
+    cam = Camera.drone_webcam()
+    spec = SceneSpec(layouts=layouts, n_bricks=3, blur_sigma_px=(0.0, 0.0),
+                     motion_px=(0.0, 0.0), jpeg_quality=(100, 100), noise_sigma=(0.0, 0.0))
+    out = []
+    for s in range(16):
+        scene, _fx = random_scene(3000 + s, spec, cam)
+        clean = render(scene, Effects(), ss=3)
+        img = apply_effects(clean.image.astype(np.float32),
+                            Effects(noise_sigma=(1.5, 2.5, 4.0, 6.0)[s % 4], seed=s))
+        for b in detect_dots(img, cam, layouts,
+                             gravity=gravity_in_camera(clean.camera_from_world)):
+            if b.ambiguous:
+                continue
+            C = parent_covariance(b.rvec, b.covariance)
+            d2 = [mahalanobis2(e, C) for t in clean.bricks
+                  for R, tv in pose_candidates(b)
+                  for e in [pose_error(R, tv, t.camera_from_brick[:3, :3],
+                                       t.camera_from_brick[:3, 3])]
+                  if np.linalg.norm(e[:3]) < 0.1]
+            if d2:
+                out.append(min(d2))
+    return np.array(out)
+
+
+def test_dot_bricks_covariance_is_honest(dot_errors):
+    """The dot-centre noise comes from each brick's own residuals (6 degrees of freedom for
+    six dots): the distances follow 6·F(6, 6) rather than χ²(6) (median 6.0, a heavier
+    tail). Measured: median 4.8, 19 % beyond 16.8 (6·F(6, 6): 11 %)."""
+    d2 = dot_errors
+    assert len(d2) >= 25, len(d2)
+    assert abs(float(np.median(d2)) - CHI2_6_MEDIAN) <= 0.3 * CHI2_6_MEDIAN, np.median(d2)
+    assert float(np.mean(d2 > 16.81)) < 0.3, np.sort(d2)[-5:]

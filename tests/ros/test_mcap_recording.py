@@ -192,3 +192,17 @@ def _safe_iter(path: Path):
     if not path.exists():
         return iter(())
     return iter_images(path)
+
+
+@pytest.mark.parametrize("content, says", [
+    (b"not an mcap file at all", "not an MCAP file"),
+    (b"", "not an MCAP file"),
+    (b"\x89MCAP0\r\n\x01" + b"\xff" * 8 + b"\x00" * 40, "no complete image"),   # a huge length
+])
+def test_a_broken_mcap_source_is_one_line_and_exit_2(capsys, tmp_path, content, says):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(content)
+    assert main(["run", "--source", str(bad), *BASE]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"drovisio run: {bad}: --source: ") and says in err[-1], err
+    assert "Traceback" not in "\n".join(err)
