@@ -104,7 +104,8 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
             sinks.append(open_sink(spec, target=target,
                                    autopilot=getattr(args, "autopilot", "ardupilot"),
                                    mount=mount, layouts=layouts,
-                                   send_held=getattr(args, "send_held_targets", False)))
+                                   send_held=getattr(args, "send_held_targets", False),
+                                   camera=camera, drone_id=getattr(args, "drone_id", None)))
     except Exception:
         for s in sinks:
             s.close()
@@ -127,9 +128,11 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     recorder: object | None = None
     if getattr(args, "record", None) and str(args.record).lower().endswith(".mcap"):
         from drovisio.ros.mcap_recorder import McapRecorder
-        from drovisio.ros.messages import RosMessages
+        from drovisio.ros.messages import RosMessages, namespace_for
 
-        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts),
+        ns, prefix = namespace_for(getattr(args, "drone_id", None))
+        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts, namespace=ns,
+                                                         frame_prefix=prefix),
                                 source=args.source,
                                 image_format=getattr(args, "record_images", "jpeg"))
     elif getattr(args, "record", None):

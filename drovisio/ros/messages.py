@@ -33,7 +33,7 @@ from drovisio.ros.frames import (
     ros_covariance,
 )
 
-__all__ = ["TOPIC_TYPES", "RosMessages", "stamp"]
+__all__ = ["TOPIC_TYPES", "RosMessages", "namespace_for", "stamp"]
 
 #: Topic (relative to the namespace) → message type.
 TOPIC_TYPES: dict[str, str] = {
@@ -47,6 +47,14 @@ TOPIC_TYPES: dict[str, str] = {
 
 _DISTORTION_MODEL = {"plumb_bob": "plumb_bob", "rational_polynomial": "rational_polynomial",
                      "fisheye": "equidistant"}
+
+
+def namespace_for(drone_id: str | None) -> tuple[str, str]:
+    """(topic namespace, frame id prefix) of a drone: ``/drovisio`` and no prefix without an
+    id, ``/drovisio/ID`` and ``ID/`` with one."""
+    if not drone_id:
+        return "/drovisio", ""
+    return f"/drovisio/{drone_id}", f"{drone_id}/"
 
 
 def stamp(t: float) -> dict:
