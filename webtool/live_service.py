@@ -293,6 +293,7 @@ class LiveService:
             source=c.source, camera=str(c.camera_file), layout=[str(x) for x in c.layout_files],
             mount=str(c.mount_file) if c.mount_file else None, sink=list(s.sinks),
             record=str(s.record) if s.record else None, target=s.target,
+            record_images=s.record_images, drone_id=s.drone_id,
             autopilot=s.autopilot, send_held_targets=s.send_held_targets,
             max_age=s.max_age, pace="realtime")
         p = build_pipeline(args, loop=c.loop, default_sinks=())

@@ -175,3 +175,18 @@ def test_messages_carry_the_drone_in_topics_and_frames():
     assert m.topic("bricks") == "/drovisio/drone7/bricks" and m.topic("/tf_static") == "/tf_static"
     assert m.body_frame == "drone7/base_link" and m.camera_frame == "drone7/camera_optical_frame"
     assert namespace_for(None) == ("/drovisio", "")
+
+
+def test_serve_takes_the_drone_id_and_the_mcap_options():
+    from drovisio import cli
+    from webtool.serve import settings_from
+
+    s = settings_from(cli.build_parser().parse_args(
+        ["serve", "--drone-id", "d3", "--record", "f.mcap", "--record-images", "png"]))
+    assert (s.drone_id, s.record, s.record_images) == ("d3", Path("f.mcap"), "png")
+
+
+def test_a_bad_drone_id_is_refused(capsys):
+    assert main(["run", "--source", "x.mp4", *BASE, "--drone-id", "drone 1/../x"]) == 2
+    err = capsys.readouterr().err
+    assert "--drone-id" in err and "Traceback" not in err
