@@ -129,8 +129,9 @@ class ZenohSink:
         cfg.insert_json5("connect/endpoints", json.dumps(o["connect"]))
         cfg.insert_json5("listen/endpoints", json.dumps(o["listen"]))
         cfg.insert_json5("scouting/multicast/enabled", "false")
-        # keep trying a station that is not there yet or went away (never give up)
-        cfg.insert_json5("connect/timeout_ms", "-1" if o["mode"] == "client" else "0")
+        # keep trying a station that is not there yet (the session opens in the sink's own
+        # thread: waiting there holds nothing up) or went away (never give up)
+        cfg.insert_json5("connect/timeout_ms", "-1" if o["connect"] else "0")
         cfg.insert_json5("connect/exit_on_failure", "false")
         cfg.insert_json5("connect/retry", json.dumps({"period_init_ms": 250,
                                                       "period_max_ms": 2000,
@@ -218,4 +219,5 @@ class ZenohSink:
 
     def status(self) -> dict:
         return {"sink": self.name, "sent": self.sent, "dropped": self.dropped,
-                "errors": self.errors, "last_error": self.last_error}
+                "errors": self.errors, "last_error": self.last_error,
+                "state": "open" if self._session is not None else "connecting"}

@@ -148,7 +148,7 @@ def test_a_lost_link_comes_back_without_a_restart():
     try:
         for i in range(50):   # nobody listens yet: nothing waits, nothing fails
             sink.send(_output(i))
-        assert sink.status()["errors"] == 0
+        assert sink.status()["errors"] == 0 and sink.status()["state"] == "connecting"
         for attempt in range(2):   # the station comes, goes, and comes back
             st = Station(port, key)
             try:
