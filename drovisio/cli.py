@@ -123,6 +123,16 @@ def _bounded(lo: float, hi: float, above: bool = False) -> Callable[[str], float
     return parse
 
 
+def drone_id(text: str) -> str:
+    """A drone id usable in ROS names and Zenoh keys."""
+    import re
+
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]{0,31}", text):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a letter, then letters, digits or _ (at most 32), e.g. drone1")
+    return text
+
+
 def port_number(text: str) -> int:
     """argparse type: a TCP port, 1 to 65535."""
     from drovisio.bounds import parse_whole
@@ -238,11 +248,22 @@ def _add_pipeline(p: argparse.ArgumentParser, serving: bool) -> None:
                    help="camera mount (tilt, pan, roll and offset, or body_from_camera) for "
                         "poses in the drone's FRD body frame")
     p.add_argument("--sink", action="append", metavar="SINK",
-                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION or ws://HOST:PORT "
-                        "(WebSocket feed); repeatable"
+                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION, ws://HOST:PORT "
+                        "(WebSocket feed) or zenoh:connect=tcp/HOST:PORT (ROS 2 messages over "
+                        "Zenoh, as rmw_zenoh); repeatable"
                         + (" (with a sink, the pipeline runs from the start, watched or not)"
                            if serving else " (default jsonl:-)"))
-    p.add_argument("--record", metavar="DIR", help="also record the frames and results here")
+    p.add_argument("--record", metavar="DIR|FILE.mcap",
+                   help="also record the frames and results here: a folder (Drovisio's own "
+                        "form) or an .mcap file (ROS 2 messages, for ros2 bag and Foxglove)")
+    p.add_argument("--drone-id", type=drone_id, metavar="ID",
+                   help="this drone's name on a site with several (letters, digits, _): ROS 2 "
+                        "topics under /drovisio/ID and frame ids ID/base_link (zenoh: sinks, "
+                        ".mcap recordings)")
+    p.add_argument("--record-images", choices=("jpeg", "png"), default="jpeg",
+                   help="images of an .mcap recording: jpeg (quality 95, default) or png "
+                        "(lossless: a replay sees exactly the frames the run saw; ~4x larger "
+                        "and slower to write)")
     p.add_argument("--target", default="nearest", metavar="TARGET",
                    help="brick sent to the flight controller: nearest (default), LAYOUT, "
                         "LAYOUT:INSTANCE, track:N or none; changeable at run time"

@@ -124,7 +124,7 @@ class FrameOutput:
     gravity: np.ndarray | None = None
     errors: list[str] = field(default_factory=list)
 
-    def to_json(self, with_covariance: bool = False) -> dict:
+    def to_json(self, with_covariance: bool = True) -> dict:
         out: dict = {"file": self.source, "frame": self.frame, "t": round(self.t, 6),
                      "bricks": [b.to_json(with_covariance) for b in self.bricks],
                      "target": None if self.target is None else

@@ -761,6 +761,10 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
     if not p.is_file():
         raise InputError(f"{s}: --source: not a regular file (a pipe or a device); give a "
                          "camera index (0) for a camera")
+    if p.suffix.lower() == ".mcap":   # an MCAP recording (drovisio run --record FILE.mcap)
+        from drovisio.ros.mcap_source import McapReader
+
+        return McapReader(p, loop=loop)
     return VideoFileReader(p, loop=loop)
 
 

@@ -22,7 +22,8 @@ __all__ = ["check_pipeline_options", "check_record_folder", "check_source", "ope
 
 
 def check_record_folder(path: str | os.PathLike) -> Path:
-    """``--record DIR``: a folder that exists or can be made, writable, not a file.
+    """``--record DIR``: a folder that exists or can be made, writable, not a file;
+    ``--record FILE.mcap``: a file (new or regular) in a writable folder.
 
     Raises:
         InputError: one line naming ``--record`` and what to do.
@@ -40,11 +41,14 @@ def check_record_folder(path: str | os.PathLike) -> Path:
         st = None
     except OSError as e:
         raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
-    if st is not None and not stat.S_ISDIR(st.st_mode):
+    mcap = p.suffix.lower() == ".mcap"
+    if mcap and st is not None and not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: --record: not a regular file; give a new FILE.mcap")
+    if not mcap and st is not None and not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
                          "missing)")
     # the nearest folder that exists must be writable: the recording is made inside it
-    q = p if st is not None else p.absolute().parent
+    q = p if (st is not None and not mcap) else p.absolute().parent
     while not q.exists() and q != q.parent:
         q = q.parent
     if not q.is_dir() or not os.access(q, os.W_OK | os.X_OK):
@@ -99,11 +103,11 @@ def check_pipeline_options(args: argparse.Namespace, *, open_sinks: bool = True)
     Raises:
         InputError: one line naming the option (or file) and what to do.
     """
-    camera = getattr(args, "camera", None)
-    if camera:
+    camera = None
+    if getattr(args, "camera", None):
         from drovisio.camera_file import load_camera
 
-        load_camera(camera)
+        camera = load_camera(args.camera)
     layouts = None
     if getattr(args, "layout", None):
         from drovisio.layout import load_layouts
@@ -120,7 +124,7 @@ def check_pipeline_options(args: argparse.Namespace, *, open_sinks: bool = True)
     if getattr(args, "record", None):
         check_record_folder(args.record)
     if open_sinks:
-        for sink in open_sinks_of(args, target, mount, layouts):
+        for sink in open_sinks_of(args, target, mount, layouts, camera=camera):
             try:
                 sink.close()
             except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
@@ -128,7 +132,7 @@ def check_pipeline_options(args: argparse.Namespace, *, open_sinks: bool = True)
 
 
 def open_sinks_of(args: argparse.Namespace, target, mount=None, layouts=None,
-                  default_sinks: tuple[str, ...] = ()) -> list:
+                  default_sinks: tuple[str, ...] = (), camera=None) -> list:
     """Open every ``--sink`` of ``args`` (``default_sinks`` when none); on a failure the ones
     opened are closed and one line names the sink and what to do.
 
@@ -144,7 +148,8 @@ def open_sinks_of(args: argparse.Namespace, target, mount=None, layouts=None,
             sinks.append(open_sink(spec, target=target,
                                    autopilot=getattr(args, "autopilot", "ardupilot"),
                                    mount=mount, layouts=layouts,
-                                   send_held=getattr(args, "send_held_targets", False)))
+                                   send_held=getattr(args, "send_held_targets", False),
+                                   camera=camera, drone_id=getattr(args, "drone_id", None)))
         except (SinkError, OSError) as e:
             for s in sinks:
                 s.close()

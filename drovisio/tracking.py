@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drovisio.detect.result import BrickPose, _r
+from drovisio.detect.result import BrickPose, _r, covariance_json
 from drovisio.fusion import (
     default_covariance,
     pose_candidates,
@@ -120,7 +120,7 @@ class TrackedBrick:
             return float(np.linalg.norm(self.body_from_brick[:3, 3]))
         return float(np.linalg.norm(self.tvec))
 
-    def to_json(self, with_covariance: bool = False) -> dict:
+    def to_json(self, with_covariance: bool = True) -> dict:
         m = self.measurement
         out: dict = {
             "layout": self.layout,
@@ -145,8 +145,10 @@ class TrackedBrick:
             out["body_from_brick"] = {
                 "rvec": [_r(v, 7) for v in so3_log(self.body_from_brick[:3, :3])],
                 "tvec": [_r(v, 7) for v in self.body_from_brick[:3, 3]]}
-        if with_covariance:
-            out["covariance"] = [[float(f"{v:.6g}") for v in row] for row in self.covariance]
+        if with_covariance and self.covariance is not None:
+            cov = covariance_json(self.rvec, self.covariance)
+            if cov is not None:
+                out["covariance"] = cov
         return out
 
 

@@ -293,6 +293,7 @@ class LiveService:
             source=c.source, camera=str(c.camera_file), layout=[str(x) for x in c.layout_files],
             mount=str(c.mount_file) if c.mount_file else None, sink=list(s.sinks),
             record=str(s.record) if s.record else None, target=s.target,
+            record_images=s.record_images, drone_id=s.drone_id,
             autopilot=s.autopilot, send_held_targets=s.send_held_targets,
             max_age=s.max_age, pace="realtime")
         p = build_pipeline(args, loop=c.loop, default_sinks=())
@@ -504,6 +505,7 @@ class LiveService:
         res = []
         from drovisio.fusion import so3_log
         from drovisio.mount import down_camera_mount
+        from drovisio.pose.covariance import parent_covariance, uncertainty_words
 
         for b in out.bricks:
             d = b.to_json()
@@ -516,6 +518,8 @@ class LiveService:
             R = T[:3, :3]
             d["yaw_deg"] = round(math.degrees(math.atan2(R[1, 0], R[0, 0])), 2)
             d["target"] = out.target is not None and b.track == out.target.track
+            d["uncertainty"] = uncertainty_words(
+                None if b.covariance is None else parent_covariance(b.rvec, b.covariance))
             res.append(d)
         return res
 

@@ -102,6 +102,8 @@ def settings_from(args: argparse.Namespace) -> Settings:
         target=getattr(args, "target", "nearest"),
         autopilot=getattr(args, "autopilot", "ardupilot"),
         record=Path(args.record) if getattr(args, "record", None) else None,
+        record_images=getattr(args, "record_images", "jpeg"),
+        drone_id=getattr(args, "drone_id", None),
         send_held_targets=bool(getattr(args, "send_held_targets", False)),
         max_age=getattr(args, "max_age", 0.5),
         replay_dir=(Path(args.replay_dir) if getattr(args, "replay_dir", None)

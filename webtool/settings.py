@@ -48,6 +48,8 @@ class Settings(BaseModel):
     target: str = "nearest"
     autopilot: Literal["ardupilot", "px4"] = "ardupilot"
     record: Path | None = None
+    record_images: Literal["jpeg", "png"] = "jpeg"
+    drone_id: str | None = None
     send_held_targets: bool = False
     max_age: float = Field(default=0.5, gt=0)
     sample_session: Path = DEFAULT_SAMPLE_SESSION

@@ -252,8 +252,11 @@ def _body_truth() -> list[np.ndarray]:
     return out
 
 
-def bench_wire(fps: float, seconds: float, send_held: bool = False) -> dict:
-    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc)."""
+def bench_wire(fps: float, seconds: float, send_held: bool = False,
+               extra_sinks: tuple[str, ...] = ()) -> dict:
+    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
+    ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
+    flight controller's path must not change)."""
     import subprocess
 
     import cv2
@@ -292,6 +295,8 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False) -> dict:
            "--sink", f"mavlink:udpout:127.0.0.1:{port}", "--quiet"]
     if send_held:
         cmd.append("--send-held-targets")
+    for extra in extra_sinks:
+        cmd += ["--sink", extra]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             stdin=subprocess.DEVNULL)
     try:
@@ -408,6 +413,9 @@ def main(argv: list[str]) -> int:
                     default="all")
     ap.add_argument("--send-held-targets", action="store_true",
                     help="wire: run drovisio with --send-held-targets (to compare)")
+    ap.add_argument("--extra-sink", action="append", default=[], metavar="SINK",
+                    help="wire: another sink beside the MAVLink one (to compare), e.g. "
+                         "zenoh:connect=tcp/127.0.0.1:9 (a station that is not there)")
     ap.add_argument("--fps", type=number(0, 1000, above=True), default=30.0, help="camera frame rate (default 30)")
     ap.add_argument("--seconds", type=number(0, 86400, above=True), default=20.0, help="latency run length (s)")
     ap.add_argument("--minutes", type=number(0, 1440, above=True), default=20.0,
@@ -430,7 +438,7 @@ def main(argv: list[str]) -> int:
               f"detect median {r['detect_ms_median']} ms; processed {r['processed_fps']} fps, "
               f"{r['frames_dropped']} of {r['frames_offered']} frames skipped")
     if a.what in ("wire", "all"):
-        r = bench_wire(a.fps, a.seconds, a.send_held_targets)
+        r = bench_wire(a.fps, a.seconds, a.send_held_targets, tuple(a.extra_sink))
         res["wire"] = r
         ok &= r["pass"]
         w = r["wire_to_message_ms"]

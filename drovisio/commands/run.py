@@ -111,7 +111,7 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     mount = load_mount(args.mount) if getattr(args, "mount", None) else None
     reader = reader_for(args.source, loop=loop)
     target = TargetSelector(getattr(args, "target", None) or "nearest")  # checked above
-    sinks = open_sinks_of(args, target, mount, layouts, default_sinks)
+    sinks = open_sinks_of(args, target, mount, layouts, default_sinks, camera=camera)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
     if mav is not None and mount is not None and camera.size_known:
         from drovisio.autopilot.blind import blind_height
@@ -134,8 +134,17 @@ def build_pipeline(args: argparse.Namespace, loop: bool = False,
     gravity = attitude_gravity if mount is not None else None
 
     source = FrameSource(reader, pace=getattr(args, "pace", "realtime"))
-    recorder = None
-    if getattr(args, "record", None):
+    recorder: object | None = None
+    if getattr(args, "record", None) and str(args.record).lower().endswith(".mcap"):
+        from drovisio.ros.mcap_recorder import McapRecorder
+        from drovisio.ros.messages import RosMessages, namespace_for
+
+        ns, prefix = namespace_for(getattr(args, "drone_id", None))
+        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts, namespace=ns,
+                                                         frame_prefix=prefix),
+                                source=args.source,
+                                image_format=getattr(args, "record_images", "jpeg"))
+    elif getattr(args, "record", None):
         recorder = Recorder(args.record, source=args.source, camera_file=args.camera,
                             mount_file=getattr(args, "mount", None))
 

@@ -19,6 +19,17 @@ def _r(x: float, nd: int = 6) -> float:
     return float(round(float(x), nd))
 
 
+def covariance_json(rvec, cov_rvec_tvec) -> list[list[float]] | None:
+    """The JSON ``covariance`` of a pose: 6×6 rows, (x, y, z, rotation about x, y, z) of the
+    camera frame, m and rad (:mod:`drovisio.pose.covariance`); None when not finite."""
+    from drovisio.pose.covariance import parent_covariance  # here: fusion imports this module
+
+    C = parent_covariance(rvec, cov_rvec_tvec)
+    if not np.all(np.isfinite(C)):
+        return None
+    return [[float(f"{v:.6g}") for v in row] for row in C]
+
+
 @dataclass
 class BrickPose:
     """One brick found in one frame.
@@ -59,8 +70,9 @@ class BrickPose:
         """The pose as a 4×4 matrix."""
         return from_rvec_tvec(self.rvec, self.tvec)
 
-    def to_json(self, with_covariance: bool = False) -> dict:
-        """The DESIGN.md JSON object of one brick (flags only when they are true)."""
+    def to_json(self, with_covariance: bool = True) -> dict:
+        """The DESIGN.md JSON object of one brick (flags only when they are true; the
+        covariance, when known, in the convention of :mod:`drovisio.pose.covariance`)."""
         out: dict = {
             "layout": self.layout,
             "instance": self.instance,
@@ -80,7 +92,9 @@ class BrickPose:
         if self.duplicate:
             out["duplicate"] = True
         if with_covariance and self.covariance is not None:
-            out["covariance"] = [[float(f"{v:.6g}") for v in row] for row in self.covariance]
+            cov = covariance_json(self.rvec, self.covariance)
+            if cov is not None:
+                out["covariance"] = cov
         return out
 
 
@@ -93,7 +107,7 @@ class FrameResult:
     bricks: list[BrickPose] = field(default_factory=list)
     error: str | None = None
 
-    def to_json(self, with_covariance: bool = False) -> dict:
+    def to_json(self, with_covariance: bool = True) -> dict:
         out: dict = {"file": self.file, "frame": self.frame}
         if self.error is not None:
             out["error"] = self.error

@@ -12,7 +12,9 @@ SINK strings (``--sink`` of ``drovisio run``, :func:`open_sink`):
   (``mavlink:udpout:127.0.0.1:14550``, ``mavlink:/dev/ttyAMA0,921600``), only for frames
   that measured the target;
 * ``ws://HOST:PORT`` — a WebSocket server that pushes the objects to every connected client
-  (and takes ``{"set_target": "..."}`` messages).
+  (and takes ``{"set_target": "..."}`` messages);
+* ``zenoh:connect=tcp/HOST:PORT`` — the ROS 2 messages over Zenoh, keyed as rmw_zenoh keys
+  them (:mod:`drovisio.sinks.zenoh`).
 """
 
 from __future__ import annotations
@@ -24,9 +26,17 @@ __all__ = ["Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink", "pa
 
 
 def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str = "ardupilot",
-              mount=None, layouts=None, send_held: bool = False) -> Sink:
+              mount=None, layouts=None, send_held: bool = False, camera=None,
+              drone_id: str | None = None) -> Sink:
     """Open the sink of a SINK string (see the module doc)."""
     s = spec.strip()
+    if s.startswith("zenoh:"):
+        from drovisio.ros.messages import RosMessages, namespace_for
+        from drovisio.sinks.zenoh import ZenohSink
+
+        ns, prefix = namespace_for(drone_id)
+        return ZenohSink(s, RosMessages(camera, mount, layouts or (), namespace=ns,
+                                        frame_prefix=prefix))
     if s.startswith("jsonl:"):
         from drovisio.sinks.jsonl import JsonlSink
 
@@ -45,4 +55,4 @@ def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str
 
         return WebSocketSink.from_url(s, target=target)
     raise SinkError(f"unknown sink {spec!r}: use jsonl:-, jsonl:PATH, udp://HOST:PORT, "
-                    "mavlink:CONNECTION or ws://HOST:PORT")
+                    "mavlink:CONNECTION, ws://HOST:PORT or zenoh:connect=tcp/HOST:PORT")

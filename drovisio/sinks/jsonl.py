@@ -13,7 +13,7 @@ __all__ = ["JsonlSink"]
 
 
 class JsonlSink:
-    def __init__(self, path: str = "-", with_covariance: bool = False):
+    def __init__(self, path: str = "-", with_covariance: bool = True):
         self.name = f"jsonl:{path}"
         self.with_covariance = with_covariance
         self.lines = 0

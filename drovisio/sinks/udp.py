@@ -14,7 +14,7 @@ MAX_DATAGRAM = 65000
 
 
 class UdpSink:
-    def __init__(self, host: str, port: int, with_covariance: bool = False):
+    def __init__(self, host: str, port: int, with_covariance: bool = True):
         self.name = f"udp://{host}:{port}"
         self.addr = (host, int(port))
         self.with_covariance = with_covariance

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import time
 
 import numpy as np
@@ -122,6 +123,11 @@ def test_status_frame_bricks_and_target():
         b = c.get("/api/live/bricks").json()["bricks"]
         assert b[0]["layout"] == "drick-aruco-centre" and b[0]["target"] is True
         assert "body_from_brick" in b[0] and b[0]["age"] <= 0.5
+        # the uncertainty in words: measured σ √1e-5 m = 3.2 mm, 0.18°, plus the tracker's
+        # floors (2 mm, 0.3°)
+        m = re.fullmatch(r"± ([\d.]+) mm, ± ([\d.]+)°", b[0]["uncertainty"])
+        assert m and 3.0 <= float(m[1]) <= 6.0 and 0.2 <= float(m[2]) <= 0.6, b[0]["uncertainty"]
+        assert len(b[0]["covariance"]) == 6 and all(len(r) == 6 for r in b[0]["covariance"])
         r = c.post("/api/live/target", json={"spec": "drick-aruco-centre:2"})
         assert r.status_code == 200 and r.json()["target"]["instance"] == 2
         time.sleep(0.3)

@@ -45,6 +45,7 @@
   function cells(b) {
     const p = b.body_from_brick ? b.body_from_brick.tvec : [null, null, null];
     return [fmt(p[0], "", 2), fmt(p[1], "", 2), fmt(p[2], "", 2), fmt(b.distance, " m", 2),
+            b.uncertainty || "–",
             fmt(b.yaw_deg, "°", 1) + (b.symmetric ? " ±180°" : ""),
             b.measured ? "now" : fmt(b.age * 1000, " ms ago", 0), b.method];
   }
@@ -54,7 +55,7 @@
     const body = $("bricks-body");
     const keep = new Set();
     if (!bricks.length) {
-      body.innerHTML = '<tr><td colspan="9">No brick in view.</td></tr>';
+      body.innerHTML = '<tr><td colspan="10">No brick in view.</td></tr>';
       return;
     }
     body.querySelectorAll("tr:not([data-brick])").forEach((r) => r.remove());
@@ -66,7 +67,7 @@
       if (!row) {
         row = document.createElement("tr");
         row.dataset.brick = name;
-        row.innerHTML = "<td></td>" + "<td></td>".repeat(7) +
+        row.innerHTML = "<td></td>" + "<td></td>".repeat(8) +
           '<td><button type="button" class="target-btn">Make target</button></td>';
         row.querySelector("button").dataset.spec = spec;
         body.appendChild(row);

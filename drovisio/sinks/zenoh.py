@@ -1,0 +1,223 @@
+"""``zenoh:...``: the run's ROS 2 messages over Zenoh, keyed as rmw_zenoh keys them.
+
+A ROS 2 system running ``rmw_zenoh`` subscribes to these with plain ROS tools
+(``ros2 topic echo /drovisio/drone1/target``). Each message of
+:class:`drovisio.ros.messages.RosMessages` (the same CDR bytes an MCAP recording holds) is put
+on the key expression rmw_zenoh's design document gives a topic::
+
+    <domain id>/<fully qualified topic, without its leading />/<DDS type name>/<type hash>
+    0/drovisio/drone1/bricks/vision_msgs::msg::dds_::Detection3DArray_/RIHS01_…
+
+with rmw_zenoh's attachment (sequence number, source timestamp in ns, a 16-byte publisher
+gid; zenoh-ext's serialization: two little-endian int64 and 16 bytes). Topics are under
+``/drovisio/<drone id>`` (``--drone-id``; frame ids get ``<drone id>/`` in front), so that a
+site's drones do not mix. ``/tf_static`` (the mount) is put again every second: this sink
+keeps no publication cache for late joiners.
+
+SINK string: ``zenoh:`` followed by ``&``-separated options: ``connect=ENDPOINT[,ENDPOINT]``
+(e.g. ``tcp/192.168.1.10:7447``, a router or the ground station), ``listen=ENDPOINT``,
+``mode=peer|client`` (default peer), ``domain=N`` (the ROS domain id, default 0). Multicast
+scouting is off (a site's Wi-Fi rarely carries it): give ``connect`` or ``listen``.
+
+Never in the flight controller's way: :meth:`ZenohSink.send` only queues (a bounded queue;
+the oldest frame is dropped when the link is slow, counted); a background thread opens the
+session and publishes with congestion control *drop*. Zenoh reconnects a lost link by itself
+(``connect/retry``), so a link that comes back carries the next frames without a restart.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import struct
+import threading
+import time
+from typing import Any
+
+from drovisio.ros.messages import TOPIC_TYPES, RosMessages
+from drovisio.ros.msgdefs import encoder
+from drovisio.ros.type_hash import dds_type_name, full_name, rihs01
+from drovisio.sinks.base import SinkError
+
+__all__ = ["ZenohSink", "parse_spec", "topic_key"]
+
+
+def topic_key(domain: int, topic: str, type_name: str) -> str:
+    """rmw_zenoh's key expression of a topic."""
+    return f"{int(domain)}/{topic.strip('/')}/{dds_type_name(type_name)}/{rihs01(type_name)}"
+
+
+def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
+    """rmw_zenoh's attachment: sequence number, source timestamp (ns), 16-byte gid."""
+    return struct.pack("<qq", int(seq), int(stamp_ns)) + bytes(gid[:16]).ljust(16, b"\0")
+
+
+def parse_spec(spec: str) -> dict:
+    """Options of a ``zenoh:...`` SINK string (module doc); raises SinkError naming the
+    option."""
+    body = spec[len("zenoh:"):] if spec.startswith("zenoh:") else spec
+    opts: dict = {"connect": [], "listen": [], "mode": "peer", "domain": 0}
+    for part in filter(None, body.split("&")):
+        key, eq, value = part.partition("=")
+        if not eq or not value:
+            raise SinkError(f"{spec}: {part!r}: expected KEY=VALUE (connect=tcp/HOST:PORT, "
+                            "listen=tcp/HOST:PORT, mode=peer|client, domain=N)")
+        if key in ("connect", "listen"):
+            for ep in value.split(","):
+                proto, slash, addr = ep.partition("/")
+                if not slash or proto not in ("tcp", "udp", "tls", "quic", "ws") or \
+                        ":" not in addr:
+                    raise SinkError(f"{spec}: {key}: {ep!r} is not a Zenoh endpoint; write "
+                                    "it as tcp/HOST:PORT")
+                opts[key].append(ep)
+        elif key == "mode":
+            if value not in ("peer", "client"):
+                raise SinkError(f"{spec}: mode: {value!r}: use peer or client")
+            opts["mode"] = value
+        elif key == "domain":
+            if not value.isdigit() or int(value) > 232:
+                raise SinkError(f"{spec}: domain: {value!r}: use a ROS domain id, 0–232")
+            opts["domain"] = int(value)
+        else:
+            raise SinkError(f"{spec}: unknown option {key!r}: use connect, listen, mode or "
+                            "domain")
+    if opts["mode"] == "client" and not opts["connect"]:
+        raise SinkError(f"{spec}: mode=client needs connect=tcp/HOST:PORT (a router)")
+    if not opts["connect"] and not opts["listen"]:
+        raise SinkError(f"{spec}: give connect=tcp/HOST:PORT (the station or a router) or "
+                        "listen=tcp/HOST:PORT")
+    return opts
+
+
+class ZenohSink:
+    """Publishes each frame's ROS 2 messages over Zenoh (module doc).
+
+    Args:
+        spec: The SINK string.
+        messages: The message builder (camera, mount, layouts; its namespace carries the
+            drone id).
+        queue_frames: Frames waiting at most (older ones are dropped when the link is slow).
+    """
+
+    def __init__(self, spec: str, messages: RosMessages, queue_frames: int = 4):
+        self.opts = parse_spec(spec)
+        self.name = spec
+        self.messages = messages
+        self.domain = self.opts["domain"]
+        self.sent = 0
+        self.dropped = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._seq: dict[str, int] = {}
+        self._gid = os.urandom(16)
+        self._keys: dict[tuple[str, str], str] = {}
+        self._q: queue.Queue = queue.Queue(maxsize=queue_frames)
+        self._session: Any = None
+        self._stop = threading.Event()
+        self._last_tf = 0.0
+        self._thread = threading.Thread(target=self._run, daemon=True, name="zenoh-sink")
+        self._thread.start()
+
+    # ------------------------------------------------------------------ session
+    def _config(self):
+        import zenoh
+
+        o = self.opts
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", json.dumps(o["mode"]))
+        cfg.insert_json5("connect/endpoints", json.dumps(o["connect"]))
+        cfg.insert_json5("listen/endpoints", json.dumps(o["listen"]))
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        # keep trying a station that is not there yet (the session opens in the sink's own
+        # thread: waiting there holds nothing up) or went away (never give up)
+        cfg.insert_json5("connect/timeout_ms", "-1" if o["connect"] else "0")
+        cfg.insert_json5("connect/exit_on_failure", "false")
+        cfg.insert_json5("connect/retry", json.dumps({"period_init_ms": 250,
+                                                      "period_max_ms": 2000,
+                                                      "period_increase_factor": 2}))
+        return cfg
+
+    def _run(self) -> None:
+        import zenoh
+
+        try:
+            self._session = zenoh.open(self._config())
+        except Exception as e:  # noqa: BLE001 - said in the status, the pipeline goes on
+            self.errors += 1
+            self.last_error = f"cannot open a Zenoh session: {e}"
+            return
+        while not self._stop.is_set():
+            try:
+                item = self._q.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            if item is None:
+                break
+            try:
+                self._publish(item)
+            except Exception as e:  # noqa: BLE001
+                self.errors += 1
+                self.last_error = str(e)
+
+    def _key(self, topic: str, type_name: str) -> str:
+        k = self._keys.get((topic, type_name))
+        if k is None:
+            k = self._keys[(topic, type_name)] = topic_key(self.domain, topic, type_name)
+        return k
+
+    def _put(self, topic: str, type_name: str, msg: dict, t: float) -> None:
+        import zenoh
+
+        seq = self._seq.get(topic, 0) + 1
+        self._seq[topic] = seq
+        assert self._session is not None
+        self._session.put(self._key(topic, full_name(type_name)), encoder(type_name)(msg),
+                          congestion_control=zenoh.CongestionControl.DROP,
+                          attachment=attachment(seq, int(t * 1e9), self._gid))
+
+    def _publish(self, output) -> None:
+        now = time.monotonic()
+        if now - self._last_tf >= 1.0:   # the mount and the camera, once a second
+            m = self.messages
+            for topic, type_name, msg in m.run_messages(output.t):
+                self._put(topic, type_name, msg, output.t)
+            if m.camera is not None:
+                self._put(m.topic("camera/camera_info"), TOPIC_TYPES["camera/camera_info"],
+                          m.camera_info(output.t), output.t)
+            self._last_tf = now
+        for topic, type_name, msg in self.messages.frame_messages(output, None):
+            self._put(topic, type_name, msg, output.t)
+        self.sent += 1
+
+    # ------------------------------------------------------------------ sink API
+    def send(self, output) -> None:
+        """Queue the frame (never waits: the oldest queued frame gives way)."""
+        while True:
+            try:
+                self._q.put_nowait(output)
+                return
+            except queue.Full:
+                try:
+                    self._q.get_nowait()
+                    self.dropped += 1
+                except queue.Empty:
+                    pass
+
+    def close(self) -> None:
+        self._stop.set()
+        try:
+            self._q.put_nowait(None)
+        except queue.Full:
+            pass
+        self._thread.join(3)
+        if self._session is not None:
+            try:
+                self._session.close()
+            except Exception:  # noqa: BLE001
+                pass
+
+    def status(self) -> dict:
+        return {"sink": self.name, "sent": self.sent, "dropped": self.dropped,
+                "errors": self.errors, "last_error": self.last_error,
+                "state": "open" if self._session is not None else "connecting"}
