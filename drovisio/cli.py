@@ -234,6 +234,10 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
                         "(default: the built-in sample session)")
     p.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
     _add_pipeline(p, serving=True)
+    p.add_argument("--data", metavar="DIR",
+                   help="this server's data folder: calibration, mount, saved layouts and "
+                        "study reports (default: $DROVISIO_DATA, else "
+                        "~/.local/share/drovisio); never the checkout")
     p.add_argument("--replay-dir", metavar="DIR",
                    help="folder of mission recordings (drovisio mission simulate --record) to "
                         "replay in 3D on the live page (default: the sample mission)")

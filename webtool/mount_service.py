@@ -21,7 +21,6 @@ import numpy as np
 from drovisio.errors import InputError
 from drovisio.images import ImageError, decode_image
 from drovisio.mount import Mount, MountAngles, down_camera_mount, ground_footprint, load_mount
-from drovisio.resources import user_data_dir
 from webtool.errors import ServiceError
 
 __all__ = ["MountService", "mount_in_use"]
@@ -32,8 +31,7 @@ MAX_PICTURES = 20
 
 
 def _saved_path(settings) -> Path:
-    root = Path(settings.mount_dir) if settings.mount_dir else user_data_dir("mount")
-    return root / MOUNT_FILE
+    return Path(settings.user_folder("mount")) / MOUNT_FILE
 
 
 def mount_in_use(settings) -> Path | None:
