@@ -315,6 +315,9 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
     )
     samples.add_argument("--out", type=Path, default=None, metavar="DIR",
                          help="output folder (default: sample_sessions/ of this checkout)")
+    samples.add_argument("--only", choices=("calibration", "approach", "missions", "study",
+                                            "pad"),
+                         help="rewrite only this part (default: all)")
 
 
 def _add_study(p: argparse.ArgumentParser) -> None:
@@ -520,7 +523,7 @@ def resolve(entry_point: str) -> Callable[[argparse.Namespace], int | None]:
 def _run_synth(args: argparse.Namespace) -> int:
     from drovisio.synth_samples import main as generate
 
-    return int(generate(args.out) or 0)
+    return int(generate(args.out, getattr(args, "only", None)) or 0)
 
 
 def _crash_report(command: str, exc: BaseException) -> str | None:

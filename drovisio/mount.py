@@ -301,7 +301,9 @@ def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
                                    np.inf))
         return c[:2] + d[:, :2] * s[:, None]
 
-    poly = meet(camera.rays(border))
+    rays = camera.rays(border)
+    down_part = (rays @ R.T)[:, 2]
+    poly = meet(rays)
     axis = R[:, 2]
     centre = None
     if axis[2] > 1e-9:
@@ -316,7 +318,12 @@ def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
     return {"polygon": np.round(poly, 4).tolist(),
             "centre": None if centre is None else [round(float(v), 4) for v in centre],
             "below": inside, "nearest_m": 0.0 if inside else round(float(dist.min()), 3),
-            "farthest_m": round(float(dist.max()), 3)}
+            "farthest_m": round(float(dist.max()), 3),
+            # no ray of the picture's border goes down: the camera sees sky, not ground
+            "sees_ground": bool(np.any(down_part > 1e-9)),
+            # part of the picture is at or above the horizon (its rays cut at max_range_m)
+            "horizon": bool(np.any(down_part <= 1e-9)
+                            or float(dist.max()) >= max_range_m - 1e-6)}
 
 
 def down_camera_mount() -> Mount:

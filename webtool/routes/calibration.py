@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, File, Path, Query, UploadFile
+from fastapi import APIRouter, Depends, File, Path, Query, Request, UploadFile
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -162,8 +162,13 @@ def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> 
 
 
 @router.post("/use")
-def use(svc: Calibration) -> dict:
-    return svc.use_result()
+def use(svc: Calibration, request: Request) -> dict:
+    out = svc.use_result()
+    # the live view uses the chosen calibration at once (if it was made already)
+    live = getattr(request.app.state, "live", None)
+    if live is not None and hasattr(live, "reconfigure"):
+        live.reconfigure()
+    return out
 
 
 @router.post("/session")
