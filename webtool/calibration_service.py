@@ -93,6 +93,13 @@ def _calibration_root(settings) -> Path:
 IN_USE_FILE = "in-use.json"
 
 
+def _print_squares(board) -> dict[str, float]:
+    """The square each paper's printout of the board has (the PDF prints exactly this)."""
+    from drovisio.calibration.printout import print_square_mm
+
+    return {paper: print_square_mm(board, paper) for paper in ("A4", "A3", "Letter")}
+
+
 def camera_in_use(settings) -> Path | None:
     """The camera file last chosen with "Use this calibration" (``calibration_dir/in-use.json``),
     if it still loads; None otherwise (a broken choice is logged and ignored)."""
@@ -1025,6 +1032,7 @@ class CalibrationService:
                                                                       3),
                         "cols": sess.board.cols, "rows": sess.board.rows,
                         "square_measured": self.square_measured,
+                        "print_square_mm": _print_squares(sess.board),
                         "created": self.created, "source": self._source_label or (
                             "sample session (no camera)" if self.settings.source is None
                             else f"camera {self.settings.source}"),

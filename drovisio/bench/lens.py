@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.cli import positive_int
+from drovisio.cli import plain_help, positive_int
 from drovisio.errors import InputError
 
 __all__ = ["FISHEYE_150", "detection_errors", "calibration_errors", "main"]
@@ -118,7 +118,7 @@ def _p95(v: list) -> float:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="drovisio bench lens", description=__doc__,
+    p = argparse.ArgumentParser(prog="drovisio bench lens", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default="detect,calibrate", help="detect, calibrate or both")
     p.add_argument("--scenes", type=positive_int, default=40,

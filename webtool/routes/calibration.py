@@ -152,13 +152,15 @@ def camera_file(svc: Calibration,
 
 @router.get("/board.pdf")
 def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
-    from drovisio.calibration.printout import board_pdf_bytes
+    from drovisio.calibration.printout import board_pdf_bytes, print_square_mm
 
     board = svc.session.board
-    data, _ = board_pdf_bytes(board, paper)
+    square = print_square_mm(board, paper)
+    data, _ = board_pdf_bytes(board, paper, square)
     name = f"{board.kind}-{board.cols}x{board.rows}-{paper}.pdf"
     return Response(data, media_type="application/pdf",
-                    headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"'})
+                    headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"',
+                             "X-Square-mm": f"{square:g}"})
 
 
 @router.post("/use")
