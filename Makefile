@@ -13,7 +13,7 @@ VPY   := $(VENV)/bin/python
 STAMP := $(VENV)/.drovisio-installed
 
 .DEFAULT_GOAL := help
-.PHONY: help install demo test lint samples clean distclean
+.PHONY: help install demo test lint samples docs clean distclean
 
 help:
 	@echo "make demo      install (once) and serve the web tool on the sample session"
@@ -21,6 +21,7 @@ help:
 	@echo "make test      install (once) and run the tests (PYTEST_ARGS='-k pages' to filter)"
 	@echo "make lint      ruff and mypy on the package (CI runs it after the tests)"
 	@echo "make samples   regenerate sample_sessions/ with drovisio's renderer"
+	@echo "make docs      retake the field guide's screenshots (docs/images/, browser tests)"
 	@echo "make clean     remove caches and build leftovers (keeps .venv)"
 	@echo "make distclean clean, and remove .venv too"
 
@@ -31,8 +32,11 @@ $(VPY):
 
 # Reinstalled only when pyproject.toml changes (or the venv is new).
 $(STAMP): pyproject.toml | $(VPY)
-	$(VPY) -m pip install --disable-pip-version-check -q -e '.[test]'
+	@echo "[1/2] Installing Drovisio and its libraries into $(VENV) (first time: a few minutes)..."
+	$(VPY) -m pip install --disable-pip-version-check --progress-bar on -e '.[test]'
+	@echo "[2/2] Compiling the detectors' kernels (once per machine: about 2 min on a small laptop)..."
 	$(VPY) -m drovisio.detect.warmup
+	@echo "Installed."
 	@touch $@
 
 install: $(STAMP)
@@ -54,6 +58,10 @@ lint: $(STAMP)
 
 samples: $(STAMP)
 	$(VENV)/bin/drovisio synth samples --out sample_sessions
+
+# The field guide's screenshots: only this target writes docs/images/ (make test never does).
+docs: $(STAMP)
+	DROVISIO_DOCS_IMAGES=1 $(VPY) -m pytest tests/browser/test_field_guide.py -q
 
 clean:
 	rm -rf build dist .pytest_cache test-results *.egg-info

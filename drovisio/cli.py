@@ -306,6 +306,10 @@ def _add_serve(p: argparse.ArgumentParser) -> None:
                         "(default: the built-in sample session)")
     p.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
     _add_pipeline(p, serving=True)
+    p.add_argument("--data", metavar="DIR",
+                   help="this server's data folder: calibration, mount, saved layouts and "
+                        "study reports (default: $DROVISIO_DATA, else "
+                        "~/.local/share/drovisio); never the checkout")
     p.add_argument("--replay-dir", metavar="DIR",
                    help="folder of mission recordings (drovisio mission simulate --record) to "
                         "replay in 3D on the live page (default: the sample mission)")
@@ -453,6 +457,9 @@ def _add_synth(p: argparse.ArgumentParser) -> None:
     )
     samples.add_argument("--out", type=Path, default=None, metavar="DIR",
                          help="output folder (default: sample_sessions/ of this checkout)")
+    samples.add_argument("--only", choices=("calibration", "approach", "missions", "study",
+                                            "pad"),
+                         help="rewrite only this part (default: all)")
 
 
 def _add_study(p: argparse.ArgumentParser) -> None:
@@ -522,7 +529,7 @@ COMMANDS: dict[str, Command] = {
         Command(
             name="calibrate-board",
             spelled="calibrate board",
-            summary="",
+            summary="write the calibration board to print (true-scale PDF)",
             description="Write a true-scale PDF of a calibration board to print, with a 100 mm "
                         "ruler to check the print; measure a printed square and give it to "
                         "--square when calibrating.",
@@ -533,12 +540,12 @@ COMMANDS: dict[str, Command] = {
         Command(
             name="calibrate-mount",
             spelled="calibrate mount",
-            summary="",
+            summary="measure the camera mount from pictures of the landing pad",
             description="Measure the camera mount (tilt, roll, and pan with --aligned) from "
                         "pictures of a shipped code lying flat (the landing pad is best) in "
                         "front of the drone standing level, and write the mount file.",
-            example="drovisio calibrate mount --camera camera.yaml --aligned --offset 0.08 0 "
-                    "0.05 \\\n    --out mount.json pad_pictures/",
+            example="drovisio calibrate mount --camera sample_sessions/camera.yaml --aligned "
+                    "--offset 0.08 0 0.05 \\\n    --out mount.json sample_sessions/pad",
             add_arguments=_add_calibrate_mount,
             target="drovisio.commands.calibrate:measure_mount_command",
         ),
@@ -549,7 +556,7 @@ COMMANDS: dict[str, Command] = {
                         "poses, and send the results to one or more sinks. A finite source (a "
                         "video, a folder) ends the run when it is exhausted.",
             example="drovisio run --source 0 --camera camera.yaml \\\n"
-                    "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.yaml \\\n"
+                    "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.json \\\n"
                     "    --sink jsonl:- --sink mavlink:udpout:127.0.0.1:14550",
             add_arguments=_add_run,
         ),
@@ -632,14 +639,52 @@ COMMANDS: dict[str, Command] = {
 # --------------------------------------------------------------------------------------------
 
 
+def plain_help(doc: str | None) -> str:
+    """A docstring as a person reads it in a terminal: reST's markup (````code````,
+    ``**bold**``, ``:role:`~x.y```) taken out, the words kept."""
+    import re
+
+    text = doc or ""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], text)
+    text = text.replace("``", "").replace("**", "")
+    return text
+
+
+def _sub_commands() -> list[str]:
+    """Every ``COMMAND ACTION`` of the parser (sub-parsers and benchmark names), for the
+    top-level help."""
+    out: list[str] = []
+    for cmd in COMMANDS.values():
+        if cmd.spelled:
+            continue
+        if cmd.name == "bench":
+            from drovisio.commands.bench import BENCHMARKS
+
+            out.append(f"bench {'|'.join(BENCHMARKS)}")
+            continue
+        p = build_command_parser(cmd)
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                out.append(f"{cmd.name} {'|'.join(a.choices)}")
+    return out
+
+
+def build_command_parser(cmd: Command) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
+    cmd.add_arguments(p)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
         description="Drovisio: local positioning for builder drones.\n"
                     "Finds bricks by their colour dots or ArUco codes and gives each brick's "
                     "6-DoF pose.",
-        epilog="Example:\n  drovisio serve          # then open the printed URL\n"
-               "Run `drovisio COMMAND --help` for a command's options and an example.",
+        epilog="Sub-commands:\n  " + "\n  ".join(_sub_commands()) + "\n\n"
+               "Example:\n  drovisio serve          # then open the printed URL\n"
+               "Run `drovisio COMMAND --help` (e.g. `drovisio calibrate mount --help`) for a "
+               "command's options and an example.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -650,11 +695,13 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(
             cmd.name,
             prog=f"{PROG} {cmd.spelled or cmd.name}",
-            help=cmd.summary or argparse.SUPPRESS,
+            help=cmd.summary,
             description=cmd.description,
             epilog=f"Example:\n  {cmd.example}",
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
+        if cmd.spelled:     # listed as people type it ("calibrate board")
+            sub._choices_actions[-1].metavar = cmd.spelled
         cmd.add_arguments(p)
     return parser
 
@@ -669,7 +716,7 @@ def resolve(entry_point: str) -> Callable[[argparse.Namespace], int | None]:
 def _run_synth(args: argparse.Namespace) -> int:
     from drovisio.synth_samples import main as generate
 
-    return int(generate(args.out) or 0)
+    return int(generate(args.out, getattr(args, "only", None)) or 0)
 
 
 def _crash_report(command: str, exc: BaseException) -> str | None:

@@ -303,8 +303,10 @@ def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
                                    np.inf))
         return c[:2] + d[:, :2] * s[:, None]
 
+    rays = camera.rays(border)
     with np.errstate(all="ignore"):  # extreme lenses: rays that are not numbers are dropped
-        poly = meet(camera.rays(border))
+        down_part = (rays @ R.T)[:, 2]
+        poly = meet(rays)
     finite = np.isfinite(poly).all(axis=1)
     dropped = int((~finite).sum())
     poly = poly[finite]
@@ -326,7 +328,12 @@ def ground_footprint(mount: Mount, camera, height_m: float, per_edge: int = 12,
            "centre": None if centre is None else [round(float(v), 4) for v in centre],
            "below": inside,
            "nearest_m": 0.0 if inside or not len(dist) else round(float(dist.min()), 3),
-           "farthest_m": round(float(dist.max()), 3) if len(dist) else 0.0}
+           "farthest_m": round(float(dist.max()), 3) if len(dist) else 0.0,
+           # no ray of the picture's border goes down: the camera sees sky, not ground
+           "sees_ground": bool(np.any(down_part > 1e-9)),
+           # part of the picture is at or above the horizon (its rays cut at max_range_m)
+           "horizon": bool(np.any(~(down_part > 1e-9))
+                           or (len(dist) > 0 and float(dist.max()) >= max_range_m - 1e-6))}
     if dropped:  # the domain says so rather than sending numbers that are not JSON
         out["note"] = (f"{dropped} of {len(finite)} border rays of this camera file give no "
                        "point on the ground (its lens coefficients are extreme); check the "

@@ -16,6 +16,7 @@ from importlib.resources import files
 from pathlib import Path
 
 __all__ = [
+    "DATA_ENV",
     "docs_dir",
     "layouts_dir",
     "sample_sessions_dir",
@@ -61,10 +62,20 @@ def static_dir() -> Path:
     return _dir("webtool.static")
 
 
+DATA_ENV = "DROVISIO_DATA"
+
+
 def user_data_dir(*parts: str) -> Path:
-    """``$XDG_DATA_HOME/drovisio/...`` (default ``~/.local/share/drovisio/...``): where the
-    tool keeps what the user makes (calibration sessions, designs) when the shipped folders
-    are not the place (an installed wheel)."""
+    """The user's data folder: what the tool keeps of what the user makes (calibration
+    sessions, the calibration and mount in use, saved layouts, study reports), never inside
+    the checkout or the installed package.
+
+    ``$DROVISIO_DATA`` when set (``drovisio serve --data DIR`` gives one server its own),
+    else ``$XDG_DATA_HOME/drovisio`` (default ``~/.local/share/drovisio``).
+    """
+    own = os.environ.get(DATA_ENV)
+    if own:
+        return Path(own, *parts)
     base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local",
                                                            "share")
     return Path(base, "drovisio", *parts)

@@ -17,6 +17,13 @@
   under the drone; ``truth.jsonl`` (per frame: time, ``camera_from_world``, each brick's true
   ``camera_from_brick``), ``gravity.jsonl`` (``--gravity-file`` input of ``drovisio detect``),
   ``mount.json`` (``body_from_camera``) and ``scene.json`` (layouts and world poses).
+* ``pad/`` — three pictures of the shipped landing pad lying flat, its arrow (x axis) toward
+  the nose, seen by the same camera on the same mount (``mount.json``: the truth) with the
+  drone standing level at three headings and heights: ``drovisio calibrate mount --camera
+  sample_sessions/camera.yaml --aligned --out mount.json sample_sessions/pad`` measures it.
+
+``drovisio synth samples --only pad`` rewrites one part (``calibration``, ``approach``,
+``missions``, ``study``, ``pad``).
 """
 
 from __future__ import annotations
@@ -192,6 +199,28 @@ def write_approach_session(out: Path, camera: Camera) -> None:
                                                      indent=1))
 
 
+#: The pad pictures: (drone heading deg, body origin height m) of each.
+PAD_SHOTS = ((0.0, 1.0), (120.0, 1.2), (240.0, 1.4))
+
+
+def write_pad_session(out: Path, camera: Camera) -> None:
+    """Pictures of the landing pad for measuring the mount (see the module docstring)."""
+    from drovisio.mount import Mount
+    from drovisio.scenes import level_drone_over_code
+
+    out.mkdir(parents=True, exist_ok=True)
+    pad = load_layout(shipped_layouts_dir() / "landing-pad.json")
+    mount = body_from_camera()
+    for i, (heading, height) in enumerate(PAD_SHOTS):
+        res = level_drone_over_code(mount, pad, heading, 0.0, height, seed=i, camera=camera)
+        ok, jpg = cv2.imencode(".jpg", res.image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        (out / f"pad_{i:02d}.jpg").write_bytes(jpg.tobytes())
+        _progress(f"  pad picture {i + 1}/{len(PAD_SHOTS)}")
+    note = ("the mount these pictures were rendered with (camera 20° tilted forward, 8 cm "
+            "ahead and 5 cm below the body origin); the pad's arrow points to the nose")
+    (out / "mount.json").write_text(json.dumps(Mount(mount, note=note).to_file(), indent=1))
+
+
 def write_demo_mission(out: Path) -> None:
     """A short simulated mission (the shipped wall, first three bricks), recorded for the
     live page's replay panel (``drovisio serve`` lists ``missions/`` by default)."""
@@ -208,19 +237,29 @@ def write_demo_mission(out: Path) -> None:
     _progress("  demo mission recorded")
 
 
-def main(out_dir: str | Path | None = None) -> int:
-    """Write all sample sessions into ``out_dir`` (default: the repo's sample_sessions/)."""
+PARTS = ("calibration", "approach", "missions", "study", "pad")
+
+
+def main(out_dir: str | Path | None = None, only: str | None = None) -> int:
+    """Write all sample sessions (or the part ``only``) into ``out_dir`` (default: the repo's
+    sample_sessions/)."""
     out = Path(out_dir) if out_dir is not None else sample_sessions_dir()
     camera = Camera.drone_webcam()
     out.mkdir(parents=True, exist_ok=True)
     save_camera(camera, out / "camera.yaml")
     _progress(f"Writing sample sessions into {out}")
-    write_calibration_session(out / "calibration", camera)
-    write_approach_session(out / "approach", camera)
-    write_demo_mission(out / "missions")
-    from drovisio.study.example import write_recorded_example
+    if only in (None, "calibration"):
+        write_calibration_session(out / "calibration", camera)
+    if only in (None, "approach"):
+        write_approach_session(out / "approach", camera)
+    if only in (None, "missions"):
+        write_demo_mission(out / "missions")
+    if only in (None, "study"):
+        from drovisio.study.example import write_recorded_example
 
-    write_recorded_example(out / "study", frames=6)
+        write_recorded_example(out / "study", frames=6)
+    if only in (None, "pad"):
+        write_pad_session(out / "pad", camera)
     _progress("Done.")
     return 0
 

@@ -23,12 +23,27 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings as _hypothesis_settings
 
-# The web tool keeps calibration sessions and the calibration in use under $XDG_DATA_HOME:
-# tests get a folder of their own, so that neither the user's data nor a previous run's
-# changes what a test sees.
+# No property test has a wall-clock deadline: a busy machine is not a failure; each test
+# bounds its work (example counts, input sizes) instead.
+_hypothesis_settings.register_profile("drovisio", deadline=None)
+_hypothesis_settings.load_profile("drovisio")
+
+# The web tool keeps what the user makes (calibration, mount, layouts, study reports) in the
+# user's data folder: the test session gets a folder of its own, and each test a fresh one
+# inside it (`_own_data_folder`), so that neither the user's data nor another test's changes
+# what a test sees.
 os.environ["XDG_DATA_HOME"] = _DATA_HOME = tempfile.mkdtemp(prefix="drovisio-test-data-")
 atexit.register(shutil.rmtree, _DATA_HOME, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True)
+def _own_data_folder(tmp_path_factory, monkeypatch):
+    """Each test its own user data folder (drovisio.resources.user_data_dir)."""
+    from drovisio.resources import DATA_ENV
+
+    monkeypatch.setenv(DATA_ENV, str(tmp_path_factory.mktemp("data")))
 
 # DROVISIO_CHROMIUM overrides the path (other distributions); the default is Debian's.
 CHROMIUM = Path(os.environ.get("DROVISIO_CHROMIUM", "/usr/bin/chromium"))

@@ -7,7 +7,8 @@ bytes) and for arbitrary JSON:
 * a reader either returns a value or raises the project's one input error
   (:class:`drovisio.errors.InputError`) with a one-line message — never anything else;
 * every JSON route answers without a 500, whatever the body;
-* nothing hangs (no wall-clock deadline: CI machines are shared) and no output file is left half
+* the work is bounded (input sizes, example counts; no wall-clock deadline: a busy machine
+  is not a failure) and no output file is left half
   written.
 
 Runs are derandomized (the same examples in CI and here) and bounded: about a minute in all.
@@ -305,7 +306,7 @@ def test_mesh_reader(which, seed, flips, cut):
         pass
 
 
-@settings(FUZZ, max_examples=60)
+@settings(FUZZ, max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), flips=st.integers(1, 200), cut=st.floats(0, 1))
 def test_video_reader(tmp_path_factory, seed, flips, cut):
     from drovisio.sources import EndOfStream, VideoFileReader
@@ -390,7 +391,7 @@ def _encode(body) -> bytes:
     return json.dumps(body, allow_nan=True).encode()
 
 
-@settings(FUZZ, max_examples=1500)
+@settings(FUZZ, max_examples=1500, deadline=None)
 @given(route=st.sampled_from(JSON_ROUTES),
        body=st.dictionaries(st.sampled_from(FIELDS), field_values, max_size=4) | json_values)
 def test_json_routes_never_answer_500(client, route, body):
@@ -402,7 +403,7 @@ def test_json_routes_never_answer_500(client, route, body):
         r.json()
 
 
-@settings(FUZZ, max_examples=30)
+@settings(FUZZ, max_examples=30, deadline=None)
 @given(route=st.sampled_from(JSON_ROUTES),
        raw=st.sampled_from([b"[" * 100000 + b"]" * 100000, b'{"a":' * 50000, b"\xff\xfe",
                             b"NaN", b'{"spec": "' + b"x" * 2_000_000 + b'"}', b""]))

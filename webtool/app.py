@@ -91,8 +91,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         from webtool.calibration_service import camera_in_use
 
         settings.camera = camera_in_use(settings)
-    if settings.mount is None and settings.source is not None:
-        # likewise the mount saved on the mount page (the sample session keeps its own)
+    if settings.mount is None:
+        # likewise the mount saved on the mount page (on the sample session too: what the
+        # user saved is what the live view uses)
         from webtool.mount_service import mount_in_use
 
         settings.mount = mount_in_use(settings)

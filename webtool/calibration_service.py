@@ -58,6 +58,7 @@ from drovisio.camera_file import load_camera, save_camera
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_bytes as _atomic_write_bytes
 from drovisio.images import IMAGE_SUFFIXES, ImageError, decode_image, is_image_file, read_image
+from drovisio.resources import user_data_dir
 from drovisio.sources import PlaybackReader, Reader, list_folder, reader_for
 from drovisio.textfile import parse_json, read_text
 from webtool.errors import ServiceError
@@ -79,19 +80,30 @@ THUMB_WIDTH = 200
 
 # ==================================================================================== helpers
 def default_calibration_dir() -> Path:
-    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
-    return Path(base) / "drovisio" / "calibration"
+    return user_data_dir("calibration")
+
+
+def _calibration_root(settings) -> Path:
+    if hasattr(settings, "user_folder"):
+        return Path(settings.user_folder("calibration"))
+    return Path(settings.calibration_dir) if getattr(settings, "calibration_dir", None) \
+        else default_calibration_dir()
 
 
 IN_USE_FILE = "in-use.json"
 
 
+def _print_squares(board) -> dict[str, float]:
+    """The square each paper's printout of the board has (the PDF prints exactly this)."""
+    from drovisio.calibration.printout import print_square_mm
+
+    return {paper: print_square_mm(board, paper) for paper in ("A4", "A3", "Letter")}
+
+
 def camera_in_use(settings) -> Path | None:
     """The camera file last chosen with "Use this calibration" (``calibration_dir/in-use.json``),
     if it still loads; None otherwise (a broken choice is logged and ignored)."""
-    root = Path(settings.calibration_dir) if getattr(settings, "calibration_dir", None) \
-        else default_calibration_dir()
-    f = root / IN_USE_FILE
+    f = _calibration_root(settings) / IN_USE_FILE
     if not f.is_file():
         return None
     try:
@@ -238,8 +250,7 @@ class CalibrationService:
     def __init__(self, settings, source_factory: Callable[[], Reader] | None = None,
                  idle_timeout: float = 45.0) -> None:
         self.settings = settings
-        self.root = Path(settings.calibration_dir) if settings.calibration_dir \
-            else default_calibration_dir()
+        self.root = _calibration_root(settings)
         self._factory = source_factory or default_source_factory(settings)
         self.idle_timeout = float(idle_timeout)
         self.source_key = source_label(settings)
@@ -1030,6 +1041,7 @@ class CalibrationService:
                                                                       3),
                         "cols": sess.board.cols, "rows": sess.board.rows,
                         "square_measured": self.square_measured,
+                        "print_square_mm": _print_squares(sess.board),
                         "created": self.created, "source": self._source_label or (
                             "sample session (no camera)" if self.settings.source is None
                             else f"camera {self.settings.source}"),

@@ -35,6 +35,7 @@ from drovisio.layout import (
     load_layout,
     shipped_layouts_dir,
 )
+from drovisio.resources import user_data_dir
 
 if TYPE_CHECKING:
     from webtool.designer_scene import DesignerScene
@@ -60,19 +61,20 @@ class DesignerService:
 
     Args:
         settings: The web tool's settings (``camera`` for the detection-distance estimate,
-            ``designer_layouts_dir``, ``designer_max_upload_mb``); None: the defaults.
-        layouts_dir: Where designs are saved and existing layouts are offered (overrides the
-            settings).
+            the user's layouts folder, ``designer_max_upload_mb``); None: the defaults.
+        layouts_dir: Where designs are saved and the user's layouts are offered (overrides
+            the settings). Never the shipped ``marker_layouts/``: those are offered read-only.
         camera: The drone camera (overrides the settings).
     """
 
     def __init__(self, settings=None, *, layouts_dir: Path | None = None,
                  camera: Camera | None = None):
-        layouts_dir = layouts_dir or getattr(settings, "designer_layouts_dir", None)
+        if layouts_dir is None and settings is not None and hasattr(settings, "user_folder"):
+            layouts_dir = settings.user_folder("layouts")
         camera = camera or _settings_camera(settings)
         max_upload_bytes = int(float(getattr(settings, "designer_max_upload_mb", 50.0))
                                * 1024 * 1024)
-        self.layouts_dir = Path(layouts_dir) if layouts_dir else shipped_layouts_dir()
+        self.layouts_dir = Path(layouts_dir) if layouts_dir else user_data_dir("layouts")
         self.camera = camera or Camera.drone_webcam()
         self.max_upload_bytes = max_upload_bytes
         self.lock = threading.RLock()
@@ -108,8 +110,11 @@ class DesignerService:
     def examples(self) -> list[dict[str, str]]:
         out = [{"id": "mesh:drick.stl", "label": "Drick brick - 3D model only (no markers)"},
                {"id": "mesh:landing-pad.stl", "label": "Landing pad - 3D model only"}]
+        shipped = shipped_layouts_dir().resolve()
         for p in self._layout_files():
-            out.append({"id": f"layout:{p.name}", "label": f"Edit the layout '{p.stem}'"})
+            label = (f"Start from the shipped layout '{p.stem}' (save it under a new name)"
+                     if p.resolve().parent == shipped else f"Edit your layout '{p.stem}'")
+            out.append({"id": f"layout:{p.name}", "label": label})
         return out
 
     # ---------------------------------------------------------------- changes
@@ -240,9 +245,19 @@ class DesignerService:
         from drovisio.designer.export import save_design
 
         with self.lock:
-            if not self.layouts_dir.is_dir():
-                raise DesignError(f"the layouts folder {self.layouts_dir} does not exist: "
-                                  "create it or start the tool with another folder")
+            shipped = shipped_layouts_dir()
+            if self.layouts_dir.resolve() == shipped.resolve():
+                raise DesignError(f"{shipped} holds the layouts shipped with Drovisio and is "
+                                  "read-only: start the tool with another --data folder")
+            if (shipped / f"{self.doc.name}.json").exists():
+                raise DesignError(f"'{self.doc.name}' is the name of a shipped layout: choose "
+                                  "another name")
+            try:
+                self.layouts_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise DesignError(f"cannot create the layouts folder {self.layouts_dir}: "
+                                  f"{e.strerror or e}; start the tool with another --data "
+                                  "folder") from None
             saved = save_design(self.doc, self.layouts_dir, overwrite=overwrite)
             self.doc.others = [o for o in self._other_layouts()]
             self.doc.source_layout = saved.layout_path

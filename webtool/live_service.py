@@ -259,7 +259,8 @@ class LiveService:
     # ------------------------------------------------------------------ configuration
     def config(self) -> _Config:
         if getattr(self, "_config", None) is None:
-            self._config = self._make_config()
+            self._config: _Config | None = self._make_config()
+        assert self._config is not None
         return self._config
 
     def _make_config(self) -> _Config:
@@ -325,6 +326,21 @@ class LiveService:
                 self._watchdog = threading.Thread(target=self._watch, daemon=True,
                                                   name="live-idle")
                 self._watchdog.start()
+
+    def reconfigure(self) -> None:
+        """The camera or the mount in use changed ("Use this calibration", a mount saved):
+        the pipeline is rebuilt on them at once (restarted if it was running), the 3D
+        scene places bricks with the new mount. No restart of the tool."""
+        with self._lock:
+            running = self._thread is not None and self._thread.is_alive()
+            self.stop_pipeline()
+            self._config = None
+            if running:
+                self.ensure_started()
+            if self.scene is not None and self.pipeline is not None:
+                if self.mount is not None:
+                    self.scene.mount = self.mount
+                self.scene.camera = self.camera
 
     def start_scene(self):
         """The 3D scene, started on first use."""

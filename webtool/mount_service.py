@@ -21,7 +21,6 @@ import numpy as np
 from drovisio.errors import InputError
 from drovisio.images import ImageError, decode_image
 from drovisio.mount import Mount, MountAngles, down_camera_mount, ground_footprint, load_mount
-from drovisio.resources import user_data_dir
 from webtool.errors import ServiceError
 
 __all__ = ["MountService", "mount_in_use"]
@@ -32,13 +31,12 @@ MAX_PICTURES = 20
 
 
 def _saved_path(settings) -> Path:
-    root = Path(settings.mount_dir) if settings.mount_dir else user_data_dir("mount")
-    return root / MOUNT_FILE
+    return Path(settings.user_folder("mount")) / MOUNT_FILE
 
 
 def mount_in_use(settings) -> Path | None:
-    """The mount saved from the page, if it still loads (for a source other than the sample;
-    a ``--mount`` given to ``drovisio serve`` takes precedence)."""
+    """The mount saved from the page, if it still loads (for any source, the sample session's
+    too; a ``--mount`` given to ``drovisio serve`` takes precedence)."""
     f = _saved_path(settings)
     if not f.is_file():
         return None
@@ -167,12 +165,13 @@ class MountService:
     def _result(self, measured, aligned: bool) -> dict:
         m = measured.result
         a = self.angles
+        pan_known = m["pan_deg"] is not None
         proposed = MountAngles(tilt_deg=min(max(m["tilt_deg"], 0.0), 180.0),
-                               pan_deg=m["pan_deg"] if aligned else a.pan_deg,
+                               pan_deg=m["pan_deg"] if pan_known else a.pan_deg,
                                roll_deg=m["roll_deg"], offset_m=a.offset_m)
         return {"proposed": proposed.model_dump(), "pictures": m["n"],
-                "spread_deg": round(m["spread_deg"], 3), "pan_measured": aligned,
-                "lines": measured.lines}
+                "spread_deg": round(m["spread_deg"], 3), "pan_measured": pan_known,
+                "pan_refused": m.get("pan_refused"), "lines": measured.lines}
 
     def measure_pictures(self, files: list[tuple[str, BinaryIO]], aligned: bool) -> dict:
         """Measure from uploaded pictures (the drone level, a code lying flat in view)."""

@@ -106,6 +106,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
         drone_id=getattr(args, "drone_id", None),
         send_held_targets=bool(getattr(args, "send_held_targets", False)),
         max_age=getattr(args, "max_age", 0.5),
+        data_dir=Path(args.data) if getattr(args, "data", None) else None,
         replay_dir=(Path(args.replay_dir) if getattr(args, "replay_dir", None)
                     else _sample_missions()),
     )
@@ -114,17 +115,20 @@ def settings_from(args: argparse.Namespace) -> Settings:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from drovisio.resources import user_data_dir
     from webtool.access import install_log_redaction
     from webtool.app import create_app
 
     _check_inputs(args)
     settings = settings_from(args)
+    # A busy port is said before any address is printed (nothing to open there).
+    _check_port(settings.host, settings.port)
     app = create_app(settings)
     src = settings.source_label
     print("\n".join(open_lines(settings)), flush=True)
     print(f"  source: {src}" + ("" if settings.source else "  (no --source given)"), flush=True)
+    print(f"  data folder: {settings.data_dir or user_data_dir()}", flush=True)
     print("  stop with Ctrl+C", flush=True)
-    _check_port(settings.host, settings.port)
     _warm_up_in_background()
     install_log_redaction()
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,

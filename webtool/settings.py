@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
 
-from drovisio.resources import sample_sessions_dir
+from drovisio.resources import sample_sessions_dir, user_data_dir
 
 DEFAULT_SAMPLE_SESSION = sample_sessions_dir()
 
@@ -53,6 +53,10 @@ class Settings(BaseModel):
     send_held_targets: bool = False
     max_age: float = Field(default=0.5, gt=0)
     sample_session: Path = DEFAULT_SAMPLE_SESSION
+    # The user's data folder of this server (`drovisio serve --data DIR`): calibration,
+    # mount, saved layouts and study reports live in its sub-folders unless one of the
+    # *_dir settings below names another. None: drovisio.resources.user_data_dir().
+    data_dir: Path | None = None
     # Calibration page (webtool.calibration_service). Sessions are saved under
     # calibration_dir/<session-id>/ (None: $XDG_DATA_HOME or ~/.local/share, then
     # drovisio/calibration); a new session uses this board unless the page asks for another.
@@ -62,7 +66,7 @@ class Settings(BaseModel):
     # With no source, the sample calibration views play as if live, this many seconds each.
     sample_seconds_per_view: float = 1.5
     # Marker designer (webtool.designer_scene): designs are saved into this folder (None: the
-    # repository's marker_layouts/); mesh uploads larger than this are refused before reading.
+    # data folder's layouts/; the shipped marker_layouts/ are read-only); mesh uploads larger than this are refused before reading.
     designer_layouts_dir: Path | None = None
     designer_max_upload_mb: float = 50.0
     # Camera mount page (webtool.mount_service): with no --mount, the mount set there is saved
@@ -91,6 +95,18 @@ class Settings(BaseModel):
         if self.viewer_token is not None and self.viewer_token == self.token:
             raise ValueError("the viewer token must differ from the access token")
         return self
+
+    def user_folder(self, area: str) -> Path:
+        """Where this server keeps one area's user data (``calibration``, ``mount``,
+        ``layouts``, ``study``): the area's own setting, else ``data_dir/area``, else the
+        user's data folder's."""
+        own = {"calibration": self.calibration_dir, "mount": self.mount_dir,
+               "layouts": self.designer_layouts_dir, "study": self.study_dir}[area]
+        if own is not None:
+            return Path(own)
+        if self.data_dir is not None:
+            return Path(self.data_dir) / area
+        return user_data_dir(area)
 
     @property
     def flying(self) -> bool:

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from drovisio.errors import InputError, one_line
-from drovisio.resources import sample_sessions_dir, user_data_dir
+from drovisio.resources import sample_sessions_dir
 from drovisio.textfile import parse_json, read_text
 from webtool.errors import ServiceError
 
@@ -60,7 +60,7 @@ class StudyService:
 
     def __init__(self, settings) -> None:
         self.settings = settings
-        self.folder = Path(settings.study_dir) if settings.study_dir else user_data_dir("study")
+        self.folder = settings.user_folder("study")
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self.progress = {"running": False, "fraction": 0.0, "message": "", "error": None,

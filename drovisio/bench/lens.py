@@ -21,6 +21,7 @@ import numpy as np
 
 from drovisio.bounds import MAX_SUPERSAMPLING, whole
 from drovisio.camera import Camera
+from drovisio.cli import plain_help
 from drovisio.errors import InputError
 
 __all__ = ["FISHEYE_150", "detection_errors", "calibration_errors", "main"]
@@ -123,7 +124,7 @@ def _p95(v: list) -> float:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="drovisio bench lens", description=__doc__,
+    p = argparse.ArgumentParser(prog="drovisio bench lens", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default="detect,calibrate", help="detect, calibrate or both")
     p.add_argument("--scenes", type=whole(1, 100_000), default=40,

@@ -54,6 +54,7 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
                          "code lying flat (the shipped landing-pad.json is best)")
     det, det_camera = None, None
     poses: list[np.ndarray] = []
+    names: list[str] = []
     lines: list[str] = []
     for name, img in images:
         if isinstance(img, str):
@@ -71,9 +72,54 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
                      + (f" ({', '.join(sorted({p.layout for p in found}))})" if found else ""))
         # the largest in view: its normal is the best known
         if found:
-            poses.append(max(found, key=lambda p: len(p.markers)).camera_from_brick())
+            best = max(found, key=lambda p: len(p.markers))
+            poses.append(best.camera_from_brick())
+            names.append(best.layout)
     if not poses:
         said = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
         raise MountError("no code lying flat was found in view" + (f" ({said})" if said else "")
                          + ": put a shipped code flat on the ground in front of the drone")
-    return MountMeasurement(measure_mount(poses, aligned=aligned), lines)
+    refused = None
+    if aligned:
+        refused = pan_refusal(poses, names)
+    result = measure_mount(poses, aligned=aligned and refused is None)
+    result["pan_refused"] = refused
+    if refused:
+        lines.insert(0, refused)
+    return MountMeasurement(result, lines)
+
+
+#: Pan tolerance: pictures of one pad, its arrow toward the nose, agree within this (degrees).
+PAN_AGREEMENT_DEG = 5.0
+
+
+def is_nose_marker(layout_name: str) -> bool:
+    """Layouts whose x axis is laid toward the drone's nose for measuring the pan: the
+    landing pads (their arrow is printed along x). A brick lies wherever it was put."""
+    return layout_name.startswith("landing-pad")
+
+
+def pan_refusal(poses: Sequence[np.ndarray], layout_names: Sequence[str]) -> str | None:
+    """Why the pan cannot be known from these poses, or None when it can.
+
+    The pan is the code's heading seen from the camera: it means the camera's pan only if
+    the code's x axis points to the nose. That is known of a landing pad laid with its arrow
+    to the nose, never of a brick; and the pictures must agree on it.
+    """
+    from drovisio.geometry import transform
+    from drovisio.mount import BODY_FROM_ALIGNED_BRICK, angles_of
+
+    others = sorted({n for n in layout_names if not is_nose_marker(n)})
+    if others:
+        return ("pan not measured: the codes seen are on " + ", ".join(others)
+                + ", whose x axis need not point to the nose; lay the landing pad flat with "
+                  "its arrow toward the nose (tilt and roll are measured all the same)")
+    pans = [angles_of(transform(BODY_FROM_ALIGNED_BRICK @ np.asarray(T)[:3, :3].T,
+                                (0.0, 0.0, 0.0)))["pan_deg"] for T in poses]
+    ref = pans[0]
+    off = [((p - ref + 180.0) % 360.0) - 180.0 for p in pans]
+    if max(off) - min(off) > PAN_AGREEMENT_DEG:
+        return (f"pan not measured: the pictures disagree on the nose's direction by "
+                f"{max(off) - min(off):.0f}° (more than {PAN_AGREEMENT_DEG:g}°): keep the pad "
+                "still, its arrow toward the nose, and the drone level")
+    return None

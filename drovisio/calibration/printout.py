@@ -51,6 +51,15 @@ def fit_square_mm(board: BoardSpec, paper: str) -> float:
     return float(max(5.0, np.floor(s)))
 
 
+def print_square_mm(board: BoardSpec, paper: str) -> float:
+    """The square a printout of ``board`` on ``paper`` has: the board's own square when it
+    fits the paper, else the largest that does (what the page, the PDF and the session all
+    say; one source of truth)."""
+    own = round(board.square * 1000, 3)
+    fit = fit_square_mm(board, paper)
+    return own if own <= fit else fit
+
+
 def board_pdf(board: BoardSpec, path: str | Path, paper: str = "A4",
               square_mm: float | None = None) -> dict:
     """Write :func:`board_pdf_bytes` to ``path`` (atomically); returns its description."""

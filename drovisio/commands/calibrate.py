@@ -305,16 +305,17 @@ def measure_mount_command(args: argparse.Namespace) -> int:
         print(line, file=sys.stderr)
     m = measured.result
     pan = m["pan_deg"] if m["pan_deg"] is not None else 0.0
+    pan_known = m["pan_deg"] is not None
     note = (f"measured from {m['n']} picture(s) of a code lying flat"
-            + ("" if args.aligned else "; pan not measured (set to 0): use --aligned with "
-               "the code's x axis toward the nose"))
+            + ("" if pan_known else "; pan not measured (set to 0): use --aligned with "
+               "the landing pad's arrow toward the nose"))
     mount = Mount(body_from_camera_angles(m["tilt_deg"], pan, m["roll_deg"], args.offset),
                   note=note)
     # read back as `run --mount` reads it: a file it would refuse is never written
     atomic_write_text(out, json.dumps(mount.to_file(), indent=1) + "\n",
                       verify=lambda tmp: load_mount(tmp))
     print(f"tilt {m['tilt_deg']:.2f}°, roll {m['roll_deg']:.2f}°, pan "
-          + (f"{pan:.2f}°" if args.aligned else "not measured")
+          + (f"{pan:.2f}°" if pan_known else "not measured (set to 0)")
           + f" (largest difference between pictures {m['spread_deg']:.2f}°); wrote {out}",
           file=sys.stderr)
     if camera.size_known:   # where a straight descent onto each brick goes blind

@@ -57,7 +57,7 @@ def _run(args: argparse.Namespace) -> int:
     print(f"study {protocol.name!r}: {len(protocol.steps)} steps, "
           f"{sum(s.frames for s in protocol.steps)} frames", file=sys.stderr)
     res = run_study(protocol, base, methods=methods, memory_seconds=memory,
-                    speed_bricks=(1, 5, 10) if args.quick else (1, 2, 5, 10, 20),
+                    speed_bricks=(1, 10) if args.quick else (1, 2, 5, 10, 20),
                     speed_frames=2 if args.quick else 3, progress=_bar,
                     landing_runs=4 if args.quick else 10)
     sys.stderr.write("\n")

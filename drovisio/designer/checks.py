@@ -309,13 +309,16 @@ def symmetry_breaking_colour(markers: list[DesignMarker], palette: list[str]
 # ------------------------------------------------------------------------------ checks
 
 
-def check_design(doc: DesignDocument, camera: Camera | None = None) -> list[Finding]:
+def check_design(doc: DesignDocument, camera: Camera | None = None, *,
+                 vet_fixes: bool = True) -> list[Finding]:
     """All live checks of a design (see the module docstring).
 
     Args:
         doc: the design (its ``others`` are the layouts whose ids must not be reused).
         camera: the drone's camera for the distance estimate (default: the thesis's 60 deg
             640x480 webcam).
+        vet_fixes: try every one-click fix on a copy of the design and offer only those that
+            remove their finding and add no warning or error (see :func:`_fix_works`).
 
     Returns:
         Findings, errors first, then warnings, then infos.
@@ -336,12 +339,63 @@ def check_design(doc: DesignDocument, camera: Camera | None = None) -> list[Find
     out += _check_range(doc, camera)
     if not any(f.severity == "error" for f in out) and doc.markers:
         try:
-            parse_layout(doc.layout_data(None), f"layout {doc.name!r}")
+            layout = parse_layout(doc.layout_data(None), f"layout {doc.name!r}")
         except LayoutError as e:
             for line in e.issues:
                 out.append(Finding("layout-invalid", "error", line.split(": ", 1)[-1]))
+        else:
+            out += _check_detectors(doc, layout)
     rank = {"error": 0, "warning": 1, "info": 2}
-    return sorted(out, key=lambda f: rank[f.severity])
+    out = sorted(out, key=lambda f: rank[f.severity])
+    if vet_fixes:
+        for f in out:
+            f.fixes = [x for x in f.fixes if _fix_works(doc, camera, f, x, out)]
+    return out
+
+
+def _check_detectors(doc: DesignDocument, layout) -> list[Finding]:
+    """What the detectors themselves refuse (the dot detector's own model of the layout),
+    so that no layout is saved that the drone then cannot use."""
+    if not layout.has_dots:
+        return []
+    from drovisio.detect.dots_match import DotModel, LayoutNotSupported
+
+    names = list(dict.fromkeys(layout.dot_colors()))
+    try:
+        DotModel.from_layout(layout, {n: i for i, n in enumerate(names)}, n_colors=len(names))
+    except LayoutNotSupported as e:
+        why = str(e).split(": ", 1)[-1]
+        return [Finding("dots-unusable", "error", f"The dots cannot be used: {why}. Move "
+                        "them onto one flat face, or delete them.", [i for i, _ in doc.dots()])]
+    return []
+
+
+def _serious(findings: list[Finding], levels: tuple[str, ...]) -> dict[str, int]:
+    n: dict[str, int] = {}
+    for f in findings:
+        if f.severity in levels:
+            n[f.key] = n.get(f.key, 0) + 1
+    return n
+
+
+def _fix_works(doc: DesignDocument, camera: Camera, finding: Finding, fix: Fix,
+               before: list[Finding]) -> bool:
+    """A fix is offered only if, applied to a copy of the design, its finding goes away and
+    nothing as serious is added (e.g. a code moved onto another one, or shrunk below what
+    the drone reads from its working distance). Fixing an error may bring back a warning
+    that the error hid (the checks after it did not run); fixing a warning adds none."""
+    trial = doc.copy()
+    try:
+        apply_fix(trial, fix.action)
+    except DesignError:
+        return False
+    after = check_design(trial, camera, vet_fixes=False)
+    if any(f.key == finding.key and f.markers == finding.markers
+           and f.severity == finding.severity for f in after):
+        return False
+    levels = ("error",) if finding.severity == "error" else ("error", "warning")
+    was, now = _serious(before, levels), _serious(after, levels)
+    return all(now[k] <= was.get(k, 0) for k in now)
 
 
 def _check_units(doc: DesignDocument) -> list[Finding]:
@@ -434,10 +488,17 @@ def _check_dots(doc: DesignDocument) -> list[Finding]:
                                [Fix(f"Delete {doc.marker_label(i)}",
                                     {"op": "delete_marker", "marker": i})]))
             return out
-    if len(bdots) < 4 and not doc.codes():
-        out.append(Finding("dots-few", "warning", f"Only {len(bdots)} dot(s): the drone needs "
+    if len(bdots) < 4:
+        # the dot detector refuses such a layout outright, codes or not
+        out.append(Finding("dots-few", "error", f"Only {len(bdots)} dot(s): the drone needs "
                            "at least 4 dots on one face to find the brick's position and "
-                           "turn. Add more dots (the thesis used 6: two rows of 3).", idx))
+                           "turn. Add more dots (the thesis used 6: two rows of 3)"
+                           + (", or delete the dots and rely on the codes." if doc.codes()
+                              else "."), idx,
+                           [Fix("Delete the dots (keep the codes)",
+                                {"op": "delete_markers", "markers": idx})]
+                           if doc.codes() else []))
+        return out
     # symmetry
     angles = dot_symmetries(bdots)
     about_z = _rot180_z_symmetric(bdots)
@@ -566,6 +627,12 @@ def apply_fix(doc: DesignDocument, action: dict[str, Any]) -> None:
             doc.set_marker(int(action["marker"]), size=float(action["size"]))
         elif op == "delete_marker":
             doc.delete_marker(int(action["marker"]))
+        elif op == "delete_markers":
+            gone = sorted({int(i) for i in action["markers"]}, reverse=True)
+            if not gone:
+                raise ValueError("nothing to delete")
+            for i in gone:          # from the last, so that the others keep their index
+                doc.delete_marker(i)
         elif op == "set_first_id":
             v = action["value"]
             doc.set_layout_fields(first_id=None if v is None else int(v))

@@ -136,7 +136,13 @@ def verify_layout(layout: MarkerLayout, camera: Camera | None = None,
 
         score("aruco", detect_aruco(res.image, camera, [layout]))
     if layout.has_dots:
-        from drovisio.detect.dots import detect_dots
+        from drovisio.designer.model import DesignError
+        from drovisio.detect.dots import LayoutNotSupported, detect_dots
 
-        score("dots", detect_dots(res.image, camera, [layout]))
+        try:
+            score("dots", detect_dots(res.image, camera, [layout]))
+        except LayoutNotSupported as e:
+            # a layout the dot detector refuses is the design's problem, said as such
+            raise DesignError("the dot detector cannot use this layout: "
+                              + str(e).split(": ", 1)[-1]) from None
     return out, res.image

@@ -46,8 +46,11 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
     drawn: dict = {"figure": fig_id, "panels": []}
     if not rows or not cols:
         return drawn
-    fig, axes = plt.subplots(len(rows), len(cols), figsize=(8.4 * len(cols), 3.8 * len(rows)),
-                             squeeze=False)
+    # one column of panels, each about a phone screen wide at 90 dpi (648 px) with text of
+    # 9 pt or more: legible on a 390 px phone scrolled sideways inside its box (report.html)
+    n_panels = len(rows) * len(cols)
+    fig, grid = plt.subplots(n_panels, 1, figsize=(7.2, 4.6 * n_panels), squeeze=False)
+    axes = [[grid[i * len(cols) + j][0] for j in range(len(cols))] for i in range(len(rows))]
     names = [m for m in methods if any(r["method"] == m and r["figure"] == fig_id
                                        for r in records)]
     for i, lay in enumerate(rows):
@@ -88,7 +91,7 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
             ax.set_xlabel(vary.replace("_", " ") + (" (°)" if vary.startswith("rot")
                                                     else " (m)"))
             ax.set_ylabel(label)
-            ax.set_title(f"{lay} — {vary.replace('_', ' ')}", fontsize=10)
+            ax.set_title(f"{lay} — {vary.replace('_', ' ')}", fontsize=11)
             ax.grid(axis="y", alpha=0.3)
             na = not_applicable.get(lay, {})
             kind = "dots" if spec["kind"] == "dots" else "codes"
@@ -106,10 +109,11 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
                 lo, hi = ax.get_ylim()
                 ax.set_ylim(lo, hi + (hi - lo) * 0.12 * (len(notes) + 1))
                 ax.text(0.01, 0.98, "\n".join(notes), transform=ax.transAxes, va="top",
-                        fontsize=7, color="#555")
+                        fontsize=9, color="#444")
             panel["not_applicable"] = sorted(na)
             panel["xlabel"], panel["ylabel"] = ax.get_xlabel(), ax.get_ylabel()
-            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+            # below the panel, not beside it: the figure stays one phone wide
+            ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
             drawn["panels"].append(panel)
     fig.suptitle(f"Fig. {fig_id}: {spec['title']}")
     fig.tight_layout()
@@ -124,7 +128,7 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
 def fps_figure(speed: list[dict], methods: dict, path: Path) -> dict:
     """Fig. 6.10: frames per second against the number of bricks in view."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(7.2, 4.6))
     lines = {}
     for key in sorted({(s["method"], s["layout"]) for s in speed}):
         pts = sorted((s["bricks"], s["fps"]) for s in speed if (s["method"], s["layout"]) == key)
@@ -137,7 +141,7 @@ def fps_figure(speed: list[dict], methods: dict, path: Path) -> dict:
     ax.set_ylabel("frames per second (one core)")
     ax.set_title("Fig. 6.10: frame rate against the number of bricks")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=9)
     fig.tight_layout()
     try:
         save_figure(fig, path, dpi=90)
@@ -149,7 +153,7 @@ def fps_figure(speed: list[dict], methods: dict, path: Path) -> dict:
 def memory_figure(memory: dict, methods: dict, path: Path) -> dict:
     """Fig. 6.11: resident memory over the run, per method."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    fig, ax = plt.subplots(figsize=(7.2, 4.6))
     for m, series in memory.items():
         t = np.array([p[0] for p in series])
         mb = np.array([p[1] for p in series])
@@ -159,7 +163,7 @@ def memory_figure(memory: dict, methods: dict, path: Path) -> dict:
     ax.set_ylabel("resident memory − at start (MB)")
     ax.set_title("Fig. 6.11: memory over a long run")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=9)
     fig.tight_layout()
     try:
         save_figure(fig, path, dpi=90)

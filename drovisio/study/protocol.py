@@ -183,16 +183,17 @@ def load_protocol(path: str | Path) -> Protocol:
 def default_protocol(quick: bool = False, frames: int | None = None) -> Protocol:
     """The thesis's protocol on renders: 2×3 dots 10 cm apart, one 6.5 cm 4×4 code, the
     two-code brick and the one-code brick with a tag36h11 code (for AprilTag 3)."""
-    n = frames or (3 if quick else 8)
+    # quick: a first look in a few minutes (two frames, the ends and one middle per axis)
+    n = frames or (2 if quick else 8)
     layouts = [LayoutRef(name="dots", layout="drick-dots-2x3"),
                LayoutRef(name="code", layout="drick-aruco-centre"),
                LayoutRef(name="two-codes", layout="drick-aruco-pyramids"),
                LayoutRef(name="code-36h11", layout="drick-aruco-centre",
                          dictionary="DICT_APRILTAG_36h11")]
-    dist = [0.3, 0.6, 1.2, 2.0] if quick else [0.3, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0]
-    offs = [-0.5, 0.0, 0.5] if quick else [-0.6, -0.3, 0.0, 0.3, 0.6]
+    dist = [0.4, 1.2, 2.0] if quick else [0.3, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0]
+    offs = [0.0, 0.5] if quick else [-0.6, -0.3, 0.0, 0.3, 0.6]
     rots = [0.0, 30.0] if quick else [0.0, 10.0, 20.0, 30.0, 40.0]
-    rotz = [0.0, 60.0] if quick else [0.0, 45.0, 90.0, 135.0, 170.0]
+    rotz = [0.0, 90.0] if quick else [0.0, 45.0, 90.0, 135.0, 170.0]
     steps: list[Step] = []
     for lay in layouts:
         codes = lay.name != "dots"

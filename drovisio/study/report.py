@@ -114,8 +114,8 @@ def _html(data: dict, out: Path, protocol_text: str) -> str:
     for fig in data["figures"]:
         f = out / f"fig-{fig}.png"
         if f.is_file():
-            figs.append(f'<figure id="fig-{e(fig)}"><img alt="Figure {e(fig)}" src="{_img(f)}">'
-                        f'<figcaption>Fig. {e(fig)} — thesis: {e(THESIS.get(fig, ""))}'
+            figs.append(f'<figure id="fig-{e(fig)}"><div class="scroll"><img alt="Figure '
+                        f'{e(fig)}" src="{_img(f)}"></div><figcaption>Fig. {e(fig)} — thesis: {e(THESIS.get(fig, ""))}'
                         "</figcaption></figure>")
     rows = "".join(f"<tr><td>{e(f)}</td><td>{e(v['thesis'])}</td><td>{e(v['ours'])}</td></tr>"
                    for f, v in data["thesis"].items())
@@ -138,9 +138,12 @@ def _html(data: dict, out: Path, protocol_text: str) -> str:
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport"
 content="width=device-width, initial-scale=1"><title>Drovisio study: {e(data['protocol'])}</title>
 <style>body{{font:16px/1.5 system-ui,sans-serif;max-width:70rem;margin:0 auto;padding:1rem;
-color:#111}} img{{max-width:100%;border:1px solid #999}} table{{border-collapse:collapse}}
+color:#111}} p,li,figcaption{{overflow-wrap:break-word}} img{{max-width:100%;border:1px solid #999}}
+table{{border-collapse:collapse}} .scroll{{overflow-x:auto;max-width:100%}}
 td,th{{border:1px solid #999;padding:.25rem .5rem;text-align:left;vertical-align:top}}
-pre{{background:#f2f2f2;padding:.75rem;overflow-x:auto}} figure{{margin:1.5rem 0}}</style>
+pre{{background:#f2f2f2;padding:.75rem;overflow-x:auto;white-space:pre-wrap}}
+figure{{margin:1.5rem 0}} code{{overflow-wrap:anywhere}}
+@media (max-width:40rem){{.scroll img{{max-width:none;width:40rem}}}}</style>
 </head><body>
 <h1>Drovisio study: {e(data['protocol'])}</h1>
 <p>{data['frames']} frames, {data['seconds']:.0f} s. Reproduce with: <code>{e(data['command'])}</code></p>
@@ -151,10 +154,10 @@ detector without it, as plain OpenCV and AprilTag 3 are. Without gravity a code 
 square-on cannot be told from its mirror image: Drovisio flags those poses ambiguous (counted
 in each figure, and drawn); OpenCV and AprilTag 3 flag nothing.</p>
 <h2>The thesis beside this study</h2>
-<table><tr><th>Fig.</th><th>Thesis (Logitech C270, Odroid)</th><th>This study</th></tr>{rows}</table>
+<div class="scroll"><table><tr><th>Fig.</th><th>Thesis (Logitech C270, Odroid)</th><th>This study</th></tr>{rows}</table></div>
 <h2>Figures</h2>{''.join(figs)}
 <h2>Frame rate (Fig. 6.10)</h2>
-<table><tr><th>method</th><th>layout</th><th>bricks</th><th>frames/s</th></tr>{speed}</table>
+<div class="scroll"><table><tr><th>method</th><th>layout</th><th>bricks</th><th>frames/s</th></tr>{speed}</table></div>
 <p>Memory over the run (Fig. 6.11), growth from the start: {mem}</p>
 <h2>Precision landing (ArduPilot model)</h2>
 <p>LAND-mode descents onto the brick with ArduPilot's precision landing fed by Drovisio at the

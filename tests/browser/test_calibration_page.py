@@ -43,6 +43,10 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     assert "px" in page.text_content("#p-uncert .val")
 
     page.click("#solve")
+    page.wait_for_selector("#result:not([hidden]) #result-verdict h3")
+    # plain words first; the figures one click away
+    assert page.locator("#param-fx").is_hidden()
+    page.click("#result-details > summary")
     page.wait_for_selector("#result:not([hidden]) #param-fx")
     assert page.locator("#params tbody tr").count() == 9
     assert page.text_content("#result-verdict h3") in ("Good calibration", "Not good enough yet")

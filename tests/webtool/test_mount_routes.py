@@ -82,7 +82,7 @@ def test_save_writes_both_forms_and_a_camera_source_uses_it(client, tmp_path):
                                 calibration_dir=tmp_path / "cal"))
     assert again.state.settings.mount == path
     sample = create_app(Settings(mount_dir=tmp_path / "mount", calibration_dir=tmp_path / "cal"))
-    assert sample.state.settings.mount is None          # the sample keeps its own mount
+    assert sample.state.settings.mount == path          # the demo uses it too
 
 
 def test_measure_from_pictures_of_a_code_lying_flat(client):

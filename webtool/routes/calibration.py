@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, File, Path, Query, UploadFile
+from fastapi import APIRouter, Depends, File, Path, Query, Request, UploadFile
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -153,18 +153,25 @@ def camera_file(svc: Calibration,
 
 @router.get("/board.pdf")
 def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
-    from drovisio.calibration.printout import board_pdf_bytes
+    from drovisio.calibration.printout import board_pdf_bytes, print_square_mm
 
     board = svc.session.board
-    data, _ = board_pdf_bytes(board, paper)
+    square = print_square_mm(board, paper)
+    data, _ = board_pdf_bytes(board, paper, square)
     name = f"{board.kind}-{board.cols}x{board.rows}-{paper}.pdf"
     return Response(data, media_type="application/pdf",
-                    headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"'})
+                    headers={**NO_STORE, "Content-Disposition": f'attachment; filename="{name}"',
+                             "X-Square-mm": f"{square:g}"})
 
 
 @router.post("/use")
-def use(svc: Calibration) -> dict:
-    return svc.use_result()
+def use(svc: Calibration, request: Request) -> dict:
+    out = svc.use_result()
+    # the live view uses the chosen calibration at once (if it was made already)
+    live = getattr(request.app.state, "live", None)
+    if live is not None and hasattr(live, "reconfigure"):
+        live.reconfigure()
+    return out
 
 
 @router.post("/session")

@@ -150,6 +150,7 @@ class LayoutBody(Body):
 class FixAction(Body):
     op: Annotated[str, Field(min_length=1, max_length=40)]
     marker: Whole | None = None
+    markers: Annotated[list[Whole], Field(min_length=1, max_length=200)] | None = None
     color: Annotated[str, Field(max_length=40)] | None = None
     size: Annotated[float, Field(gt=0, le=5)] | None = None
     value: Annotated[str, Field(max_length=40)] | Whole | None = None

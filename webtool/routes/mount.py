@@ -23,7 +23,7 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, UploadFile
+from fastapi import APIRouter, Depends, File, Request, UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from drovisio.mount import MountAngles
@@ -74,8 +74,17 @@ async def preview(svc: Mounts, body: PreviewBody) -> JSONResponse:
 
 
 @router.post("/save")
-async def save(svc: Mounts) -> JSONResponse:
-    return await _call(svc.save)
+async def save(svc: Mounts, request: Request) -> JSONResponse:
+    out = await _call(svc.save)
+    await asyncio.to_thread(_live_reconfigure, request)
+    return out
+
+
+def _live_reconfigure(request: Request) -> None:
+    """The live view uses the saved mount at once (if it was made already)."""
+    live = getattr(request.app.state, "live", None)
+    if live is not None and hasattr(live, "reconfigure"):
+        live.reconfigure()
 
 
 @router.post("/measure")

@@ -74,6 +74,15 @@ def help_page(request: Request, templates: Templates, settings: CurrentSettings)
         "title": title, "settings": settings, "active": "/help", "guide": field_guide_html()})
 
 
+@router.get("/favicon.ico", include_in_schema=False)
+def favicon() -> FileResponse:
+    """Browsers ask for it on every page: the tool's icon, not a 404."""
+    from drovisio.resources import static_dir
+
+    return FileResponse(static_dir() / "favicon.svg", media_type="image/svg+xml",
+                        headers={"Cache-Control": "max-age=86400"})
+
+
 @router.get("/help/images/{name}")
 def help_image(name: str) -> FileResponse:
     f = docs_dir() / "images" / name

@@ -96,8 +96,17 @@
     renderProgress(s);
     renderViews(s);
     renderResult(s);
+    const prints = s.session.print_square_mm || {};
+    const printed = Object.entries(prints).filter(([, mm]) => mm !== s.session.square_mm)
+      .map(([paper, mm]) => `${mm} mm on ${paper}`);
     setText("s-board", `${s.session.cols} × ${s.session.rows} inner corners, squares of ` +
-      `${s.session.square_mm} mm (${s.session.board})`);
+      `${s.session.square_mm} mm` + (s.session.square_measured ? " (measured)" : "") +
+      (printed.length ? ` — printed smaller to fit: ${printed.join(", ")}; measure your print` : "") +
+      ` (${s.session.board})`);
+    for (const [paper, mm] of Object.entries(prints)) {
+      const a = $("print-" + paper.toLowerCase());
+      if (a) a.textContent = `${paper} (${mm} mm squares)`;
+    }
     setText("s-source", s.session.source);
     setText("s-folder", s.session.folder);
     setText("s-camera", s.in_use.camera_file || "none");
@@ -335,8 +344,17 @@
       parts.push(p);
     }
     addList(v.reasons, v.ok ? "" : "Why:");
-    addList(v.advice, "Notes:");
     box.replaceChildren(...parts);
+    // the solver's notes (fixed coefficients, model choice, rejected views) are figures for
+    // experts: one click away, under "Details"
+    const notes = [];
+    if (v.advice && v.advice.length) {
+      const p = document.createElement("p"); p.textContent = "Notes of the solver:";
+      const ul = document.createElement("ul");
+      v.advice.forEach((t) => { const li = document.createElement("li"); li.textContent = t; ul.append(li); });
+      notes.push(p, ul);
+    }
+    $("result-notes").replaceChildren(...notes);
 
     const cam = rep.camera;
     const model = lensKey(cam);

@@ -35,11 +35,27 @@
     const s = msg.stream || {};
     $("fig-stream").textContent = fmt(s.kbps, " kbit/s", 0);
     $("stream-note").title = "JPEG quality " + s.jpeg_quality + ", scale " + s.scale + ", share " + s.share_kbps + " kbit/s of " + st.bandwidth_kbps + ", " + st.viewers + " viewer(s)";
-    if (st.target) $("target-spec").textContent = st.target.spec;
+    if (st.target) $("target-spec").textContent = specLabel(st.target.spec);
     readOnly = msg.access === "viewer";
     $("access-note").textContent = readOnly ? "View-only link: you can watch but not change the target." : "";
     document.querySelectorAll(".target-btn").forEach((b) => { b.disabled = readOnly; });
     showBricks(msg.bricks || []);
+  }
+
+  // Targets named as people know them: "brick 3 of drick-aruco-pyramids", not "drick-aruco-pyramids:3".
+  const trackNames = {};
+  function brickName(b) {
+    return b.instance !== null ? "brick " + b.instance + " of " + b.layout
+                               : "a " + b.layout + " brick (seen as no. " + b.track + ")";
+  }
+  function specLabel(spec) {
+    if (!spec) return "";
+    if (spec === "nearest") return "the nearest brick";
+    let m = /^track:(\d+)$/.exec(spec);
+    if (m) return trackNames[m[1]] || "the brick seen as no. " + m[1];
+    m = /^(.+):(\d+)$/.exec(spec);
+    if (m) return "brick " + m[2] + " of " + m[1];
+    return spec;
   }
 
   function cells(b) {
@@ -74,7 +90,8 @@
       }
       row.className = b.target ? "target" : "";
       const td = row.children;
-      const label = name + (b.target ? " (target)" : "");
+      if (b.track !== undefined && b.track !== null) trackNames[b.track] = brickName(b);
+      const label = brickName(b) + (b.target ? " (target)" : "");
       if (td[0].textContent !== label) td[0].textContent = label;
       cells(b).forEach((v, i) => { if (td[i + 1].textContent !== v) td[i + 1].textContent = v; });
       row.querySelector("button").disabled = readOnly;
@@ -88,8 +105,8 @@
     const r = await fetch("/api/live/target", {method: "POST", headers: {"content-type": "application/json"},
                                                body: JSON.stringify({spec: b.dataset.spec})});
     const js = await r.json().catch(() => ({}));
-    $("target-msg").textContent = r.ok ? "Target: " + js.target.spec : "Not changed: " + (js.detail || r.status);
-    if (r.ok) $("target-spec").textContent = js.target.spec;
+    $("target-msg").textContent = r.ok ? "Target: " + specLabel(js.target.spec) : "Not changed: " + (js.detail || r.status);
+    if (r.ok) $("target-spec").textContent = specLabel(js.target.spec);
   });
 
   img.addEventListener("load", () => {

@@ -16,8 +16,10 @@
   function show(st) {
     const f = st.footprint, h = fmt(st.height_m, 1);
     let t;
-    if (f.below) t = "At " + h + " m the camera sees the ground under the drone and up to " + fmt(f.farthest_m, 1) + " m away";
-    else t = "At " + h + " m the camera sees the ground from " + fmt(f.nearest_m, 1) + " m to " + fmt(f.farthest_m, 1) + " m away (not right under the drone)";
+    const far = f.horizon ? "the horizon" : fmt(f.farthest_m, 1) + " m away";
+    if (f.sees_ground === false) t = "With this tilt the camera looks at or above the horizon: it does not see the ground (a tilt over 90° points the camera upward)";
+    else if (f.below) t = "At " + h + " m the camera sees the ground under the drone and up to " + far;
+    else t = "At " + h + " m the camera sees the ground from " + fmt(f.nearest_m, 1) + " m to " + far + " (not right under the drone)";
     if (f.centre) t += "; the image centre falls " + fmt(f.centre[0], 2) + " m ahead, " + fmt(f.centre[1], 2) + " m right.";
     else t += "; the image centre is above the horizon.";
     $("ground-text").textContent = t;
@@ -70,7 +72,8 @@
     proposed = p;
     $("measure-msg").className = "msg";
     $("measure-msg").textContent = "Measured from " + js.pictures + " picture(s): tilt " + fmt(p.tilt_deg, 1) + "°, roll " + fmt(p.roll_deg, 1) + "°" +
-      (js.pan_measured ? ", pan " + fmt(p.pan_deg, 1) + "°" : " (pan not measured)") + "; pictures agree within " + fmt(js.spread_deg, 2) + "°.";
+      (js.pan_measured ? ", pan " + fmt(p.pan_deg, 1) + "°" : " (pan not measured: kept at " + fmt(p.pan_deg, 1) + "°)") + "; pictures agree within " + fmt(js.spread_deg, 2) + "°." +
+      (js.pan_refused ? " Why no pan: " + js.pan_refused.replace(/^pan not measured: /, "") + "." : "");
     $("measure-lines").innerHTML = "";
     for (const line of js.lines) { const li = document.createElement("li"); li.textContent = line; $("measure-lines").appendChild(li); }
     $("use-measured").hidden = false;
