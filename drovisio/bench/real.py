@@ -500,9 +500,10 @@ def _calibrate_cli(images: list[Path], board: str, model: str) -> tuple[dict | N
             code = cli_main(["calibrate", "--board", board, "--square", "0.025", "--model",
                              model, "--report", str(rep), "--out", str(out)]
                             + [str(p) for p in images])
-        lines = [x for x in err.getvalue().splitlines() if x.strip()]
+        lines = [x for x in err.getvalue().splitlines()
+                 if x.strip() and "report written" not in x]
         if code != 0 or not out.exists():
-            return None, lines[-1] if lines else f"exit {code}"
+            return None, (lines[-1] if lines else f"exit {code}")[:240]
         cam = load_camera(out)
         r = json.loads(rep.read_text()) if rep.exists() else {}
         rms = r.get("rms_px", r.get("rms"))
@@ -577,14 +578,14 @@ def bench_chessboard(folder: Path, repeat: int, board_spec: str | None, models: 
         wh = (grays[0].shape[1], grays[0].shape[0])
         try:
             K: Any = np.eye(3)
-            D: Any = np.zeros((4, 1))
+            D: Any = np.zeros(4)
             if fisheye:
                 rms, K, D, _, _ = cv2.fisheye.calibrate(
                     [o.reshape(-1, 1, 3).astype(np.float64) for o in pts_obj],
                     [i.astype(np.float64) for i in pts_img], wh, K, D,
                     flags=cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW)
             else:
-                rms, K, D, _, _ = cv2.calibrateCamera(pts_obj, pts_img, wh, K, D)
+                rms, K, D, _, _ = cv2.calibrateCamera(pts_obj, pts_img, wh, K, np.zeros(5))
             calib["opencv"] = {"fx": float(K[0, 0]), "fy": float(K[1, 1]),
                                "cx": float(K[0, 2]), "cy": float(K[1, 2]),
                                "model": "fisheye" if fisheye else "plumb_bob",
