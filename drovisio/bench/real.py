@@ -500,9 +500,10 @@ def _calibrate_cli(images: list[Path], board: str, model: str) -> tuple[dict | N
             code = cli_main(["calibrate", "--board", board, "--square", "0.025", "--model",
                              model, "--report", str(rep), "--out", str(out)]
                             + [str(p) for p in images])
-        lines = [x for x in err.getvalue().splitlines() if x.strip()]
+        lines = [x for x in err.getvalue().splitlines()
+                 if x.strip() and "report written" not in x]
         if code != 0 or not out.exists():
-            return None, lines[-1] if lines else f"exit {code}"
+            return None, (lines[-1] if lines else f"exit {code}")[:240]
         cam = load_camera(out)
         r = json.loads(rep.read_text()) if rep.exists() else {}
         rms = r.get("rms_px", r.get("rms"))
@@ -573,34 +574,36 @@ def bench_chessboard(folder: Path, repeat: int, board_spec: str | None, models: 
     # calibration against the reference
     fisheye = bool(ref is not None and (ref.model == "fisheye" or len(np.ravel(ref.dist)) == 4))
     calib: dict = {}
-    if ref is not None and len(pts_obj) >= 3:
-        refd = {"fx": float(ref.K[0, 0]), "fy": float(ref.K[1, 1]), "cx": float(ref.K[0, 2]),
-                "cy": float(ref.K[1, 2])}
-        calib["reference"] = refd
+    if len(pts_obj) >= 3:
         wh = (grays[0].shape[1], grays[0].shape[0])
         try:
             K: Any = np.eye(3)
-            D: Any = np.zeros((4, 1))
+            D: Any = np.zeros(4)
             if fisheye:
-                fe: Any = cv2.fisheye
-                rms, K, D, _, _ = fe.calibrate(
+                rms, K, D, _, _ = cv2.fisheye.calibrate(
                     [o.reshape(-1, 1, 3).astype(np.float64) for o in pts_obj],
                     [i.astype(np.float64) for i in pts_img], wh, K, D,
-                    flags=fe.CALIB_RECOMPUTE_EXTRINSIC | fe.CALIB_FIX_SKEW)
+                    flags=cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW)
             else:
-                rms, K, D, _, _ = cv2.calibrateCamera(pts_obj, pts_img, wh, K, D)
+                rms, K, D, _, _ = cv2.calibrateCamera(pts_obj, pts_img, wh, K, np.zeros(5))
             calib["opencv"] = {"fx": float(K[0, 0]), "fy": float(K[1, 1]),
                                "cx": float(K[0, 2]), "cy": float(K[1, 2]),
                                "model": "fisheye" if fisheye else "plumb_bob",
                                "rms_px": float(rms)}
         except cv2.error as e:
             calib["opencv"] = {"failed": str(e).strip().splitlines()[-1][:160]}
+        # no published camera file: plain OpenCV's solve of the same corners is the reference
+        refd = ({"fx": float(ref.K[0, 0]), "fy": float(ref.K[1, 1]), "cx": float(ref.K[0, 2]),
+                 "cy": float(ref.K[1, 2]), "source": str(ref_path)} if ref is not None else
+                {**{k: v for k, v in calib["opencv"].items() if k in ("fx", "fy", "cx", "cy")},
+                 "source": "plain OpenCV (no camera file in the folder)"})
+        calib["reference"] = refd
         for model in models:
             model = ("fisheye" if fisheye else "plumb_bob") if model == "reference" else model
             got, why = _calibrate_cli(images, f"chessboard:{size[0]}x{size[1]}", model)
             calib[f"drovisio_{model}"] = got if got is not None else {"failed": why}
         for v in calib.values():
-            if "fx" in v and v is not refd:
+            if "fx" in v and "fx" in refd and v is not refd:
                 v["error_pct"] = {k: 100.0 * (v[k] - refd[k]) / refd[k]
                                   for k in ("fx", "fy", "cx", "cy")}
     rep["calibration"] = calib
@@ -655,8 +658,9 @@ def _print(rep: dict) -> None:
             if "failed" in v:
                 print(f"   calibration {name:22s} failed: {v['failed']}")
             elif name == "reference":
-                print(f"   calibration {name:22s} fx {v['fx']:.2f} fy {v['fy']:.2f} "
-                      f"cx {v['cx']:.2f} cy {v['cy']:.2f}")
+                if "fx" in v:
+                    print(f"   calibration {name:22s} fx {v['fx']:.2f} fy {v['fy']:.2f} "
+                          f"cx {v['cx']:.2f} cy {v['cy']:.2f} ({v['source']})")
             else:
                 e = v.get("error_pct", {})
                 rms = v.get("rms_px")
