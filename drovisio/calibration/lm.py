@@ -123,24 +123,25 @@ def refine(theta0: np.ndarray, poses0: np.ndarray, key: str, size: tuple[int, in
     while it < max_iterations:
         U = np.zeros((idx.size, idx.size))
         g = np.zeros(idx.size)
-        Vs, Ws, gs = [], [], []
+        Vl, Wl, gl = [], [], []
         for A, B, r in parts:
             Af = A[:, idx]
             U += Af.T @ Af
             g += Af.T @ r
-            Vs.append(B.T @ B)
-            Ws.append(Af.T @ B)
-            gs.append(B.T @ r)
+            Vl.append(B.T @ B)
+            Wl.append(Af.T @ B)
+            gl.append(B.T @ r)
+        V, W, gv = np.stack(Vl), np.stack(Wl), np.stack(gl)         # (n,6,6) (n,p,6) (n,6)
+        eye6 = np.eye(6)
+        dV = np.einsum("nii->ni", V)[:, :, None] * eye6 + 1e-12 * eye6
         accepted = False
         while it < max_iterations:
             it += 1
             Ud = U + lam * np.diag(np.diag(U) + 1e-12)
-            S, rhs, Vinv = Ud.copy(), -g.copy(), []
-            for V, W, gi in zip(Vs, Ws, gs):
-                Vi = np.linalg.inv(V + lam * np.diag(np.diag(V) + 1e-12))
-                Vinv.append(Vi)
-                S -= W @ Vi @ W.T
-                rhs += W @ Vi @ gi
+            Vinv = np.linalg.inv(V + lam * dV)                          # every pose at once
+            WVi = W @ Vinv                                              # (n, p, 6)
+            S = Ud - np.einsum("npk,nqk->pq", WVi, W)
+            rhs = -g + np.einsum("npk,nk->p", WVi, gv)
             # scale to unit diagonal: fx (~500) and k4 (~0.001) differ by 10⁵
             d = np.sqrt(np.clip(np.diag(S), 1e-300, None))
             try:
@@ -149,7 +150,7 @@ def refine(theta0: np.ndarray, poses0: np.ndarray, key: str, size: tuple[int, in
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            dposes = np.stack([-Vi @ (gi + W.T @ dth) for Vi, W, gi in zip(Vinv, Ws, gs)])
+            dposes = -np.einsum("nij,nj->ni", Vinv, gv + np.einsum("npk,p->nk", W, dth))
             t_new = theta.copy()
             t_new[idx] += dth
             p_new = poses + dposes

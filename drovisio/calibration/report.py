@@ -8,7 +8,9 @@ Report fields (``drovisio calibrate --report``; DESIGN.md's contract, extended):
 (1-σ of fx fy cx cy k1 k2 p1 p2 k3; 0 for a fixed one), ``fixed`` (coefficient → why),
 ``free_model`` (the free solve, when a coefficient was fixed), ``uncertainty_px`` {p50, p95,
 max, definition}, ``uncertainty_map`` (grid xs, ys, σ), ``cross_validation_px`` {p50, p95, max},
-``coverage``, ``verdict`` {ok, reasons, advice}, ``suggestion`` (next board placement).
+``coverage``, ``verdict`` {ok, reasons, advice}, ``suggestion`` (next board placement),
+``model_choice`` (``--model auto``: chosen, reason, held_out_rms_px and failed_views per
+model, refused {model: why}, corner_noise_px measured without a lens model).
 When nothing could be solved, the solve fields are null and ``verdict.reasons`` says why.
 """
 

@@ -55,6 +55,9 @@ Rules (stated once here, reported in the result):
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -80,7 +83,7 @@ from drovisio.camera import Camera
 
 __all__ = ["CalibrationError", "SolveOptions", "ViewInput", "ViewFit", "CalibrationResult",
            "solve", "fit_model", "choose_model", "corner_noise_px", "MODELS", "MODEL_CHOICES",
-           "AUTO_MODELS", "RMS_DEFINITION", "unknown_model"]
+           "AUTO_MODELS", "RMS_DEFINITION", "unknown_model", "clear_cache"]
 
 RMS_DEFINITION = ("root mean square over all kept corners of the distance between the detected "
                   "corner and the projection of its board point, pixels (OpenCV calibrateCamera)")
@@ -254,9 +257,38 @@ def _fail_line(model: str, cause: str, fix: str) -> str:
     return f"the {model} solve {cause}; {fix}"
 
 
+_STAGES_CACHE: OrderedDict[bytes, tuple[Refined, Refined]] = OrderedDict()
+_STAGES_LOCK = threading.Lock()
+
+
 def _pinhole_stages(O, I, size, fix_k3: bool) -> tuple[Refined, Refined]:
     """The pinhole solve (no distortion) and the plumb_bob solve started from it, k1 k2 p1 p2
-    first, then k3 unless fixed: every other model starts from these."""
+    first, then k3 unless fixed: every other model starts from these. Kept for the last 64
+    sets of views (``auto`` solves three models on the same views and folds)."""
+    h = hashlib.sha1(repr((tuple(size), bool(fix_k3))).encode())
+    for o, i in zip(O, I):
+        h.update(np.ascontiguousarray(o, np.float64).tobytes())
+        h.update(np.ascontiguousarray(i, np.float64).tobytes())
+    key = h.digest()
+    with _STAGES_LOCK:
+        if key in _STAGES_CACHE:
+            _STAGES_CACHE.move_to_end(key)
+            return _STAGES_CACHE[key]
+    out = _solve_pinhole_stages(O, I, size, fix_k3)
+    with _STAGES_LOCK:
+        _STAGES_CACHE[key] = out
+        while len(_STAGES_CACHE) > 64:
+            _STAGES_CACHE.popitem(last=False)
+    return out
+
+
+def clear_cache() -> None:
+    """Forget the pinhole solves kept for reuse (tests that compare fresh solves)."""
+    with _STAGES_LOCK:
+        _STAGES_CACHE.clear()
+
+
+def _solve_pinhole_stages(O, I, size, fix_k3: bool) -> tuple[Refined, Refined]:
     try:
         K0 = cv2.initCameraMatrix2D([o.astype(np.float32) for o in O],
                                     [i.astype(np.float32) for i in I], size)
