@@ -129,4 +129,4 @@ def test_a_refused_tcp_link_is_one_line_on_stderr_only(capsys):
     cap = capsys.readouterr()
     assert cap.out == ""
     lines = cap.err.strip().splitlines()
-    assert len(lines) == 1 and "tcp:127.0.0.1:1: cannot open the MAVLink connection" in lines[0]
+    assert len(lines) == 1 and "tcp:127.0.0.1:1: cannot connect to 127.0.0.1:1" in lines[0]

@@ -23,7 +23,8 @@ def test_live_status_carries_the_autopilot_check(vehicle, ardupilot_ok, tmp_path
             sink = next(s for s in st["sinks"] if s["sink"].startswith("mavlink:"))
             got = {f["item"]: f for f in sink["check"]}
             if got.get("PLND_ORIENT", {}).get("status") == "wrong" and \
-                    got.get("PLND_LAG", {}).get("status") in ("ok", "wrong"):
+                    got.get("PLND_LAG", {}).get("status") in ("ok", "wrong") and \
+                    got.get("detection rate", {}).get("status", "unknown") != "unknown":
                 break
             time.sleep(0.2)
         assert sink["vehicle"] == {"system": 1, "component": 1, "autopilot": "ArduPilot"}
