@@ -150,10 +150,10 @@ def open_sinks_of(args: argparse.Namespace, target, mount=None, layouts=None,
                                    mount=mount, layouts=layouts,
                                    send_held=getattr(args, "send_held_targets", False),
                                    camera=camera, drone_id=getattr(args, "drone_id", None)))
-        except (SinkError, OSError) as e:
+        except (SinkError, OSError, ValueError) as e:  # a spec's parts, parsed: one line too
             for s in sinks:
                 s.close()
-            why = e if isinstance(e, SinkError) else (e.strerror or e)
+            why = (e.strerror or e) if isinstance(e, OSError) else e
             raise InputError(f"--sink {one_line(spec, 80)}: {one_line(why, 300)}") from None
         except BaseException:
             for s in sinks:

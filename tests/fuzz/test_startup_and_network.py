@@ -71,6 +71,8 @@ def _run(f, *opts):
 @pytest.mark.parametrize("opts,needle", [
     (("--sink", "bogus"), "unknown sink"),
     (("--sink", "udp://"), "--sink"),
+    (("--sink", "udp://[::1]:99999"), "--sink"),
+    (("--sink", "ws://127.0.0.1:99999"), "--sink"),
     (("--sink", "ws://nohost"), "--sink"),
     (("--sink", "mavlink:tcp:127.0.0.1:notaport"), "HOST:PORT"),
     (("--sink", "mavlink:udpout:no.such.host.invalid:14550"), "unknown host"),

@@ -18,7 +18,13 @@
     $("study-folder").textContent = js.folder;
     const body = $("study-reports");
     body.innerHTML = "";
-    if (!js.reports.length) { body.innerHTML = '<tr><td colspan="5">No report yet: start the sample study above, or run drovisio study run.</td></tr>'; return; }
+    for (const s of js.skipped || []) {   // a folder that is not a readable report: named
+      const tr = document.createElement("tr");
+      tr.dataset.skipped = s.name;
+      cell(tr, s.name); cell(tr, "skipped: " + s.error).colSpan = 4;
+      body.appendChild(tr);
+    }
+    if (!js.reports.length && !(js.skipped || []).length) { body.innerHTML = '<tr><td colspan="5">No report yet: start the sample study above, or run drovisio study run.</td></tr>'; return; }
     for (const r of js.reports) {
       const tr = document.createElement("tr");
       tr.dataset.report = r.name;
