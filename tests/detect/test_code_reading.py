@@ -57,7 +57,9 @@ def test_the_reader_reads_blurred_cells_that_centre_samples_misread(side_px, sig
     assert int((centre != truth).sum()) >= 8
 
 
-@settings(max_examples=150, deadline=5000, derandomize=True, database=None)
+# no wall-clock deadline (a loaded machine is no failure): the work is bounded, 150 pictures
+# of 640x480
+@settings(max_examples=150, deadline=None, derandomize=True, database=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), kind=st.sampled_from(["noise", "stripes", "flat",
                                                                 "blocks"]),
        quad=st.lists(st.floats(-1e4, 1e4, allow_nan=False), min_size=8, max_size=8))
