@@ -33,6 +33,10 @@ Per frame, in the same run and on the same image:
   corners against the renderer's true projected corners, for fully visible codes, next to
   OpenCV's raw corners.
 
+``--video PATH`` times the detector on real frames instead, beside plain ``detectMarkers``
+and AprilTag 3 (:mod:`drovisio.bench.aruco_video`; e.g. OpenCV's ``vtest.avi`` from Debian's
+``opencv-doc``).
+
 Example::
 
     drovisio bench aruco --frames 80 --empty 200 --cache /tmp/aruco-frames

@@ -12,9 +12,9 @@ Pipeline of :class:`ArucoBrickDetector` for one frame:
    merges with a pyramid's shaded side), are read again (:meth:`ArucoBrickDetector._rescue`)
    by a least-squares fit of their blurred cells
    (:class:`drovisio.detect.code_reading.CodeReader`), with as many misread bits as the
-   codes' distances allow (36h11: 3, 4×4: 0). Quads still unread that read closer to one of
-   our codes than chance get a second look at twice the size
-   (:meth:`ArucoBrickDetector._second_look`; on clutter almost none do). On 815 rendered tag36h11 bricks
+   codes' distances allow (36h11: 3, 4×4: 0). Quads still unread whose reading shows a
+   code's frame and contrast, or comes closer to one of our codes than chance, get a second
+   look at twice the size (:meth:`ArucoBrickDetector._second_look`). On 815 rendered tag36h11 bricks
    (``drovisio bench aruco --dictionary DICT_APRILTAG_36h11 --apriltag --bricks 4 --frames
    300 --seed 5000 --empty 0``): codes of 14–20 px 76.3 % (OpenCV's pass alone) → 96.2 %
    (AprilTag 3: 74.0 %), all ≥ 14 px 94.7 % → 99.3 % (93.6 %), no false brick, at 0.86× the
@@ -170,10 +170,11 @@ class ArucoParams:
     random quads match one of our codes too often), at 2.3× the time."""
     second_look_max_side_px: float = 30.0
     second_look_chance: float = 0.05
-    """The budget of the second look: only quads whose reading came closer to one of our
-    codes than a random pattern would with this chance get it (36h11 with 30–60 ids: at
-    most 7 bits off). On the bench its codes read 4–6 bits off; quads on clutter read
-    like random patterns (8–12 off), and looking again at those cost 0.25 ms each."""
+    """The budget of the second look (0.25 ms a quad): only quads whose reading shows a
+    code's frame (a uniform black border and cells with contrast, at some shift) or came
+    closer to one of our codes than a random pattern would with this chance (36h11 with
+    30–60 ids: at most 7 bits off) get it. Bits alone are no budget: a ring's hull that
+    takes in a pyramid's edge reads 9–11 bits off and still holds a code."""
     """Unread quads larger than this (mean side) get no second look."""
     second_look_window: int = 9
     """Adaptive threshold window of the second look (px of the enlarged image)."""
@@ -416,8 +417,9 @@ class ArucoBrickDetector:
         read by :class:`drovisio.detect.code_reading.CodeReader` (blur included) at a few
         outward shifts of its corners and in the four corner orders; an unambiguous match to
         one of our ids is kept (a few bits may be misread: :meth:`_tolerable_bit_errors`).
-        Returns the codes and the quads still unread that read closer to one of our codes
-        than chance (``second_look_chance``), for :meth:`_second_look`."""
+        Returns the codes and the quads still unread that show a code's frame or read
+        closer to one of our codes than chance (``second_look_chance``), for
+        :meth:`_second_look`."""
         p = self.params
         none = np.zeros((0, 4, 2))
         quads = (np.asarray(rejected, np.float64).reshape(-1, 4, 2)
@@ -479,9 +481,12 @@ class ArucoBrickDetector:
             # the grid read with the corners rolled by `rot` is the code upright
             out.append(CodeDetection(mid, lay, k, slot, np.roll(quads[q], -rot, axis=0)))
             read[q] = True
-        # the budget of the second look: unread quads that read like one of our codes a few
-        # bits off, not like random patterns (clutter)
-        return out, quads[~read & (best <= self._look_errors[dvalue])]
+        # the budget of the second look: unread quads whose reading shows a code's frame (a
+        # uniform black border, cells with contrast: `ok` at some shift), or that read
+        # closer to one of our codes than chance; a ring's hull that takes in a pyramid's
+        # edge reads 9-11 bits off and still holds a code the second look finds
+        promising = ok.any(axis=1) | (best <= self._look_errors[dvalue])
+        return out, quads[~read & promising]
 
     def _second_look(self, gray, quads, found, dvalue, ids, owners) -> list[CodeDetection]:
         """Codes too small or too blurred for the first pass: around quads it found but could
