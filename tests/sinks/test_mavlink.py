@@ -129,10 +129,13 @@ def test_ardupilot_landing_target_at_frame_rate_vs_truth(tmp_path):
     truth = _truth()
     mount = load_mount(APPROACH / "mount.json")
     msgs = lst.msgs
-    assert len(msgs) >= 40
-    span = msgs[-1][0] - msgs[0][0]
-    rate = (len(msgs) - 1) / span
-    assert rate == pytest.approx(15.0, rel=0.1), rate
+    # one message per frame whose target was measured, each stamped with its own frame: the
+    # rate is the frames' (a loaded machine may process fewer frames; none is sent twice)
+    measured = [d for d in lines if d.get("target") and any(
+        b["track"] == d["target"]["track"] and b.get("measured", True) for b in d["bricks"])]
+    assert len(msgs) >= 40 and len(msgs) == len(measured)
+    stamps = [m.time_usec for _, m in msgs]
+    assert len(set(stamps)) == len(stamps) and stamps == sorted(stamps)
     assert lst.heartbeats >= 1
     errs, ang = [], []
     for _, m in msgs:
