@@ -564,7 +564,8 @@ def resolve(entry_point: str) -> Callable[[argparse.Namespace], int | None]:
 def _run_synth(args: argparse.Namespace) -> int:
     from drovisio.synth_samples import main as generate
 
-    return int(generate(args.out, getattr(args, "only", None)) or 0)
+    only = getattr(args, "only", None)
+    return int((generate(args.out) if only is None else generate(args.out, only)) or 0)
 
 
 def _crash_report(command: str, exc: BaseException) -> str | None:
