@@ -34,7 +34,7 @@ $(VPY):
 $(STAMP): pyproject.toml | $(VPY)
 	@echo "[1/2] Installing Drovisio and its libraries into $(VENV) (first time: a few minutes)..."
 	$(VPY) -m pip install --disable-pip-version-check --progress-bar on -e '.[test]'
-	@echo "[2/2] Compiling the detectors' kernels (once per machine: about 2 min on a small laptop)..."
+	@echo "[2/2] Compiling the detectors' kernels (once per machine: about 3 min on a small laptop)..."
 	$(VPY) -m drovisio.detect.warmup
 	@echo "Installed."
 	@touch $@

@@ -42,7 +42,7 @@ def notice_first_compile(log) -> None:
     missing = missing_cache(globals())
     if missing:
         log.warning("first use of the colour-dot detector on this machine: compiling its "
-                    "kernels (%d functions, ~30 s, kept for later runs)", len(missing))
+                    "kernels (%d functions, about 3 min on a small laptop, kept for later runs)", len(missing))
 
 
 # ================================================================================ blobs

@@ -1,7 +1,7 @@
 """Compile (or load) the detectors' numba kernels before the first frame needs them.
 
-numba compiles a kernel on its first call (~30 s for all of them, once per machine; later
-processes load the machine code from ``__pycache__`` in well under a second). Without a
+numba compiles a kernel on its first call (all of them: 160 s on a busy 2-core machine, once
+per machine; later processes load the machine code from ``__pycache__`` in well under a second). Without a
 warm-up the first frame of the first run waits for it: ``make install`` runs this module, and
 ``drovisio serve`` calls :func:`warm_up` in a background thread at start. The frame used is
 drawn, not rendered (a few milliseconds): the shipped colour-dot drick and an ArUco drick seen
@@ -118,8 +118,9 @@ def main() -> int:
         print("drovisio: numba is not available here; the detectors use their numpy code",
               file=sys.stderr)
         return 0
-    print("drovisio: preparing the detectors' compiled kernels (the first time on a machine "
-          "~30 s)...", file=sys.stderr, flush=True)
+    print("drovisio: preparing the detectors' compiled kernels (the first time on a machine: "
+          "about 3 min on a small laptop; later runs load them in seconds)...",
+          file=sys.stderr, flush=True)
     r = warm_up()
     print(f"drovisio: kernels ready in {r['seconds']:.1f} s (test frame: {r['dots']} dot "
           f"brick, {r['codes']} code brick found)", file=sys.stderr)

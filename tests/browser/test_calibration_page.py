@@ -82,7 +82,7 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     n = int(page.text_content("#views-count"))
     page.reload()
     page.wait_for_function(f"{VIEWS} >= {n}")
-    page.wait_for_selector("#result:not([hidden]) #param-fx")
+    page.wait_for_selector("#result:not([hidden]) #param-fx", state="attached")
     assert "camera.yaml" in page.text_content("#s-camera")
 
 

@@ -191,7 +191,7 @@ def _square_size_asked(page, live_server_factory, tmp_path) -> None:
     assert page.locator("#result:not([hidden])").count() == 0     # nothing solved yet
     page.fill("#square-mm", "24.6")
     page.click("#square-solve")
-    page.wait_for_selector("#result:not([hidden]) #param-fx")
+    page.wait_for_selector("#result:not([hidden]) #param-fx", state="attached")
     assert page.locator("#square-form").is_hidden()
     st = page.request.get(base + "/api/calibration/state").json()
     assert st["session"]["square_mm"] == 24.6 and st["session"]["square_measured"] is True

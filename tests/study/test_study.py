@@ -96,9 +96,12 @@ def test_every_figure_is_drawn_and_reads_back(small_study):
 
 def test_the_figures_hold_the_measured_errors(small_study):
     res, data, _ = small_study
-    # Drovisio on the one-code brick, square-on at 0.3 m: millimetres, not centimetres
+    # Drovisio on the one-code brick, square-on at the nearest distance (0.4 m):
+    # millimetres, not centimetres
+    near = min(r["value"] for r in res.records if r["vary"] == "distance")
+    assert near <= 0.4
     rs = [r for r in res.records if r["layout"] == "code" and r["vary"] == "distance"
-          and r["value"] == 0.3 and r["method"] == "drovisio-codes"]
+          and r["value"] == near and r["method"] == "drovisio-codes"]
     assert rs and all(r["found"] for r in rs)
     assert max(r["errors"]["z_pct"] for r in rs) < 1.0
     assert max(r["errors"]["xy_cm"] for r in rs) < 0.3
