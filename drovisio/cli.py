@@ -480,7 +480,7 @@ def _add_study(p: argparse.ArgumentParser) -> None:
                    help="protocol file (default: the thesis's protocol, rendered)")
     r.add_argument("--out", required=True, metavar="DIR", help="folder for the report")
     r.add_argument("--quick", action="store_true",
-                   help="fewer steps and frames: a two-minute look")
+                   help="fewer steps and frames: about 5 minutes on a small laptop")
     r.add_argument("--frames", type=_whole(1, 100_000), metavar="N",
                    help="frames per step (default: the protocol's; 8 rendered, 2 quick)")
     r.add_argument("--methods", metavar="LIST",
