@@ -19,7 +19,8 @@ import pytest
 from drovisio.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text(encoding="utf-8")
+# a shell line continued with a backslash is one example
+README = re.sub(r"\\\n\s*", " ", (ROOT / "README.md").read_text(encoding="utf-8"))
 #: (command words) whose examples run to the end here (each well under a minute)
 RUN = {("detect",), ("calibrate",), ("calibrate", "board"), ("calibrate", "mount"), ("run",),
        ("mission", "check"), ("mission", "diagram"), ("study", "example")}
@@ -30,10 +31,10 @@ def _examples() -> list[str]:
     found += re.findall(r"^(drovisio [^\n#]+?)\s*(?:#.*)?$", README, re.M)
     out = []
     for cmd in found:
-        if "COMMAND" in cmd or "..." in cmd or "DIR" in cmd or cmd.strip() in (
+        if "[" in cmd or re.search(r"\b[A-Z]{3,}\b", cmd) or "..." in cmd or cmd.strip() in (
                 "drovisio serve", "drovisio detect", "drovisio calibrate", "drovisio run",
                 "drovisio mission"):
-            continue            # a name in a sentence, not an example
+            continue            # a name in a sentence or a synopsis (PLACEHOLDERS), not an example
         out.append(" ".join(cmd.split()))
     return list(dict.fromkeys(out))
 
@@ -41,8 +42,16 @@ def _examples() -> list[str]:
 EXAMPLES = _examples()
 
 
+def _on_hardware(argv: list[str]) -> bool:
+    """An example for the drone itself (a camera index, a serial link): parsed, not run."""
+    return any(a.isdigit() and p == "--source" for p, a in zip(argv, argv[1:])) or any(
+        "/dev/" in a for a in argv)
+
+
 def _words(cmd: str) -> tuple[str, ...]:
     argv = shlex.split(cmd)[1:]
+    if _on_hardware(argv):
+        return ("(on the drone)",)
     head = tuple(a for a in argv[:2] if not a.startswith("-"))
     for n in (2, 1):
         if head[:n] in RUN:
