@@ -27,8 +27,8 @@ def test_top_level_help_lists_every_command_and_sub_command(capsys):
     assert "SUPPRESS" not in out
     for cmd in cli.COMMANDS.values():
         assert re.search(rf"^\s+{re.escape(cmd.spelled or cmd.name)}\b", out, re.M), cmd.name
-    for line in ("bench aruco|dots|lens|pipeline|renderer", "study run|example",
-                 "mission check|simulate|diagram", "synth samples"):
+    for line in ("bench aruco|dots|lens|pipeline|real|renderer", "study run|example",
+                 "mission check|simulate|landing|diagram", "autopilot check", "synth samples"):
         assert line in out, line
 
 
