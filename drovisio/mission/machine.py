@@ -690,7 +690,11 @@ def _blind(c: _Ctx, drop: bool) -> Setpoint | None:
     # and the heading is on its setpoint (a gust may have pushed the drone off)
     xy_err = float(np.hypot(sp.position[0] - c.p[0], sp.position[1] - c.p[1]))
     yaw_err = wrap_half(sp.yaw - c.yaw)
-    on_target = (c.ts_age <= th.ts_grace_s and xy_err < th.contact_position_tolerance_m
+    # with the autopilot's precision landing the pick's horizontal is the autopilot's: it
+    # touches down where its estimate says, and the picker sensor tells whether that was right
+    xy_ok = xy_err < th.contact_position_tolerance_m or (
+        not drop and scn.autopilot.precision_landing)
+    on_target = (c.ts_age <= th.ts_grace_s and xy_ok
                  and abs(yaw_err) < math.radians(th.contact_yaw_tolerance_deg))
     if _settled(c, z <= zc + 1e-9 and abs(c.p[2] - zc) < 0.02 and on_target, 0.2):
         c.ev("contact", brick=brick, xy_error_m=round(xy_err, 4),

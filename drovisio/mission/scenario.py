@@ -236,6 +236,28 @@ class Drone(_M):
     camera: CameraSpec = CameraSpec()
 
 
+class Autopilot(_M):
+    """What feeds the autopilot's precision landing, and whether the simulator models it."""
+
+    precision_landing: bool = Field(
+        False, description="the pick descents are flown by ArduPilot's precision landing fed by "
+                           "the vision (lag buffer, 2 s initialisation, 2 s timeout, last "
+                           "estimate once the brick leaves the picture); off: the autopilot "
+                           "flies the mission's setpoints")
+    rate_hz: float | None = Field(None, gt=0, le=120, description="frames the pipeline processes "
+                                                                  "a second (default: 10)")
+    detect_prob: float | None = Field(None, gt=0, le=1, description="chance a frame showing the "
+                                                                    "brick detects it (default: "
+                                                                    "0.97)")
+    latency_ms: float = Field(50.0, ge=0, le=1000, description="capture to LANDING_TARGET at "
+                                                                "the autopilot")
+    plnd_lag_ms: float | None = Field(None, ge=0, le=1000, description="PLND_LAG (default: the "
+                                                                       "latency)")
+    wind_mps: float = Field(0.0, ge=0, le=20, description="steady wind (its gusts move the "
+                                                          "drone; the steady part is held by "
+                                                          "the autopilot)")
+
+
 class Sensors(_M):
     total_station: bool = True
     vision: bool = True
@@ -258,6 +280,7 @@ class Scenario(_M):
     placement_tolerance: Tolerance = Tolerance()
     drone: Drone = Drone()
     sensors: Sensors = Sensors()
+    autopilot: Autopilot = Autopilot()
 
     _source: Path | None = PrivateAttr(None)
     _layouts: dict[str, Any] = PrivateAttr(default_factory=dict)
