@@ -191,6 +191,10 @@ def _simulate(args: argparse.Namespace) -> int:
              f"{tr.render_seconds:.0f} s), {tr.vision_frames - tr.render_frames} model frames"
              if params.vision == "render" else ""))
     print(f"what the machine did: {narrate(tr)}")
+    from drovisio.mission.check import landing_lines
+
+    for line in landing_lines(tr):
+        print(line)
     if tr.placements:
         print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
         for b, p in tr.placements.items():

@@ -145,8 +145,9 @@ class Trace:
     landings: list[dict] = field(default_factory=list)
     """One per pick descent (``DESCEND_BRICK`` to what followed): ``brick``, ``outcome`` (the
     state it led to), ``error_m`` (truth: body origin to the brick's centre, horizontal, when
-    the descent ended), and with precision landing ``initialised``, ``init_failures``,
-    ``measurements``, ``last_seen_camera_height_m`` (camera above the brick's top at the last
+    the descent ended), and with precision landing ``initialised`` (the filter was
+    initialised at some tick of this descent), ``init_failures`` and ``measurements`` (since
+    the brick was first looked for), ``last_seen_camera_height_m`` (camera above the brick's top at the last
     LANDING_TARGET sent), ``blind_height_m`` (where the brick leaves the picture, this lens
     and mount), ``estimate_error_m`` (the estimate flown to, against the truth)."""
 
@@ -501,8 +502,16 @@ class Simulator:
         if after == State.DESCEND_BRICK.value and before != after and self.landing is None \
                 and brick is not None:
             self.landing = {"brick": brick, "t_start": round(t, 3)}
+            if self.estimator is not None:
+                # a last estimate holds within one descent: one from an earlier attempt is
+                # stale (not acquired now, the autopilot lands where the mission put it)
+                self.estimator.last_estimate = self.estimator.estimate
             return
-        if self.landing is None or after in _PICK_DESCENT:
+        if self.landing is None:
+            return
+        if self.estimator is not None and self.estimator.acquired:
+            self.landing["initialised"] = True
+        if after in _PICK_DESCENT:
             return
         b = self.landing["brick"]
         T = self.bricks[b]
@@ -511,7 +520,8 @@ class Simulator:
         est = self.estimator
         if self.precland and est is not None and self.estimator_brick == b:
             xy = self._precland_xy()
-            rec.update(initialised=est.ever_acquired, init_failures=est.init_fail,
+            rec.update(initialised=bool(self.landing.get("initialised")),
+                       init_failures=est.init_fail,
                        measurements=est.n_meas,
                        last_seen_camera_height_m=None if self.last_sent_h is None
                        else round(self.last_sent_h, 3),

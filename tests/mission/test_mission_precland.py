@@ -71,7 +71,7 @@ def test_forward_mount_lands_several_cm_off_on_its_last_estimate(wall):
     assert want is not None and 0.4 < want < 0.8
     for d in tilted:
         assert d["initialised"] and d["blind_height_m"] == pytest.approx(want)
-        assert 0.15 < d["last_seen_camera_height_m"] <= want + 0.15
+        assert abs(d["last_seen_camera_height_m"] - want) < 0.25
     tr = simulate(scn, (), SimParams(seed=0))
     text = "\n".join(landing_lines(tr))
     assert f"leaves the picture {want:.2f} m above it" in text and "WARNING" not in text
