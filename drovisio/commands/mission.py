@@ -184,7 +184,8 @@ def _simulate(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     rules = check_rules(tr)
     out = write_recording(tr, args.record, extra={"wall_time_s": round(wall, 1),
-                                                  "rules": {r.rule: r.held for r in rules}})
+                                                  "rules": {r.rule: r.held for r in rules},
+                                                  "landings": tr.landings})
     print(f"outcome: {tr.final_state} after {tr.ticks[-1].t:.1f} s simulated "
           f"({wall:.1f} s wall); vision: {tr.detector}"
           + (f"; {tr.render_frames} rendered frames (render + detect "

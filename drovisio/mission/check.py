@@ -257,7 +257,7 @@ def landing_lines(tr: Trace) -> list[str]:
             if d["initialised"]:
                 line += f"; precision-landing filter initialised ({d['measurements']} targets"
                 if d["estimate_error_m"] is not None:
-                    line += f", estimate flown to {d['estimate_error_m'] * 100:.1f} cm off"
+                    line += f", its estimate then {d['estimate_error_m'] * 100:.1f} cm off"
                 line += ")"
             else:
                 never.append(d["brick"])

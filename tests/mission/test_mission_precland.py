@@ -150,3 +150,15 @@ def test_estimator_rules_hold_on_a_coarse_tick(dt):
             est.update(k * d)
     assert a.kf is not None and b.kf is not None
     assert math.isclose(a.kf[0].P[1, 1], b.kf[0].P[1, 1], rel_tol=1e-9)
+
+
+def test_simulate_prints_and_records_each_pick_descent(wall, tmp_path, capsys):
+    scn = _variant(wall, n=1, rate_hz=15.0, wind_mps=3.0)
+    path = tmp_path / "one.yaml"
+    path.write_text(yaml.safe_dump(scn.model_dump(by_alias=True, exclude_none=True)))
+    assert cli.main(["mission", "simulate", str(path), "--record", str(tmp_path / "rec")]) == 0
+    out = capsys.readouterr().out
+    assert "pick descent onto b1" in out and "filter initialised" in out
+    manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
+    (grab,) = [d for d in manifest["landings"] if d["outcome"] == "GRAB"]
+    assert grab["initialised"] is True and grab["error_m"] <= 0.03
