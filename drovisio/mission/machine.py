@@ -19,7 +19,10 @@ The strategy, as the thesis states it, with the choices made where it is silent:
   position at the approach height (1–2 m above it); acquire it by vision (by code id, or by
   position for bricks without ids); align position and yaw; descend while vision keeps the
   alignment; below ``blind_below_m`` (camera to target) descend blind, straight, on the total
-  station; grab; the picker sensor must confirm.
+  station; grab; the picker sensor must confirm. With the scenario's
+  ``autopilot.precision_landing`` the autopilot steers the pick descent on its own target
+  estimate: the contact is taken where it touches down (height and heading), not only within
+  ``contact_position_tolerance_m`` of the machine's setpoint.
 * climb to the cruise altitude; **drop phase**: go above the slot; find it from the bricks
   below it (course ≥ 2: the two it straddles, recognised by id or position; course 1: the
   plan through the total station and the heading, the placed neighbour must be seen);

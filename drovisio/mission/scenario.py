@@ -13,7 +13,9 @@ YAML (or JSON) file with ``schema: drovisio/mission-scenario@1`` that says:
   of bricks below them (running bond), built in ``order``;
 * ``thresholds``, ``altitudes``, ``placement_tolerance``: alignment tolerances, the
   disagreement threshold, ``retries`` (failures of a phase before the safe zone), timings;
-* ``drone`` (picker geometry, camera and mount) and ``sensors`` (what is in use).
+* ``drone`` (picker geometry, camera and mount) and ``sensors`` (what is in use);
+* ``autopilot``: whether the pick descents are flown by ArduPilot's precision landing (off by
+  default) and what feeds it: detection rate and chance, latency, ``PLND_LAG``, wind.
 
 Frames: the site frame of :mod:`drovisio.mission.frames` (x east, y north, z up, metres);
 angles in files are degrees. Every problem is reported as a :class:`ScenarioError` naming the
