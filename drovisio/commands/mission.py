@@ -42,8 +42,12 @@ def _resolve_scenario(arg: str) -> Path:
 def _load(arg: str):
     """The scenario (a ScenarioError, an InputError, ends the command in one line)."""
     from drovisio.mission.scenario import load_scenario
+    from drovisio.mission.sim import landing_blind_heights
 
-    return load_scenario(_resolve_scenario(arg))
+    scn = load_scenario(_resolve_scenario(arg))
+    if scn.autopilot.precision_landing:
+        landing_blind_heights(scn)   # a brick the landing cannot see is refused here
+    return scn
 
 
 def _params(args: argparse.Namespace):

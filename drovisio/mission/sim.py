@@ -72,7 +72,7 @@ from drovisio.mission.vision import (
 )
 
 __all__ = ["SimParams", "Tick", "Trace", "Simulator", "simulate", "camera_for",
-           "body_from_camera_for"]
+           "body_from_camera_for", "landing_blind_heights"]
 
 
 @dataclass
@@ -201,6 +201,49 @@ _PICK_FEED = (State.ACQUIRE_BRICK.value, State.ALIGN_BRICK.value, State.DESCEND_
 _PICK_DESCENT = (State.DESCEND_BRICK.value, State.BLIND_DESCENT_BRICK.value)
 
 
+def landing_blind_heights(scn: Scenario, camera: Camera | None = None,
+                          body_from_camera: np.ndarray | None = None) -> dict[str, float | None]:
+    """Per layout, the camera height above a brick at which it leaves the picture on the way
+    down (None: seen all the way), with the scenario's lens and mount
+    (:func:`drovisio.autopilot.blind.blind_height`).
+
+    Raises:
+        ScenarioError: with ``autopilot.precision_landing``, a brick the descent cannot see:
+            never in the picture right below the drone, or gone above the approach height.
+    """
+    from drovisio.autopilot.blind import blind_height
+    from drovisio.mission.scenario import ScenarioError
+    from drovisio.mount import Mount
+
+    camera = camera if camera is not None else camera_for(scn)
+    mount = Mount(body_from_camera if body_from_camera is not None else body_from_camera_for(scn))
+    out: dict[str, float | None] = {}
+    never = False
+    for name in scn.layouts:
+        bh = blind_height(camera, mount, scn.layout(name))
+        out[name] = bh.leaves_at_m
+        never |= bh.highest_seen_m is None
+    if not scn.autopilot.precision_landing:
+        return out
+    where = f"{scn.source}: " if scn.source is not None else ""
+    if never:
+        raise ScenarioError(
+            f"{where}drone.camera.mount.tilt_deg: with this lens and mount the brick right "
+            "below the drone is never in the picture: with autopilot.precision_landing the "
+            "drone would never see it to land on; tilt the camera less")
+    highest = max((b for b in out.values() if b is not None), default=0.0)
+    down = scn.drone.camera.mount.offset_m[2]
+    approach_cam = scn.altitudes.approach_m - down
+    if highest >= approach_cam - 0.05:
+        raise ScenarioError(
+            f"{where}altitudes.approach_m: with this lens and mount the brick below leaves the "
+            f"picture {highest:.2f} m above it (camera height), above the approach "
+            f"({approach_cam:.2f} m): with autopilot.precision_landing the drone would never "
+            f"see it to land on; raise approach_m above {highest + down + 0.1:.2f} m (and "
+            "cruise_m with it) or tilt the camera less")
+    return out
+
+
 class _FaultState:
     def __init__(self, faults: tuple[Fault, ...]):
         self.faults = faults
@@ -291,12 +334,7 @@ class Simulator:
         self.blind_m: dict[str, float | None] = {}
         machine_scn = scenario
         if self.precland:
-            from drovisio.autopilot.blind import blind_height
-            from drovisio.mount import Mount
-
-            for name in scenario.layouts:
-                self.blind_m[name] = blind_height(self.camera, Mount(self.mount),
-                                                  scenario.layout(name)).leaves_at_m
+            self.blind_m = landing_blind_heights(scenario, self.camera, self.mount)
             highest = max((b for b in self.blind_m.values() if b is not None), default=0.0)
             alt = scenario.altitudes
             if highest + 0.02 > alt.blind_below_m:

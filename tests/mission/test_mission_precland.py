@@ -162,3 +162,20 @@ def test_simulate_prints_and_records_each_pick_descent(wall, tmp_path, capsys):
     manifest = json.loads((tmp_path / "rec" / "manifest.json").read_text())
     (grab,) = [d for d in manifest["landings"] if d["outcome"] == "GRAB"]
     assert grab["initialised"] is True and grab["error_m"] <= 0.03
+
+
+@pytest.mark.parametrize("tilt, approach, field, fix", [
+    (20.0, 0.6, "altitudes.approach_m", "raise approach_m above 0.73 m"),   # leaves at 0.58 m
+    (35.0, 1.2, "drone.camera.mount.tilt_deg", "tilt the camera less")])   # never below
+def test_a_brick_the_descent_cannot_see_is_refused_by_name(wall, tmp_path, capsys, tilt,
+                                                            approach, field, fix):
+    d = wall.model_dump(by_alias=True, exclude_none=True)
+    d["autopilot"] = {"precision_landing": True}
+    d["drone"]["camera"]["mount"]["tilt_deg"] = tilt
+    d["altitudes"].update(approach_m=approach, blind_below_m=0.3)
+    path = tmp_path / "steep.yaml"
+    path.write_text(yaml.safe_dump(d))
+    assert cli.main(["mission", "check", str(path), "--fault", "no fault"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"drovisio mission: {path}: {field}:"), err
+    assert fix in err[0] and "Traceback" not in err[0]
