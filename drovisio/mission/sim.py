@@ -521,7 +521,9 @@ class Simulator:
         if vis and state in _PICK_FEED and brick == self.estimator_brick:
             v = self._target_vector(vis, brick)
             if v is not None:
-                est.send(t + self.latency_s, v)
+                # on the simulator's clock (rounded like its ticks): a message due at a tick
+                # is taken at that tick, paired with the state PLND_LAG before it
+                est.send(round(t + self.latency_s, 6), v)
                 cam = site_from_body(self.pos, self.yaw) @ self.mount[:, 3]
                 self.last_sent_h = float(cam[2] - self.bricks[brick][2, 3])
         est.update(t)

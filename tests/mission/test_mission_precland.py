@@ -62,8 +62,11 @@ def test_forward_mount_lands_several_cm_off_on_its_last_estimate(wall):
     scn = _variant(wall, tilt=20.0, rate_hz=15.0, wind_mps=3.0)
     tilted = _touchdowns(scn, [0, 1])
     err = np.array([d["error_m"] for d in tilted])
-    assert 0.04 <= float(np.median(err)) <= 0.10, err
+    # several cm off, more than twice the down camera's, some beyond the 5 cm tolerance (the
+    # grab then fails and the phase is retried)
+    assert 0.025 <= float(np.median(err)) <= 0.10, err
     assert np.median(err) > 2 * np.median([d["error_m"] for d in down])
+    assert err.max() > 0.05 and err.max() < 0.15
     # the blind height reported is the lens-and-mount one, and the brick was indeed last seen
     # about there (lower or higher as the drone stands behind or ahead of it)
     want = blind_height(camera_for(scn), Mount(body_from_camera_for(scn)),
@@ -71,7 +74,9 @@ def test_forward_mount_lands_several_cm_off_on_its_last_estimate(wall):
     assert want is not None and 0.4 < want < 0.8
     for d in tilted:
         assert d["initialised"] and d["blind_height_m"] == pytest.approx(want)
-        assert abs(d["last_seen_camera_height_m"] - want) < 0.25
+        assert d["last_seen_camera_height_m"] > 0.25    # the down camera sees it to ~0.18 m
+    seen = np.median([d["last_seen_camera_height_m"] for d in tilted])
+    assert abs(seen - want) < 0.15
     tr = simulate(scn, (), SimParams(seed=0))
     text = "\n".join(landing_lines(tr))
     assert f"leaves the picture {want:.2f} m above it" in text and "WARNING" not in text
