@@ -41,13 +41,17 @@ from drovisio.camera import Camera
 from drovisio.layout import MarkerLayout
 from drovisio.mount import BODY_FROM_ALIGNED_BRICK, Mount
 
-__all__ = ["LandingParams", "LandingResult", "landing_report", "landing_summary",
-           "simulate_landing"]
+__all__ = ["LandingParams", "LandingResult", "PrecLandEstimator", "landing_report",
+           "landing_summary", "simulate_landing"]
 
 G = 9.80665
 INIT_TIME_S = 2.0
 INIT_MAX_GAP_S = 0.5
 TARGET_TIMEOUT_S = 2.0
+MODEL_DT_S = 0.01
+"""The step the filter's process noise ``PLND_ACC_P_NSE`` is applied at (the step of
+:func:`simulate_landing`, whose figures match the autopilot's); a coarser tick adds the same
+velocity variance per second."""
 
 
 @dataclass
@@ -153,6 +157,109 @@ def _code_groups(layout: MarkerLayout) -> list[np.ndarray]:
     return codes   # brick points in a NED frame at the brick origin (brick x north)
 
 
+class PrecLandEstimator:
+    """ArduPilot's ``AC_PrecLand`` target estimator alone (see the module doc), on a fixed
+    tick: the lag buffer, the initialisation, the target timeout and the per-axis filter.
+
+    One tick: :meth:`record` the vehicle's state, :meth:`send` the messages captured this tick,
+    then :meth:`update`. Frames: a local NED frame (its origin anywhere, its x north);
+    ``R_ned_from_body`` the body's attitude; measurements are the target's position in the FRD
+    body frame (metres), as a ``LANDING_TARGET`` carries them once the mount is applied. Used by
+    :func:`simulate_landing` and by the mission simulator's autopilot.
+    """
+
+    def __init__(self, lag_s: float, dt: float, acc_noise: float = 2.5):
+        self.dt = dt
+        self.n_lag = max(0, int(round(lag_s / dt)))
+        self.acc_noise = acc_noise
+        self.history: list[tuple[np.ndarray, np.ndarray]] = []  # (nav NE, R_ned_from_body)
+        self.in_flight: list[tuple[float, np.ndarray]] = []     # (arrival time, body vector)
+        self.kf: list[_PosVelKF] | None = None
+        self.initialised_at: float | None = None
+        self.last_update = -math.inf
+        self.init_start = 0.0
+        self.acquired = self.ever_acquired = False
+        self.rejects = 0
+        self.n_meas = self.init_fail = 0
+        self.last_fused: float | None = None
+        self.last_estimate: np.ndarray | None = None
+        """The estimate (NE) at the last tick the target was acquired: what the drone lands
+        on once it is lost."""
+        self.events: list[tuple[float, str]] = []
+
+    def record(self, nav_ne: np.ndarray, R_ned_from_body: np.ndarray) -> None:
+        """The vehicle's own position estimate (NE, m) and attitude this tick."""
+        self.history.append((np.array(nav_ne[:2], float), R_ned_from_body))
+        if len(self.history) > self.n_lag + 1:
+            self.history.pop(0)
+
+    def send(self, arrival_t: float, meas_body: np.ndarray) -> None:
+        """A ``LANDING_TARGET`` arriving at ``arrival_t`` (s): the target in the body frame."""
+        self.in_flight.append((arrival_t, np.asarray(meas_body, float)))
+
+    @property
+    def estimate(self) -> np.ndarray | None:
+        """The target's NE position while acquired (None otherwise)."""
+        if self.acquired and self.kf is not None:
+            return np.array([self.kf[0].x[0], self.kf[1].x[0]])
+        return None
+
+    def update(self, t: float) -> None:
+        """Predict, take the messages that arrived by ``t`` (s) paired with the state
+        ``PLND_LAG`` old, then the initialisation and timeout rules."""
+        dt = self.dt
+        nav_lag, R_lag = self.history[0]
+        if self.kf is not None:
+            # the process noise per second does not depend on the tick: a tick of k model
+            # steps adds k steps' velocity variance
+            dvel = self.acc_noise * math.sqrt(dt * MODEL_DT_S)
+            for f in self.kf:
+                f.predict(dt, dvel)
+        while self.in_flight and self.in_flight[0][0] <= t:
+            _, meas = self.in_flight.pop(0)
+            # the gap rules before the message is taken (ArduPilot checks them at 400 Hz: a
+            # coarse tick must not let a late message hide the gap it ends)
+            self._gap_rules(t)
+            rel = R_lag @ meas
+            z_ne = nav_lag + rel[:2]
+            r = (max(rel[2], 0.0) * 0.01 + 0.02) ** 2
+            self.n_meas += 1
+            if self.kf is None:
+                self.kf = [_PosVelKF(z_ne[i], r, 0.0, 4.0) for i in range(2)]
+                self.init_start = self.last_update = self.last_fused = t
+                self.events.append((t, "Target Found"))
+                continue
+            nis = max(self.kf[i].nis(z_ne[i], r) for i in range(2))
+            if nis < 3.0 or self.rejects >= 3:
+                self.rejects = 0
+                for i in range(2):
+                    self.kf[i].fuse(z_ne[i], r)
+                self.last_update = self.last_fused = t
+            else:
+                self.rejects += 1
+        self._gap_rules(t)
+        est = self.estimate
+        if est is not None:
+            self.last_estimate = est
+
+    def _gap_rules(self, t: float) -> None:
+        """Initialisation (updates at most 0.5 s apart for 2 s) and the 2 s target timeout."""
+        if self.kf is not None and not self.acquired:
+            if t - self.last_update > INIT_MAX_GAP_S:
+                self.kf = None
+                self.init_fail += 1
+                self.events.append((t, "Init Failed"))
+            elif t - self.init_start > INIT_TIME_S:
+                self.acquired = self.ever_acquired = True
+                if self.initialised_at is None:
+                    self.initialised_at = t
+                self.events.append((t, "Init Complete"))
+        if self.acquired and t - self.last_update > TARGET_TIMEOUT_S:
+            self.acquired = False
+            self.kf = None
+            self.events.append((t, "Target Lost"))
+
+
 def simulate_landing(camera: Camera, mount: Mount, layout: MarkerLayout,
                      params: LandingParams | None = None) -> LandingResult:
     """One LAND-mode descent onto the brick (see the module doc)."""
@@ -160,7 +267,7 @@ def simulate_landing(camera: Camera, mount: Mount, layout: MarkerLayout,
     rng = np.random.default_rng(p.seed)
     dt = p.dt
     lag = p.latency_s if p.plnd_lag_s is None else p.plnd_lag_s
-    n_lag = max(0, int(round(lag / dt)))
+    est = PrecLandEstimator(lag, dt, p.acc_noise)
     w, h = camera.size
     groups = _code_groups(layout)
     cam_from_body = mount.camera_from_body
@@ -178,29 +285,16 @@ def simulate_landing(camera: Camera, mount: Mount, layout: MarkerLayout,
     roll = pitch = 0.0
     vel_int = -p.drag_per_m * wind[:2] * np.linalg.norm(wind) / max(p.vel_i, 1e-9)
     # the drag of the steady wind is balanced from the start (the drone was hovering)
-    history: list[tuple[np.ndarray, np.ndarray]] = []   # (nav position NE, R_ned_from_body)
-    in_flight: list[tuple[float, np.ndarray]] = []      # (arrival time, body-frame vector)
     next_frame = rng.uniform(0, 1.0 / p.rate_hz)
-    kf: list[_PosVelKF] | None = None
-    initialised_at: float | None = None
-    last_update = -math.inf
-    init_start = 0.0
-    acquired = ever_acquired = False
-    rejects = 0
     setpoint = pos[:2].copy()
     last_seen_cam_h: float | None = None
-    n_meas = init_fail = 0
     lost_estimate_err: float | None = None
-    last_fused: float | None = None
     sq_err: list[float] = []
-    events: list[tuple[float, str]] = []
     t = 0.0
     while -pos[2] > p.touchdown_height_m and t < 120.0:
         R = _ned_from_body(roll, pitch, 0.0)
         nav = pos[:2] + nav_err
-        history.append((nav.copy(), R))
-        if len(history) > n_lag + 1:
-            history.pop(0)
+        est.record(nav, R)
         # the camera
         if t >= next_frame:
             next_frame += 1.0 / p.rate_hz
@@ -223,49 +317,14 @@ def simulate_landing(camera: Camera, mount: Mount, layout: MarkerLayout,
                 p_body_true = body_from_ned @ (-pos)          # brick origin in the body frame
                 rng_m = float(np.linalg.norm(p_body_true))
                 meas = p_body_true + rng.normal(0.0, p.noise_m + p.noise_per_m * rng_m, 3)
-                in_flight.append((t + p.latency_s, meas))
+                est.send(t + p.latency_s, meas)
                 cam_pos = pos + R @ mount.body_from_camera[:3, 3]
                 last_seen_cam_h = float(-cam_pos[2])
         # the autopilot: a message that arrived is paired with the state PLND_LAG old
-        nav_lag, R_lag = history[0]
-        if kf is not None:
-            for f in kf:
-                f.predict(dt, p.acc_noise * dt)
-        while in_flight and in_flight[0][0] <= t:
-            _, meas = in_flight.pop(0)
-            rel = R_lag @ meas
-            z_ne = nav_lag + rel[:2]
-            r = (max(rel[2], 0.0) * 0.01 + 0.02) ** 2
-            n_meas += 1
-            if kf is None:
-                kf = [_PosVelKF(z_ne[i], r, 0.0, 4.0) for i in range(2)]
-                init_start = last_update = last_fused = t
-                events.append((t, "Target Found"))
-                continue
-            nis = max(kf[i].nis(z_ne[i], r) for i in range(2))
-            if nis < 3.0 or rejects >= 3:
-                rejects = 0
-                for i in range(2):
-                    kf[i].fuse(z_ne[i], r)
-                last_update = last_fused = t
-            else:
-                rejects += 1
-        if kf is not None and not acquired:
-            if t - last_update > INIT_MAX_GAP_S:
-                kf = None
-                init_fail += 1
-                events.append((t, "Init Failed"))
-            elif t - init_start > INIT_TIME_S:
-                acquired = ever_acquired = True
-                if initialised_at is None:
-                    initialised_at = t
-                events.append((t, "Init Complete"))
-        if acquired and t - last_update > TARGET_TIMEOUT_S:
-            acquired = False
-            kf = None
-            events.append((t, "Target Lost"))
-        if acquired and kf is not None:
-            setpoint = np.array([kf[0].x[0], kf[1].x[0]])
+        est.update(t)
+        e = est.estimate
+        if e is not None:
+            setpoint = e
             lost_estimate_err = float(np.hypot(*setpoint))
             sq_err.append(lost_estimate_err ** 2)
         # the position controller flies its nav estimate to the setpoint (last estimate when
@@ -296,12 +355,13 @@ def simulate_landing(camera: Camera, mount: Mount, layout: MarkerLayout,
         b = math.exp(-dt / p.nav_tau_s)
         nav_err = b * nav_err + math.sqrt(1 - b * b) * rng.normal(0.0, p.nav_sigma_m, 2)
         t += dt
-    return LandingResult(error_m=float(np.hypot(pos[0], pos[1])), initialised=ever_acquired,
-                         init_time_s=initialised_at, blind_camera_height_m=last_seen_cam_h,
-                         measurements=n_meas, init_failures=init_fail,
-                         last_estimate_error_m=lost_estimate_err, events=events,
-                         last_update_s=None if kf is None and not ever_acquired and n_meas == 0
-                         else last_fused,
+    return LandingResult(error_m=float(np.hypot(pos[0], pos[1])),
+                         initialised=est.ever_acquired, init_time_s=est.initialised_at,
+                         blind_camera_height_m=last_seen_cam_h, measurements=est.n_meas,
+                         init_failures=est.init_fail, last_estimate_error_m=lost_estimate_err,
+                         events=est.events,
+                         last_update_s=None if est.kf is None and not est.ever_acquired
+                         and est.n_meas == 0 else est.last_fused,
                          estimate_rms_m=float(np.sqrt(np.mean(sq_err))) if sq_err else None)
 
 

@@ -42,8 +42,12 @@ def _resolve_scenario(arg: str) -> Path:
 def _load(arg: str):
     """The scenario (a ScenarioError, an InputError, ends the command in one line)."""
     from drovisio.mission.scenario import load_scenario
+    from drovisio.mission.sim import landing_blind_heights
 
-    return load_scenario(_resolve_scenario(arg))
+    scn = load_scenario(_resolve_scenario(arg))
+    if scn.autopilot.precision_landing:
+        landing_blind_heights(scn)   # a brick the landing cannot see is refused here
+    return scn
 
 
 def _params(args: argparse.Namespace):
@@ -90,7 +94,18 @@ def _check(args: argparse.Namespace) -> int:
             "fault": r.case.name, "did": r.narrative, "outcome": r.outcome,
             "expected": r.case.expect,
             "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
-            "placements": r.trace.placements} for r in results], indent=1))
+            "placements": r.trace.placements, "landings": r.trace.landings}
+            for r in results], indent=1))
+    from drovisio.mission.check import landing_lines
+
+    clean = next((r for r in results if not r.case.faults), None)
+    if clean is not None and clean.trace.landings:
+        print(f"landings of the '{clean.case.name}' run"
+              + (" (ArduPilot precision landing, "
+                 f"latency {scn.autopilot.latency_ms:g} ms, wind {scn.autopilot.wind_mps:g} m/s)"
+                 if scn.autopilot.precision_landing else "") + ":")
+        for line in landing_lines(clean.trace):
+            print("  " + line)
     for line in _landing_lines(scn, args.seed):
         print(line)
     _err(f"{len(results)} case(s) in {time.perf_counter() - t0:.1f} s: "
@@ -108,7 +123,14 @@ def _landing_lines(scn, seed: int, runs: int = 10) -> list[str]:
     from drovisio.mount import Mount
 
     layout = scn.layout(scn.layouts[0])
-    params = LandingParams(rate_hz=DetectorModelParams().rate_hz, seed=seed)
+    ap = scn.autopilot
+    d = DetectorModelParams()
+    params = LandingParams(rate_hz=ap.rate_hz if ap.rate_hz is not None else d.rate_hz,
+                           detect_prob=ap.detect_prob if ap.detect_prob is not None
+                           else LandingParams().detect_prob,
+                           latency_s=ap.latency_ms / 1e3,
+                           plnd_lag_s=None if ap.plnd_lag_ms is None else ap.plnd_lag_ms / 1e3,
+                           wind_mps=ap.wind_mps if ap.precision_landing else 3.0, seed=seed)
     return landing_report(camera_for(scn), Mount(body_from_camera_for(scn)), layout, params,
                           runs)
 
@@ -166,13 +188,18 @@ def _simulate(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     rules = check_rules(tr)
     out = write_recording(tr, args.record, extra={"wall_time_s": round(wall, 1),
-                                                  "rules": {r.rule: r.held for r in rules}})
+                                                  "rules": {r.rule: r.held for r in rules},
+                                                  "landings": tr.landings})
     print(f"outcome: {tr.final_state} after {tr.ticks[-1].t:.1f} s simulated "
           f"({wall:.1f} s wall); vision: {tr.detector}"
           + (f"; {tr.render_frames} rendered frames (render + detect "
              f"{tr.render_seconds:.0f} s), {tr.vision_frames - tr.render_frames} model frames"
              if params.vision == "render" else ""))
     print(f"what the machine did: {narrate(tr)}")
+    from drovisio.mission.check import landing_lines
+
+    for line in landing_lines(tr):
+        print(line)
     if tr.placements:
         print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
         for b, p in tr.placements.items():

@@ -28,7 +28,7 @@ from drovisio.mission.scenario import Scenario
 from drovisio.mission.sim import SimParams, Trace, simulate
 
 __all__ = ["RULES", "RuleResult", "check_rules", "CaseResult", "run_case", "run_fault_table",
-           "format_table", "narrate"]
+           "format_table", "narrate", "landing_lines"]
 
 RULES = ("retries", "safe_zone", "yaw_descent", "geofence", "placement")
 
@@ -238,3 +238,45 @@ def format_table(results: list[CaseResult]) -> str:
         if k == 0:
             lines.append("-+-".join("-" * x for x in w))
     return "\n".join(lines)
+
+
+def landing_lines(tr: Trace) -> list[str]:
+    """One line per pick descent of a run (:attr:`Trace.landings`): where it touched down
+    (truth), what it led to, and with the autopilot's precision landing whether its filter
+    initialised and where the brick left the picture; then a warning when the filter never
+    initialised on a descent."""
+    scn = tr.scenario
+    ap = scn.autopilot
+    lines: list[str] = []
+    never: list[str] = []
+    for d in tr.landings:
+        line = (f"pick descent onto {d['brick']} (t={d['t_start']:.1f}-{d['t_end']:.1f} s): "
+                f"{d['error_m'] * 100:.1f} cm from the brick's centre when it ended "
+                f"({d['outcome']})")
+        if ap.precision_landing:
+            if d["initialised"]:
+                line += f"; precision-landing filter initialised ({d['measurements']} targets"
+                if d["estimate_error_m"] is not None:
+                    line += f", its estimate then {d['estimate_error_m'] * 100:.1f} cm off"
+                line += ")"
+            else:
+                never.append(d["brick"])
+                line += (f"; precision-landing filter NEVER initialised ({d['measurements']} "
+                         f"targets, {d['init_failures']} Init Failed): it landed on the "
+                         "mission's own setpoint")
+            seen = d["last_seen_camera_height_m"]
+            blind = d["blind_height_m"]
+            line += ("; brick last seen " + (f"{seen:.2f} m" if seen is not None else "never")
+                     + " above it (camera), it leaves the picture "
+                     + (f"{blind:.2f} m above it" if blind is not None else "never")
+                     + " with this lens and mount")
+        lines.append(line)
+    if never:
+        rate = ap.rate_hz if ap.rate_hz is not None else tr.params.vision_params.rate_hz
+        prob = ap.detect_prob if ap.detect_prob is not None else \
+            1.0 - tr.params.vision_params.miss_prob
+        lines.append(f"WARNING: ArduPilot's precision-landing filter never initialised on "
+                     f"{', '.join(dict.fromkeys(never))}: it needs updates at most 0.5 s apart "
+                     f"for 2 s (2 Hz); the pipeline gives {rate * prob:.1f} detections a second "
+                     "(autopilot.rate_hz, autopilot.detect_prob)")
+    return lines

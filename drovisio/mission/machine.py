@@ -19,7 +19,10 @@ The strategy, as the thesis states it, with the choices made where it is silent:
   position at the approach height (1–2 m above it); acquire it by vision (by code id, or by
   position for bricks without ids); align position and yaw; descend while vision keeps the
   alignment; below ``blind_below_m`` (camera to target) descend blind, straight, on the total
-  station; grab; the picker sensor must confirm.
+  station; grab; the picker sensor must confirm. With the scenario's
+  ``autopilot.precision_landing`` the autopilot steers the pick descent on its own target
+  estimate: the contact is taken where it touches down (height and heading), not only within
+  ``contact_position_tolerance_m`` of the machine's setpoint.
 * climb to the cruise altitude; **drop phase**: go above the slot; find it from the bricks
   below it (course ≥ 2: the two it straddles, recognised by id or position; course 1: the
   plan through the total station and the heading, the placed neighbour must be seen);
@@ -690,7 +693,11 @@ def _blind(c: _Ctx, drop: bool) -> Setpoint | None:
     # and the heading is on its setpoint (a gust may have pushed the drone off)
     xy_err = float(np.hypot(sp.position[0] - c.p[0], sp.position[1] - c.p[1]))
     yaw_err = wrap_half(sp.yaw - c.yaw)
-    on_target = (c.ts_age <= th.ts_grace_s and xy_err < th.contact_position_tolerance_m
+    # with the autopilot's precision landing the pick's horizontal is the autopilot's: it
+    # touches down where its estimate says, and the picker sensor tells whether that was right
+    xy_ok = xy_err < th.contact_position_tolerance_m or (
+        not drop and scn.autopilot.precision_landing)
+    on_target = (c.ts_age <= th.ts_grace_s and xy_ok
                  and abs(yaw_err) < math.radians(th.contact_yaw_tolerance_deg))
     if _settled(c, z <= zc + 1e-9 and abs(c.p[2] - zc) < 0.02 and on_target, 0.2):
         c.ev("contact", brick=brick, xy_error_m=round(xy_err, 4),

@@ -13,7 +13,9 @@ YAML (or JSON) file with ``schema: drovisio/mission-scenario@1`` that says:
   of bricks below them (running bond), built in ``order``;
 * ``thresholds``, ``altitudes``, ``placement_tolerance``: alignment tolerances, the
   disagreement threshold, ``retries`` (failures of a phase before the safe zone), timings;
-* ``drone`` (picker geometry, camera and mount) and ``sensors`` (what is in use).
+* ``drone`` (picker geometry, camera and mount) and ``sensors`` (what is in use);
+* ``autopilot``: whether the pick descents are flown by ArduPilot's precision landing (off by
+  default) and what feeds it: detection rate and chance, latency, ``PLND_LAG``, wind.
 
 Frames: the site frame of :mod:`drovisio.mission.frames` (x east, y north, z up, metres);
 angles in files are degrees. Every problem is reported as a :class:`ScenarioError` naming the
@@ -236,6 +238,28 @@ class Drone(_M):
     camera: CameraSpec = CameraSpec()
 
 
+class Autopilot(_M):
+    """What feeds the autopilot's precision landing, and whether the simulator models it."""
+
+    precision_landing: bool = Field(
+        False, description="the pick descents are flown by ArduPilot's precision landing fed by "
+                           "the vision (lag buffer, 2 s initialisation, 2 s timeout, last "
+                           "estimate once the brick leaves the picture); off: the autopilot "
+                           "flies the mission's setpoints")
+    rate_hz: float | None = Field(None, gt=0, le=120, description="frames the pipeline processes "
+                                                                  "a second (default: 10)")
+    detect_prob: float | None = Field(None, gt=0, le=1, description="chance a frame showing the "
+                                                                    "brick detects it (default: "
+                                                                    "0.97)")
+    latency_ms: float = Field(50.0, ge=0, le=1000, description="capture to LANDING_TARGET at "
+                                                                "the autopilot")
+    plnd_lag_ms: float | None = Field(None, ge=0, le=1000, description="PLND_LAG (default: the "
+                                                                       "latency)")
+    wind_mps: float = Field(0.0, ge=0, le=20, description="steady wind (its gusts move the "
+                                                          "drone; the steady part is held by "
+                                                          "the autopilot)")
+
+
 class Sensors(_M):
     total_station: bool = True
     vision: bool = True
@@ -258,6 +282,7 @@ class Scenario(_M):
     placement_tolerance: Tolerance = Tolerance()
     drone: Drone = Drone()
     sensors: Sensors = Sensors()
+    autopilot: Autopilot = Autopilot()
 
     _source: Path | None = PrivateAttr(None)
     _layouts: dict[str, Any] = PrivateAttr(default_factory=dict)

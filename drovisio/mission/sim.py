@@ -17,6 +17,17 @@ One tick is ``dt`` seconds (0.05 s by default) of a simulated clock; the machine
 * **Vision**: :class:`~drovisio.mission.vision.DetectorModel` (every ``1/rate_hz`` s) or
   :class:`~drovisio.mission.vision.RenderVision` (only in the states that use vision, at
   ``render_rate_hz``); poses are turned into the body frame with the camera mount.
+* **Precision landing** (the scenario's ``autopilot.precision_landing``): the pick descents
+  are flown as ArduPilot flies them, by one
+  :class:`~drovisio.autopilot.precland.PrecLandEstimator` per brick fed the vision's sightings
+  of it as ``LANDING_TARGET`` messages (arriving ``latency_ms`` after the capture, paired with
+  the attitude and position ``PLND_LAG`` old); the horizontal setpoint of ``DESCEND_BRICK`` and
+  ``BLIND_DESCENT_BRICK`` is its estimate once initialised, its last estimate once lost, the
+  mission's own setpoint when it never initialised. The machine goes blind where the brick
+  leaves the picture (:func:`drovisio.autopilot.blind.blind_height`, this lens and mount) when
+  that is above ``altitudes.blind_below_m``. ``autopilot.wind_mps``: the steady wind is held
+  by the autopilot, its gusts' drag moves the drone. Each pick descent's touchdown (truth) is
+  in :attr:`Trace.landings`.
 * **Pick area**: each brick lies within ``pick_sigma_m`` / ``pick_yaw_sigma_deg`` of its
   scenario pick pose (laid by hand).
 
@@ -28,10 +39,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from drovisio.autopilot.precland import PrecLandEstimator
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.mission.faults import Fault
@@ -60,7 +72,7 @@ from drovisio.mission.vision import (
 )
 
 __all__ = ["SimParams", "Tick", "Trace", "Simulator", "simulate", "camera_for",
-           "body_from_camera_for"]
+           "body_from_camera_for", "landing_blind_heights"]
 
 
 @dataclass
@@ -130,6 +142,14 @@ class Trace:
     render_seconds: float = 0.0
     detector: str = "model"
     render_frames: int = 0
+    landings: list[dict] = field(default_factory=list)
+    """One per pick descent (``DESCEND_BRICK`` to what followed): ``brick``, ``outcome`` (the
+    state it led to), ``error_m`` (truth: body origin to the brick's centre, horizontal, when
+    the descent ended), and with precision landing ``initialised`` (the filter was
+    initialised at some tick of this descent), ``init_failures`` and ``measurements`` (since
+    the brick was first looked for), ``last_seen_camera_height_m`` (camera above the brick's top at the last
+    LANDING_TARGET sent), ``blind_height_m`` (where the brick leaves the picture, this lens
+    and mount), ``estimate_error_m`` (the estimate flown to, against the truth)."""
 
     @property
     def completed(self) -> bool:
@@ -172,6 +192,56 @@ def body_from_camera_for(scn: Scenario) -> np.ndarray:
     T[:3, :3] = tilt @ R
     T[:3, 3] = m.offset_m
     return T
+
+
+_NED_FROM_SITE = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+"""The site is x east, y north, z up; ArduPilot's local frame is north, east, down."""
+_PICK_FEED = (State.ACQUIRE_BRICK.value, State.ALIGN_BRICK.value, State.DESCEND_BRICK.value,
+              State.BLIND_DESCENT_BRICK.value)
+_PICK_DESCENT = (State.DESCEND_BRICK.value, State.BLIND_DESCENT_BRICK.value)
+
+
+def landing_blind_heights(scn: Scenario, camera: Camera | None = None,
+                          body_from_camera: np.ndarray | None = None) -> dict[str, float | None]:
+    """Per layout, the camera height above a brick at which it leaves the picture on the way
+    down (None: seen all the way), with the scenario's lens and mount
+    (:func:`drovisio.autopilot.blind.blind_height`).
+
+    Raises:
+        ScenarioError: with ``autopilot.precision_landing``, a brick the descent cannot see:
+            never in the picture right below the drone, or gone above the approach height.
+    """
+    from drovisio.autopilot.blind import blind_height
+    from drovisio.mission.scenario import ScenarioError
+    from drovisio.mount import Mount
+
+    camera = camera if camera is not None else camera_for(scn)
+    mount = Mount(body_from_camera if body_from_camera is not None else body_from_camera_for(scn))
+    out: dict[str, float | None] = {}
+    never = False
+    for name in scn.layouts:
+        bh = blind_height(camera, mount, scn.layout(name))
+        out[name] = bh.leaves_at_m
+        never |= bh.highest_seen_m is None
+    if not scn.autopilot.precision_landing:
+        return out
+    where = f"{scn.source}: " if scn.source is not None else ""
+    if never:
+        raise ScenarioError(
+            f"{where}drone.camera.mount.tilt_deg: with this lens and mount the brick right "
+            "below the drone is never in the picture: with autopilot.precision_landing the "
+            "drone would never see it to land on; tilt the camera less")
+    highest = max((b for b in out.values() if b is not None), default=0.0)
+    down = scn.drone.camera.mount.offset_m[2]
+    approach_cam = scn.altitudes.approach_m - down
+    if highest >= approach_cam - 0.05:
+        raise ScenarioError(
+            f"{where}altitudes.approach_m: with this lens and mount the brick below leaves the "
+            f"picture {highest:.2f} m above it (camera height), above the approach "
+            f"({approach_cam:.2f} m): with autopilot.precision_landing the drone would never "
+            f"see it to land on; raise approach_m above {highest + down + 0.1:.2f} m (and "
+            "cruise_m with it) or tilt the camera less")
+    return out
 
 
 class _FaultState:
@@ -244,10 +314,45 @@ class Simulator:
         self.faults = tuple(faults)
         self.progress = progress
         self.rng = np.random.default_rng(self.p.seed)
-        self.machine = Machine(scenario)
         self.camera = camera_for(scenario)
         self.mount = body_from_camera_for(scenario)
-        self.model = DetectorModel(self.camera, self.p.vision_params)
+        ap = scenario.autopilot
+        vp = self.p.vision_params
+        if ap.rate_hz is not None:
+            vp = replace(vp, rate_hz=ap.rate_hz)
+        if ap.detect_prob is not None:
+            vp = replace(vp, miss_prob=1.0 - ap.detect_prob)
+        self.vision_params = vp
+        self._next_frame = 0.0
+        self.model = DetectorModel(self.camera, vp)
+        # the autopilot's own draws (wind) come from their own stream: the scenario's other
+        # draws stay those of a run without it
+        self.ap_rng = np.random.default_rng([self.p.seed, 0x504C4E44])
+        self.precland = ap.precision_landing
+        self.latency_s = ap.latency_ms / 1e3
+        self.plnd_lag_s = (ap.latency_ms if ap.plnd_lag_ms is None else ap.plnd_lag_ms) / 1e3
+        self.blind_m: dict[str, float | None] = {}
+        machine_scn = scenario
+        if self.precland:
+            self.blind_m = landing_blind_heights(scenario, self.camera, self.mount)
+            highest = max((b for b in self.blind_m.values() if b is not None), default=0.0)
+            alt = scenario.altitudes
+            if highest + 0.02 > alt.blind_below_m:
+                # vision is lost above the scenario's blind height: the descent goes blind there
+                machine_scn = scenario.model_copy(update={"altitudes": alt.model_copy(
+                    update={"blind_below_m": highest + 0.02})})
+        self.machine = Machine(machine_scn)
+        self.estimator: PrecLandEstimator | None = None
+        self.estimator_brick: str | None = None
+        self.last_sent_h: float | None = None
+        self.landing: dict | None = None
+        self.landings: list[dict] = []
+        self.wind = np.zeros(2)
+        if ap.wind_mps > 0:
+            a = self.ap_rng.uniform(0.0, 2 * math.pi)
+            self.wind = np.array([math.cos(a), math.sin(a)]) * ap.wind_mps
+        self.air_gust = np.zeros(2)
+        self.v_wind = np.zeros(2)
         self.render = None
         if self.p.vision == "render":
             self.render = RenderVision(self.camera, [scenario.layout(n) for n in scenario.layouts],
@@ -355,10 +460,16 @@ class Simulator:
         k = int(round(t / p.dt))
         use_render = self.render is not None and state in {s.value for s in VISION_STATES} and (
             p.render_bricks is None or brick in p.render_bricks)
-        rate = p.render_rate_hz if use_render else p.vision_params.rate_hz
-        every = max(1, int(round(1.0 / (rate * p.dt))))
-        if k % every:
-            return None
+        rate = p.render_rate_hz if use_render else self.vision_params.rate_hz
+        if self.scn.autopilot.rate_hz is not None and not use_render:
+            # a rate the tick does not divide: frames on the ticks nearest to it
+            if t + 1e-9 < self._next_frame:
+                return None
+            self._next_frame += 1.0 / rate
+        else:
+            every = max(1, int(round(1.0 / (rate * p.dt))))
+            if k % every:
+                return None
         self.vision_frames += 1
         if self.fs.get("vision_loss", t):
             return ()
@@ -376,6 +487,94 @@ class Simulator:
                 bfb[:3, 3] += shift
             out.append(Sighting(s.layout, s.instance, bfb))
         return tuple(out)
+
+    # ------------------------------------------------------------------ precision landing
+    def _target_vector(self, vis, brick: str) -> np.ndarray | None:
+        """The current brick's centre in the body frame (FRD, m) in this frame's sightings:
+        what Drovisio sends as its ``LANDING_TARGET``."""
+        b = self.scn.brick_by_id[brick]
+        has_ids = self.scn.layout_of(brick).has_codes
+        best: np.ndarray | None = None
+        for sgt in vis:
+            if sgt.layout != b.layout or (has_ids and sgt.instance != b.instance):
+                continue
+            v = np.asarray(sgt.body_from_brick, float)[:3, 3]
+            if best is None or math.hypot(v[0], v[1]) < math.hypot(best[0], best[1]):
+                best = v   # without ids: the one nearest below the drone
+        return best
+
+    def _precland_tick(self, t: float, state: str, brick: str | None, vis) -> None:
+        """The autopilot's side of one tick: its state into the lag buffer, the target seen in
+        this frame sent, the filter updated."""
+        if state in _PICK_FEED and brick is not None and (
+                self.estimator is None or self.estimator_brick != brick):
+            self.estimator = PrecLandEstimator(self.plnd_lag_s, self.p.dt)
+            self.estimator_brick = brick
+            self.last_sent_h = None
+        est = self.estimator
+        if est is None:
+            return
+        nav = self.pos + self.est_err
+        yaw_est = self.yaw + self.bias   # the autopilot rotates by its own heading
+        est.record(np.array([nav[1], nav[0]]),
+                   _NED_FROM_SITE @ site_from_body(nav, yaw_est)[:3, :3])
+        if vis and state in _PICK_FEED and brick == self.estimator_brick:
+            v = self._target_vector(vis, brick)
+            if v is not None:
+                # on the simulator's clock (rounded like its ticks): a message due at a tick
+                # is taken at that tick, paired with the state PLND_LAG before it
+                est.send(round(t + self.latency_s, 6), v)
+                cam = site_from_body(self.pos, self.yaw) @ self.mount[:, 3]
+                self.last_sent_h = float(cam[2] - self.bricks[brick][2, 3])
+        est.update(t)
+
+    def _precland_xy(self) -> np.ndarray | None:
+        """Where the autopilot flies in a pick descent: the estimate, else the last one."""
+        est = self.estimator
+        if est is None:
+            return None
+        e = est.estimate if est.estimate is not None else est.last_estimate
+        return None if e is None else np.array([e[1], e[0]])
+
+    def _landing_record(self, t: float, before: str, after: str) -> None:
+        """Open a record when a pick descent starts, close it when it ends."""
+        brick = self._brick()
+        if after == State.DESCEND_BRICK.value and before != after and self.landing is None \
+                and brick is not None:
+            self.landing = {"brick": brick, "t_start": round(t, 3)}
+            if self.estimator is not None:
+                # a last estimate holds within one descent: one from an earlier attempt is
+                # stale (not acquired now, the autopilot lands where the mission put it)
+                self.estimator.last_estimate = self.estimator.estimate
+            return
+        if self.landing is None:
+            return
+        if self.estimator is not None and self.estimator.acquired:
+            self.landing["initialised"] = True
+        if after in _PICK_DESCENT:
+            return
+        b = self.landing["brick"]
+        T = self.bricks[b]
+        rec = dict(self.landing, t_end=round(t, 3), outcome=after,
+                   error_m=round(math.dist(self.pos[:2], T[:2, 3]), 4))
+        est = self.estimator
+        if self.precland and est is not None and self.estimator_brick == b:
+            xy = self._precland_xy()
+            rec.update(initialised=bool(self.landing.get("initialised")),
+                       init_failures=est.init_fail,
+                       measurements=est.n_meas,
+                       last_seen_camera_height_m=None if self.last_sent_h is None
+                       else round(self.last_sent_h, 3),
+                       blind_height_m=self.blind_m.get(self.scn.brick_by_id[b].layout),
+                       estimate_error_m=None if xy is None
+                       else round(math.dist(xy, T[:2, 3]), 4))
+        elif self.precland:
+            rec.update(initialised=False, init_failures=0, measurements=0,
+                       last_seen_camera_height_m=None,
+                       blind_height_m=self.blind_m.get(self.scn.brick_by_id[b].layout),
+                       estimate_error_m=None)
+        self.landings.append(rec)
+        self.landing = None
 
     # ------------------------------------------------------------------ picker
     def _picker(self, cmd: str, t: float, brick: str | None) -> None:
@@ -408,7 +607,10 @@ class Simulator:
             self.held, self.held_T = None, None
 
     # ------------------------------------------------------------------ dynamics
-    def _move(self, out: Output, t: float, has_ts: bool, ts) -> None:
+    def _move(self, out: Output, t: float, has_ts: bool, ts,
+              xy: np.ndarray | None = None) -> None:
+        """``xy``: the autopilot's own horizontal target (precision landing) instead of the
+        setpoint's."""
         p = self.p
         dt = p.dt
         # autopilot estimate error: the total station resets it, else it drifts
@@ -423,8 +625,12 @@ class Simulator:
         gust = self.vel_gust.copy()
         for _, v in self.fs.get("gust", t):
             gust = gust + v
+        if self.scn.autopilot.wind_mps > 0:
+            gust[:2] += self._wind_push(dt)
         if out.motors and out.setpoint is not None:
-            sp = np.asarray(out.setpoint.position)
+            sp = np.array(out.setpoint.position, float)
+            if xy is not None:
+                sp[:2] = xy
             est = self.pos + self.est_err
             v = (sp - est) / p.settle_tau_s
             vh = float(np.hypot(v[0], v[1]))
@@ -438,6 +644,23 @@ class Simulator:
             self.yaw = wrap_pi(self.yaw + float(np.clip(dyaw, -rate, rate)) * dt
                                + self.rng.normal(0.0, math.radians(p.yaw_noise_deg)) * math.sqrt(dt))
         self.pos[2] = max(self.pos[2], self._floor())
+
+    def _wind_push(self, dt: float) -> np.ndarray:
+        """The drift velocity (m/s) the wind's gusts leave: the steady wind's drag is held by
+        the autopilot (as in :mod:`drovisio.autopilot.precland`, whose constants these are);
+        the gusts' extra drag accelerates the drone until its position loop
+        (``settle_tau_s``) takes it back."""
+        from drovisio.autopilot.precland import LandingParams
+
+        lp = LandingParams()
+        w = float(np.hypot(*self.wind))
+        a = math.exp(-dt / lp.gust_tau_s)
+        self.air_gust = a * self.air_gust + math.sqrt(1 - a * a) * self.ap_rng.normal(
+            0.0, lp.gust_ratio * w, 2)
+        air = self.wind + self.air_gust
+        acc = lp.drag_per_m * (air * float(np.hypot(*air)) - self.wind * w)
+        self.v_wind = self.v_wind + (acc - self.v_wind / self.p.settle_tau_s) * dt
+        return self.v_wind
 
     # ------------------------------------------------------------------ run
     def run(self) -> Trace:
@@ -454,7 +677,10 @@ class Simulator:
             yaw_est = wrap_pi(self.yaw + self.bias + self.rng.normal(0.0, math.radians(0.05)))
             readings = Readings(t=t, ts_position=ts, nav_position=tuple(self.pos + self.est_err),
                                 nav_yaw=yaw_est, vision=vis, holding=self.held is not None)
+            if self.precland:
+                self._precland_tick(t, state, brick, vis)
             out = self.machine.step(readings)
+            self._landing_record(t, state, out.state.value)
             if out.state.value != state:
                 self.fs.on_state(t, out.state.value, self._brick(), self.rng)
             self._picker(out.picker, t, self._brick())
@@ -472,13 +698,15 @@ class Simulator:
                         self.progress(f"t={t:7.1f} s  {e}")
             if out.state in TERMINAL_STATES:
                 break
-            self._move(out, t, ts is not None, ts)
+            xy = self._precland_xy() if self.precland and out.state.value in _PICK_DESCENT \
+                else None
+            self._move(out, t, ts is not None, ts, xy)
         final = ticks[-1].state if ticks else State.IDLE.value
         return Trace(scn, p, ticks, self.faults, final, self._placements(),
                      self._brick_poses(), self.vision_frames,
                      self.render.seconds if self.render else 0.0,
                      ", ".join(self.render.detector_names) if self.render else "model",
-                     self.render.frames if self.render else 0)
+                     self.render.frames if self.render else 0, self.landings)
 
     def _brick(self) -> str | None:
         i = self.machine.memory.brick_index

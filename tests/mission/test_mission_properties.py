@@ -61,3 +61,26 @@ def test_safety_rules_hold_under_random_faults(small, fs, seed):
         assert tr.final_state == "SHUTDOWN"
         sz = small.site.safe_zone
         assert math.dist(tr.ticks[-1].position[:2], sz.center) <= sz.radius
+
+
+@settings(max_examples=6, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(fs=st.lists(faults(), min_size=0, max_size=3), seed=st.integers(0, 10_000),
+       rate=st.sampled_from([1.8, 4.0, 15.0]), wind=st.floats(0.0, 6.0),
+       latency_ms=st.floats(0.0, 200.0))
+def test_safety_rules_hold_with_the_autopilots_precision_landing(small, fs, seed, rate, wind,
+                                                                  latency_ms):
+    """The autopilot flying the pick descents on its own estimate (ArduPilot's model) does not
+    break a rule: it only moves the touchdown, and the picker sensor decides."""
+    scn = small.model_copy(update={"autopilot": small.autopilot.model_copy(update={
+        "precision_landing": True, "rate_hz": rate, "wind_mps": wind,
+        "latency_ms": latency_ms})})
+    tr = simulate(scn, tuple(fs), SimParams(seed=seed, max_time_s=900))
+    assert tr.final_state in ("DONE", "SHUTDOWN"), (tr.final_state, fs)
+    rules = {r.rule: r for r in check_rules(tr)}
+    for name in ("retries", "safe_zone", "yaw_descent", "geofence"):
+        assert rules[name].held, (name, rules[name].detail, fs, seed)
+    for d in tr.landings:
+        assert 0.0 <= d["error_m"] < 1.0 and isinstance(d["initialised"], bool)
+        if rate < 2.0:
+            assert not d["initialised"]
