@@ -74,7 +74,10 @@ def check_source(source: str) -> None:
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - a reader's own words, one line
-        raise InputError(f"{source}: --source: {one_line(e, 300)}") from None
+        why = str(e)
+        for said in (f"{source}: ", f"{getattr(reader, 'label', source)}: "):
+            why = why.removeprefix(said)  # the path is said once
+        raise InputError(f"{source}: --source: {one_line(why, 300)}") from None
     finally:
         try:
             reader.close()
