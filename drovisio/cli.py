@@ -728,9 +728,12 @@ def _crash_report(command: str, exc: BaseException) -> str | None:
     text = "".join(traceback.format_exception(exc))
     name = f"drovisio-{command}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
     path = Path(tempfile.gettempdir()) / name
+    from drovisio.fileio import atomic_write_text
+
     try:
-        path.write_text(f"drovisio {_version()} {command}\n{' '.join(sys.argv)}\n\n{text}",
-                        encoding="utf-8")
+        # never over an existing name: in a shared /tmp it may be another user's symlink
+        atomic_write_text(path, f"drovisio {_version()} {command}\n{' '.join(sys.argv)}\n\n"
+                                f"{text}", overwrite=False, mode=0o600)
     except OSError:
         return None
     return str(path)

@@ -192,9 +192,10 @@ def _frames(kind: str, n_bricks: int, count: int, seed0: int, layouts, ss: int,
         fr = Frame(r.image, r.bricks, gravity_in_camera(r.camera_from_world),
                    _visibility(scene), float(fx.blur_sigma_px))
         if path is not None:
-            cache.mkdir(parents=True, exist_ok=True)
-            with open(path, "wb") as fh:
-                pickle.dump(fr, fh)
+            from drovisio.fileio import atomic_write_bytes
+
+            # beside and renamed: a run killed mid-write leaves no half pickle behind
+            atomic_write_bytes(path, pickle.dumps(fr), make_parents=True)
         yield fr
 
 
