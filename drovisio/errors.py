@@ -77,7 +77,7 @@ class Limits:
         memory by default."""
         self.max_work_samples = int(_env_float("DROVISIO_MAX_WORK_GSAMPLES", 100.0) * 1e9)
         """Most pixel samples one job (a study protocol) may render and detect in all,
-        estimated before it starts: 100 G by default, about 40 times the full default
+        estimated before it starts: 100 G by default, about 30 times the full default
         study."""
         self.max_digits = 30
         """Most digits of an integer read from an argument or a file (Python refuses 4,300)."""
