@@ -670,13 +670,17 @@ def _sub_commands() -> list[str]:
 
 
 def build_command_parser(cmd: Command) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
+    from drovisio.bounds import ArgumentParser
+
+    p = ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
     cmd.add_arguments(p)
     return p
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from drovisio.bounds import ArgumentParser
+
+    parser = ArgumentParser(
         prog=PROG,
         description="Drovisio: local positioning for builder drones.\n"
                     "Finds bricks by their colour dots or ArUco codes and gives each brick's "

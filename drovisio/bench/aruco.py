@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drovisio.bounds import MAX_SUPERSAMPLING, whole
+from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
 
 FLIP_DEG = 20.0
 MIN_CODE_PX = 14.0
@@ -66,7 +66,7 @@ SIZE_BINS = ((MIN_CODE_PX, 20.0, "14-20 px"), (20.0, 30.0, "20-30 px"), (30.0, m
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="drovisio bench aruco",
         description="Speed (vs plain cv2 ArucoDetector.detectMarkers) and accuracy (vs the "
                     "renderer's truth) of the ArUco brick detector on rendered drick scenes.",

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drovisio.bounds import whole
+from drovisio.bounds import ArgumentParser, whole
 
 EXAMPLE = """example:
   drovisio bench dots                      # all parts, default frame counts (~15 min first run)
@@ -60,7 +60,7 @@ PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory", "kerne
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="drovisio bench dots",
         description="Benchmark of the colour-dot detector on rendered scenes: "
                     "recall, pose errors, flips, false bricks, lighting, speed, memory.",
