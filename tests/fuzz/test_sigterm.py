@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -163,5 +164,65 @@ def test_serve_ends_on_sigterm_with_a_viewer_on_a_stalled_stream(stalling_stream
                 h.close()
             except Exception:  # noqa: BLE001,S110 - the server may have closed it first
                 pass
+    assert "Traceback" not in out, out[-3000:]
+    assert rc in (0, -signal.SIGTERM), out[-2000:]
+
+
+def test_serve_ends_on_sigterm_after_requests_on_fifos(tmp_path, ledger):
+    """A replay folder whose recordings name a FIFO (as their manifest, or as the ticks file
+    their manifest names): the listing and the loads answer at once (a FIFO is never
+    opened), and the server still ends on SIGTERM."""
+    import json
+    import shutil
+
+    from drovisio.resources import sample_sessions_dir
+
+    ledger.tried_one("signals: SIGTERM")
+    src = next(p.parent for p in (sample_sessions_dir() / "missions").rglob("manifest.json"))
+    root = tmp_path / "runs"
+    ticks = root / "ticks-fifo"
+    ticks.mkdir(parents=True)
+    manifest = json.loads((src / "manifest.json").read_text())
+    manifest["ticks_file"] = "ticks.fifo"
+    (ticks / "manifest.json").write_text(json.dumps(manifest))
+    os.mkfifo(ticks / "ticks.fifo")
+    (root / "manifest-fifo").mkdir()
+    os.mkfifo(root / "manifest-fifo" / "manifest.json")
+    shutil.copytree(src, root / "good")
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    proc = _start(["serve", "--port", str(port), "--replay-dir", str(root)])
+    try:
+        deadline = time.monotonic() + 90
+        while True:
+            try:
+                urllib.request.urlopen(base + "/api/health", timeout=2).read()
+                break
+            except OSError:
+                assert proc.poll() is None
+                assert time.monotonic() < deadline, "serve did not start"
+                time.sleep(0.5)
+        with urllib.request.urlopen(base + "/api/replay/runs", timeout=BOUND_S) as r:
+            listing = json.loads(r.read())
+        assert r.status == 200 and "good" in json.dumps(listing)
+        for name in ("ticks-fifo", "manifest-fifo"):
+            req = urllib.request.Request(base + "/api/replay/load", method="POST",
+                                         data=json.dumps({"name": name}).encode(),
+                                         headers={"Content-Type": "application/json",
+                                                  "Origin": base})
+            try:
+                urllib.request.urlopen(req, timeout=BOUND_S)
+                pytest.fail(f"{name}: loaded")
+            except urllib.error.HTTPError as e:
+                assert 400 <= e.code < 500, (name, e.code)
+                body = e.read().decode()
+                # the field and the reason, never the FIFO's (absent) content
+                assert ("ticks_file" in body and "not a regular file" in body
+                        if name == "ticks-fifo" else "manifest.json" in body), body
+        assert proc.poll() is None
+    except BaseException:
+        proc.kill()
+        raise
+    rc, out = _terminate(proc)
     assert "Traceback" not in out, out[-3000:]
     assert rc in (0, -signal.SIGTERM), out[-2000:]
