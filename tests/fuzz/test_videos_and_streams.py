@@ -238,3 +238,31 @@ def test_a_stalled_stream_is_lost_after_its_read_deadline(ledger):
         assert url in str(e.value) and "within 1 s" in str(e.value)
     finally:
         peer.close()
+
+
+@pytest.mark.parametrize("announced", [400_000_000, 4_000_000_000])
+def test_a_huge_announced_frame_count_costs_nothing(small_avi, tmp_path, announced, ledger):
+    """A header that announces hundreds of millions of frames: the 5 real frames play, then
+    one line says where the file ends (a count of 10^9 or more is taken as unknown)."""
+    ledger.tried_one("videos: header frame count")
+    d = bytearray(small_avi.read_bytes())
+    i = d.find(b"avih")
+    struct.pack_into("<I", d, i + 8 + 16, announced)      # dwTotalFrames
+    j = d.find(b"strh")
+    struct.pack_into("<I", d, j + 8 + 32, announced)      # the video stream's dwLength
+    p = tmp_path / "many.avi"
+    p.write_bytes(bytes(d))
+    rd = VideoFileReader(p)
+    rd.open()
+    got = []
+    with pytest.raises(Exception) as end:  # noqa: PT011 - EndOfStream, after the frames
+        for _ in range(50):  # bounded: a reader that believed the header would go on
+            f = rd.read()
+            got.append((f.index, f.error))
+    rd.close()
+    assert type(end.value).__name__ == "EndOfStream"
+    assert [g[0] for g in got[:5]] == [0, 1, 2, 3, 4] and all(g[1] is None for g in got[:5])
+    if announced < 10**9:
+        assert len(got) == 6 and f"{announced - 5} frames before" in got[5][1]
+    else:
+        assert len(got) == 5
