@@ -143,3 +143,27 @@ def test_the_crash_report_does_not_follow_a_planted_symlink(tmp_path, monkeypatc
     text = Path(path).read_text()
     assert "RuntimeError: boom" in text and text.startswith("drovisio ")
     assert (Path(path).stat().st_mode & 0o777) == 0o600
+
+
+@pytest.mark.parametrize("meta", ["", "{", "[]", '{"gravity": [0, 0, 1]}',
+                                  '{"gravity": "x", "bricks": [{"nope": 1}]}'])
+def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger):
+    """bench dots' cache: an entry half written by an older version or a killed run (its
+    JSON broken) is rendered again; a sound entry is read back as written."""
+    import cv2
+
+    from drovisio.bench.dots import FrameSource
+    from drovisio.layout import load_layout
+    from drovisio.resources import layouts_dir
+
+    ledger.tried_one("writers: bench cache")
+    src = FrameSource(load_layout(layouts_dir() / "drick-dots-2x3.json"), tmp_path)
+    png, js = tmp_path / "k-1-t.png", tmp_path / "k-1-t.json"
+    cv2.imwrite(str(png), np.full((8, 8, 3), 7, np.uint8))
+    js.write_text(meta)
+    hit, p, j = src._cached("k", 1, "t")
+    assert hit is None and (p, j) == (png, js)
+    js.write_text(json.dumps({"gravity": [0.0, 0.0, 1.0], "bricks": []}))
+    hit, _, _ = src._cached("k", 1, "t")
+    assert hit is not None and hit.image.shape == (8, 8, 3) and int(hit.image[0, 0, 0]) == 7
+    assert hit.gravity.tolist() == [0.0, 0.0, 1.0]
