@@ -167,3 +167,29 @@ def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger
     hit, _, _ = src._cached("k", 1, "t")
     assert hit is not None and hit.image.shape == (8, 8, 3) and int(hit.image[0, 0, 0]) == 7
     assert hit.gravity.tolist() == [0.0, 0.0, 1.0]
+
+
+def test_a_stale_bench_aruco_cache_file_is_rendered_again_and_replaced_whole(tmp_path,
+                                                                            ledger):
+    """bench aruco's cache: a pickle of a class that no longer exists (or a cut file) is a
+    miss; the fresh frame is written beside and renamed (no half pickle is ever left)."""
+    import pickle
+
+    from drovisio.bench.aruco import _frames
+    from drovisio.layout import load_layout
+    from drovisio.resources import layouts_dir
+
+    ledger.tried_one("writers: bench cache")
+    lay = load_layout(layouts_dir() / "drick-aruco-centre.json")
+    seed = 0 + 100_000 * 2 + 0
+    path = tmp_path / f"t-{lay.name}-b1-s{seed}-ss1.pkl"
+    from collections import OrderedDict
+
+    # a pickle of a class whose module is gone (same length: the opcodes stay valid)
+    path.write_bytes(pickle.dumps(OrderedDict()).replace(b"collections", b"no_such_mod"))
+    with pytest.raises(ImportError):
+        pickle.loads(path.read_bytes())
+    fr = next(_frames("t", 1, 1, 0, [lay], 1, tmp_path))
+    again = pickle.loads(path.read_bytes())
+    assert np.array_equal(again.image, fr.image) and again.image.ndim == 3
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary left beside
