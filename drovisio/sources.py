@@ -796,6 +796,29 @@ def _is_url(s: str) -> bool:
     return "://" in s and not s.startswith("file://")
 
 
+def _check_url(url: str) -> None:
+    """A stream URL that can never connect (no host, a port that is no port, broken
+    brackets) is refused now; a sound one is retried for as long as it is down.
+
+    Raises:
+        InputError: naming ``--source`` and what is wrong.
+    """
+    from urllib.parse import urlsplit
+
+    from drovisio.errors import one_line
+
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 - parsing the port is what may fail
+    except ValueError as e:
+        raise InputError(f"{one_line(url, 200)}: --source: not a usable URL ({e}); give "
+                         "e.g. rtsp://HOST:554/stream or http://HOST:8080/video") from None
+    if parts.scheme.lower() in ("http", "https", "rtsp", "rtsps", "rtmp", "tcp") \
+            and not parts.hostname:
+        raise InputError(f"{one_line(url, 200)}: --source: the URL names no host; give "
+                         f"e.g. {parts.scheme}://HOST:PORT/...")
+
+
 def _camera_index(s: str) -> int | None:
     if s.isdigit():
         return int(s)
@@ -816,6 +839,7 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
     if cam is not None:
         return CameraReader(cam)
     if _is_url(s):
+        _check_url(s)
         return StreamReader(s)
     s = s.removeprefix("file://")
     p = Path(s)

@@ -266,3 +266,28 @@ def test_a_huge_announced_frame_count_costs_nothing(small_avi, tmp_path, announc
         assert len(got) == 6 and f"{announced - 5} frames before" in got[5][1]
     else:
         assert len(got) == 5
+
+
+@pytest.mark.parametrize("url", ["http://", "rtsp:///stream", "http://[::1", "http://[::1]:x/",
+                                 "tcp://127.0.0.1:99999", "https://h:-1/"])
+@pytest.mark.parametrize("command", ["run", "serve"])
+def test_a_stream_url_that_can_never_connect_is_refused_at_start_up(cli, hostile_files, url,
+                                                                    command):
+    f = hostile_files
+    argv = [command, "--source", url, "--camera", str(f["camera"]), "--layout",
+            str(f["layout"])]
+    argv += (["--sink", "jsonl:-", "--quiet"] if command == "run"
+             else ["--port", str(f["busy_port"])])
+    rc, out, err = cli(*argv, cls="network: stream URLs", seconds=30)
+    assert rc == 2, err[-300:]
+    line = err.strip().splitlines()[-1]
+    assert f"{url}: --source:" in line and "cannot listen" not in err
+    assert "Traceback" not in err and "internal error" not in err
+
+
+def test_a_sound_stream_url_is_left_to_reconnect():
+    from drovisio.sources import reader_for
+
+    for url in ("rtsp://cam.local:554/live", "udp://@:5000", "http://127.0.0.1:8080/v.mjpg",
+                "srt://10.0.0.2:9000"):
+        assert isinstance(reader_for(url), StreamReader), url
