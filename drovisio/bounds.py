@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from typing import NoReturn
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["MAX_SUPERSAMPLING", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
+__all__ = ["MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
 
 MOUNT_OFFSET_MAX_M = 10.0
 """Largest camera offset from the body origin, metres, in each axis: one bound for the mount
@@ -28,6 +29,18 @@ file, ``calibrate mount --offset`` and the mount page (a larger one is a unit mi
 MAX_SUPERSAMPLING = 8
 """Most renderer samples per pixel and axis (``--ss``): memory grows with its square (at 64 a
 640x480 render asks for tens of GiB); 8 is far past where edges stop changing."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """The command line's parser (every command's and every bench's): a usage error quotes
+    the argument it could not use cut to one short line (argparse echoes it whole: a
+    5,000-digit or multi-line argument made an error of pages)."""
+
+    def error(self, message: str) -> NoReturn:
+        import sys
+
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {one_line(message, 400)}\n")
 
 
 def _range(lo: float | None, hi: float | None, unit: str = "") -> str:

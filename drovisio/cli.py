@@ -671,13 +671,17 @@ def _sub_commands() -> list[str]:
 
 
 def build_command_parser(cmd: Command) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
+    from drovisio.bounds import ArgumentParser
+
+    p = ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
     cmd.add_arguments(p)
     return p
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from drovisio.bounds import ArgumentParser
+
+    parser = ArgumentParser(
         prog=PROG,
         description="Drovisio: local positioning for builder drones.\n"
                     "Finds bricks by their colour dots or ArUco codes and gives each brick's "
@@ -730,9 +734,12 @@ def _crash_report(command: str, exc: BaseException) -> str | None:
     text = "".join(traceback.format_exception(exc))
     name = f"drovisio-{command}-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
     path = Path(tempfile.gettempdir()) / name
+    from drovisio.fileio import atomic_write_text
+
     try:
-        path.write_text(f"drovisio {_version()} {command}\n{' '.join(sys.argv)}\n\n{text}",
-                        encoding="utf-8")
+        # never over an existing name: in a shared /tmp it may be another user's symlink
+        atomic_write_text(path, f"drovisio {_version()} {command}\n{' '.join(sys.argv)}\n\n"
+                                f"{text}", overwrite=False, mode=0o600)
     except OSError:
         return None
     return str(path)

@@ -75,6 +75,10 @@ class Limits:
                                              _half_the_memory_mib()) * 2**20)
         """Most memory one render may take (estimated before it starts): half this machine's
         memory by default."""
+        self.max_work_samples = int(_env_float("DROVISIO_MAX_WORK_GSAMPLES", 100.0) * 1e9)
+        """Most pixel samples one job (a study protocol) may render and detect in all,
+        estimated before it starts: 100 G by default, about 30 times the full default
+        study."""
         self.max_digits = 30
         """Most digits of an integer read from an argument or a file (Python refuses 4,300)."""
         self.connect_timeout_s = _env_float("DROVISIO_CONNECT_TIMEOUT_S", 5.0)

@@ -174,7 +174,9 @@ def guard_outputs(args: object) -> None:
     for name in OUTPUT_FOLDER_OPTIONS:
         v = getattr(args, name, None)
         if isinstance(v, (str, os.PathLike)):
-            outputs.append((f"--{name}", v, True))
+            # --record FILE.mcap is a file (the start-up check refuses an existing one)
+            is_file = name == "record" and os.fspath(v).lower().endswith(".mcap")
+            outputs.append((f"--{name}", v, not is_file))
     for spec in getattr(args, "sink", None) or []:
         if isinstance(spec, str) and spec.strip().startswith("jsonl:") \
                 and spec.strip() != "jsonl:-":

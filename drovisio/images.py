@@ -24,12 +24,14 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "ImageError",
     "VIDEO_SUFFIXES",
+    "check_frame_size",
     "decode_image",
     "header_size",
     "is_image_file",
     "is_video_file",
     "read_image",
     "to_bgr8",
+    "video_header_size",
 ]
 
 IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm",
@@ -243,3 +245,94 @@ def _check_size(w: int, h: int) -> None:
         raise ImageError(f"the image is {w}x{h} ({w * h / 1e6:.0f} Mpx), more than the "
                          f"{LIMITS.max_image_pixels / 1e6:.0f} Mpx Drovisio decodes; "
                          "resize it (or set DROVISIO_MAX_IMAGE_MPX)")
+
+
+def check_frame_size(w: int, h: int) -> None:
+    """Refuse a frame size over the image caps (:attr:`~drovisio.errors.Limits.max_image_pixels`
+    and ``max_image_side``), before any pixel of it is allocated.
+
+    Raises:
+        ImageError: the size and the cap, in one line.
+    """
+    _check_size(w, h)
+
+
+#: most top-level MP4/MOV boxes walked, and most bytes of a ``moov`` box read, when looking
+#: for the frame size (a hostile file may announce millions of boxes)
+_MP4_MAX_BOXES = 64
+_MP4_MAX_MOOV_BYTES = 16 * 2**20
+
+
+def video_header_size(path: str | os.PathLike) -> tuple[int, int] | None:
+    """The largest frame size (width, height, pixels) a video's container announces, read
+    from its header without decoding: AVI (``avih`` and the video stream's
+    ``BITMAPINFOHEADER``) and MP4/MOV (each track's ``tkhd``). None when the container is
+    another one or the header cannot be parsed (the decoder's own size is checked after
+    opening, before the first frame is read).
+    """
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(64 * 1024)
+            if head[:4] == b"RIFF" and head[8:12] == b"AVI ":
+                return _avi_size(head, struct)
+            if head[4:8] in (b"ftyp", b"moov", b"mdat", b"free", b"wide", b"skip"):
+                return _mp4_size(f, struct)
+    except (OSError, struct.error, ValueError):
+        return None
+    return None
+
+
+def _avi_size(head: bytes, struct) -> tuple[int, int] | None:
+    sizes: list[tuple[int, int]] = []
+    i = head.find(b"avih")
+    if i >= 0 and len(head) >= i + 48:
+        w, h = struct.unpack_from("<II", head, i + 8 + 32)
+        sizes.append((w, h))
+    i = head.find(b"strf")
+    if i >= 0 and len(head) >= i + 20:
+        w, h = struct.unpack_from("<ii", head, i + 8 + 4)  # BITMAPINFOHEADER biWidth/biHeight
+        sizes.append((abs(w), abs(h)))
+    return max(sizes, key=lambda s: s[0] * s[1]) if sizes else None
+
+
+def _mp4_size(f, struct) -> tuple[int, int] | None:
+    f.seek(0, os.SEEK_END)
+    end = f.tell()
+    pos = 0
+    for _ in range(_MP4_MAX_BOXES):
+        if pos + 8 > end:
+            return None
+        f.seek(pos)
+        size, kind = struct.unpack(">I4s", f.read(8))
+        body = pos + 8
+        if size == 1:
+            size = struct.unpack(">Q", f.read(8))[0]
+            body += 8
+        elif size == 0:
+            size = end - pos
+        if size < body - pos:
+            return None
+        if kind == b"moov":
+            moov = f.read(min(size - (body - pos), _MP4_MAX_MOOV_BYTES))
+            return _tkhd_size(moov, struct)
+        pos += size
+    return None
+
+
+def _tkhd_size(moov: bytes, struct) -> tuple[int, int] | None:
+    best: tuple[int, int] | None = None
+    i = moov.find(b"tkhd")
+    while i >= 0:
+        version = moov[i + 4] if len(moov) > i + 4 else 0
+        # version, flags, times and ids (v0: 20 bytes after them, v1: 32), reserved, layer,
+        # group, volume, reserved, matrix: width and height are 16.16 fixed point at the end
+        at = i + 4 + 4 + (32 if version == 1 else 20) + 8 + 8 + 36
+        if len(moov) >= at + 8:
+            w, h = struct.unpack_from(">II", moov, at)
+            size = (w >> 16, h >> 16)
+            if best is None or size[0] * size[1] > best[0] * best[1]:
+                best = size
+        i = moov.find(b"tkhd", i + 4)
+    return best

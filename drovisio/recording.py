@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import queue
-import shutil
 import threading
 import time
 from datetime import UTC, datetime
@@ -28,31 +27,76 @@ from pathlib import Path
 
 import cv2
 
-from drovisio.fileio import atomic_write_text
+from drovisio.fileio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["RECORDING_SCHEMA", "Recorder", "read_index"]
+__all__ = ["RECORDING_SCHEMA", "Recorder", "holds_recording", "read_index"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
 
 
+def holds_recording(folder: str | Path) -> bool:
+    """Whether ``folder`` already holds (part of) a recording: a manifest, an index or a
+    frame. ``run`` and ``serve`` refuse such a ``--record`` folder at start-up, so that a new
+    recording never mixes into, or overwrites, an older one."""
+    f = Path(folder)
+    if (f / "recording.json").exists() or (f / "frames.jsonl").exists():
+        return True
+    try:
+        return (f / "frames").is_dir() and any((f / "frames").iterdir())
+    except OSError:
+        return True
+
+
+def _next_frame_number(frames: Path) -> int:
+    """One past the highest ``NNNNNN.jpg`` in ``frames`` (0 when none)."""
+    top = -1
+    try:
+        for e in frames.iterdir():
+            stem = e.name.partition(".")[0]
+            if stem.isdigit():
+                top = max(top, int(stem))
+    except OSError:
+        pass
+    return top + 1
+
+
 class Recorder:
+    """Writes a recording folder (see the module doc) without ever replacing a file in it.
+
+    A folder that already holds a recording (the web tool's pipeline restarted on the same
+    ``--record``) is continued: its manifest and copies are kept, the index is appended to,
+    and new frames are numbered after the highest one there. Each frame file is created
+    exclusively (never over an existing name) and streamed; its index line is written only
+    once the file is complete, so a run killed mid-frame leaves at most one unindexed file,
+    which playback never reads.
+    """
+
     def __init__(self, folder: str | Path, source: str = "", camera_file: str | Path | None = None,
                  mount_file: str | Path | None = None, jpeg_quality: int = 95,
                  max_queue: int = 30):
         self.folder = Path(folder)
         (self.folder / "frames").mkdir(parents=True, exist_ok=True)
+        self._number = _next_frame_number(self.folder / "frames")
+        self.continued = (self.folder / "recording.json").exists()
         manifest = {"schema": RECORDING_SCHEMA,
                     "created": datetime.now(UTC).isoformat(timespec="seconds"),
                     "source": source, "camera": None, "mount": None}
         for key, f in (("camera", camera_file), ("mount", mount_file)):
             if f:
                 dst = self.folder / (key + "".join(Path(f).suffixes[-1:]))
+                if self.continued or dst.exists():
+                    continue  # the recording's own copies are kept
                 try:
-                    shutil.copyfile(f, dst)
+                    atomic_write_bytes(dst, Path(f).read_bytes(), overwrite=False)
                     manifest[key] = dst.name
                 except OSError:
                     pass
-        atomic_write_text(self.folder / "recording.json", json.dumps(manifest, indent=1))
+        if not self.continued:
+            try:
+                atomic_write_text(self.folder / "recording.json",
+                                  json.dumps(manifest, indent=1), overwrite=False)
+            except FileExistsError:
+                self.continued = True  # made meanwhile by another writer: kept
         self._index = open(self.folder / "frames.jsonl", "a", encoding="utf-8")
         self.quality = int(jpeg_quality)
         self._q: queue.Queue = queue.Queue(maxsize=max_queue)
@@ -77,12 +121,15 @@ class Recorder:
             if item is None:
                 break
             img, index, seq, t, js = item
-            name = f"frames/{seq:06d}.jpg"
+            name = f"frames/{self._number:06d}.jpg"
             try:
-                ok = cv2.imwrite(str(self.folder / name), img,
-                                 [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+                ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
                 if not ok:
-                    raise OSError("cv2.imwrite failed")
+                    raise OSError("OpenCV could not encode the frame as JPEG")
+                # "x": a new file, never over one (streamed: a frame is indexed once whole)
+                with open(self.folder / name, "xb") as fh:
+                    fh.write(buf.tobytes())
+                self._number += 1
                 self._index.write(json.dumps({"frame": index, "seq": seq, "t": round(t, 6),
                                               "image": name, "output": js},
                                              separators=(",", ":")) + "\n")

@@ -44,14 +44,16 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from drovisio.errors import InputError
+from drovisio.errors import LIMITS, InputError
 from drovisio.images import (
     IMAGE_SUFFIXES,
     VIDEO_SUFFIXES,
     ImageError,
+    check_frame_size,
     is_video_file,
     read_image,
     to_bgr8,
+    video_header_size,
 )
 
 __all__ = [
@@ -376,10 +378,35 @@ class StreamReader(_CaptureReader):
     """A network stream (RTSP, HTTP MJPEG, UDP…) through FFmpeg, with open and read
     timeouts so that a stalled stream is reported lost instead of blocking."""
 
-    def __init__(self, url: str, open_timeout_s: float = 5.0, read_timeout_s: float = 2.0):
+    def __init__(self, url: str, open_timeout_s: float | None = None,
+                 read_timeout_s: float = 2.0):
         super().__init__(url)
         self.url = url
-        self.open_timeout_s, self.read_timeout_s = open_timeout_s, read_timeout_s
+        self.open_timeout_s = (LIMITS.connect_timeout_s if open_timeout_s is None
+                               else open_timeout_s)
+        self.read_timeout_s = read_timeout_s
+
+    def open(self) -> None:
+        try:
+            super().open()
+        except OSError:
+            raise OSError(f"cannot open {self.url}: no video stream there within "
+                          f"{self.open_timeout_s:g} s (check the address, and that the camera "
+                          "is on and streaming)") from None
+
+    def read(self) -> RawFrame | None:
+        """The next frame; a stream that stalls past the read deadline, or ends, is lost.
+
+        Raises:
+            OSError: in one line, naming the URL and the deadline (the source reconnects).
+        """
+        if self.cap is None:
+            return None
+        f = super().read()
+        if f is None:
+            raise OSError(f"{self.url}: no frame within {self.read_timeout_s:g} s (the stream "
+                          "stalled or ended); reconnecting")
+        return f
 
     def _make(self):
         import cv2
@@ -387,6 +414,20 @@ class StreamReader(_CaptureReader):
         return cv2.VideoCapture(self.url, cv2.CAP_FFMPEG, [
             cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, int(self.open_timeout_s * 1000),
             cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.read_timeout_s * 1000)])
+
+
+def _check_video_frame(path: str, size: tuple[int, int] | None, said: str) -> None:
+    """Refuse a video whose frames are over the image caps, before one is decoded."""
+    if size is None or size[0] <= 0 or size[1] <= 0:
+        return  # unknown here: the next check (or the decoder) decides
+    try:
+        check_frame_size(*size)
+    except ImageError:
+        w, h = size
+        raise OSError(f"{path}: {said} frames of {w}x{h} ({w * h / 1e6:.0f} Mpx), more than "
+                      f"the {LIMITS.max_image_pixels / 1e6:.0f} Mpx (and "
+                      f"{LIMITS.max_image_side} pixels a side) Drovisio decodes; re-encode it "
+                      "smaller (or set DROVISIO_MAX_IMAGE_MPX)") from None
 
 
 #: when a frame cannot be decoded, this many following frames are tried; if none decodes,
@@ -432,11 +473,27 @@ class VideoFileReader:
             raise OSError(f"{self.path}: no such video file")
         if not p.is_file():
             raise OSError(f"{self.path}: not a regular file (a folder, a pipe or a device)")
+        if p.suffix.lower() in IMAGE_SUFFIXES:
+            # one picture as a source: the image reader's bounded checks (header size, file
+            # size), and an undecodable one cannot be opened (exit 2), not one error frame
+            try:
+                read_image(p)
+            except ImageError as e:
+                raise OSError(f"{self.path}: {e}") from None
+        # the frame size the container announces, before anything is decoded
+        _check_video_frame(self.path, video_header_size(p), "its header announces")
         cap = cv2.VideoCapture(self.path)
         if not cap.isOpened():
             cap.release()
             raise OSError(f"{self.path}: cannot open the video (unknown format, or a "
                           "damaged or cut-short file)")
+        try:  # the decoder's own size (other containers, or a stream unlike its container)
+            _check_video_frame(self.path, (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH) or 0),
+                                           int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT) or 0)),
+                               "its decoder reports")
+        except OSError:
+            cap.release()
+            raise
         self.cap = cap
         fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
         self.fps = fps if 0.1 <= fps <= 1000 else 30.0
@@ -445,6 +502,17 @@ class VideoFileReader:
         self.index = 0
         self._pending = []
         self.ended_early = None
+        # a file none of whose frames decodes cannot be opened: said now, in one line
+        try:
+            first = self.read()
+        except EndOfStream:
+            first = None
+        if first is None or (first.error is not None and self.ended_early == 0):
+            self.close()
+            why = (first.error if first is not None and first.error
+                   else "no frame can be decoded (not a video, or a damaged file)")
+            raise OSError(f"{self.path}: {why}")
+        self._pending.insert(0, first)
 
     def _frame(self, img, i: int, error: str | None = None) -> RawFrame:
         self.total += 1
@@ -728,6 +796,29 @@ def _is_url(s: str) -> bool:
     return "://" in s and not s.startswith("file://")
 
 
+def _check_url(url: str) -> None:
+    """A stream URL that can never connect (no host, a port that is no port, broken
+    brackets) is refused now; a sound one is retried for as long as it is down.
+
+    Raises:
+        InputError: naming ``--source`` and what is wrong.
+    """
+    from urllib.parse import urlsplit
+
+    from drovisio.errors import one_line
+
+    try:
+        parts = urlsplit(url)
+        parts.port  # noqa: B018 - parsing the port is what may fail
+    except ValueError as e:
+        raise InputError(f"{one_line(url, 200)}: --source: not a usable URL ({e}); give "
+                         "e.g. rtsp://HOST:554/stream or http://HOST:8080/video") from None
+    if parts.scheme.lower() in ("http", "https", "rtsp", "rtsps", "rtmp", "tcp") \
+            and not parts.hostname:
+        raise InputError(f"{one_line(url, 200)}: --source: the URL names no host; give "
+                         f"e.g. {parts.scheme}://HOST:PORT/...")
+
+
 def _camera_index(s: str) -> int | None:
     if s.isdigit():
         return int(s)
@@ -748,6 +839,7 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
     if cam is not None:
         return CameraReader(cam)
     if _is_url(s):
+        _check_url(s)
         return StreamReader(s)
     s = s.removeprefix("file://")
     p = Path(s)
@@ -1050,7 +1142,7 @@ class FrameSource:
                 break
             except Exception as e:  # noqa: BLE001
                 raw = None
-                self._error = f"{type(e).__name__}: {e}"
+                self._error = str(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
             if raw is None:
                 self._set_state(SourceState.LOST, self._error or f"{self.label}: no frame")
                 try:

@@ -42,11 +42,18 @@ def check_record_folder(path: str | os.PathLike) -> Path:
     except OSError as e:
         raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
     mcap = p.suffix.lower() == ".mcap"
-    if mcap and st is not None and not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{p}: --record: not a regular file; give a new FILE.mcap")
+    if mcap and st is not None:
+        raise InputError(f"{p}: --record: the file exists (a recording is never written "
+                         "over); give a new FILE.mcap")
     if not mcap and st is not None and not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
                          "missing)")
+    if not mcap and st is not None:
+        from drovisio.recording import holds_recording
+
+        if holds_recording(p):
+            raise InputError(f"{p}: --record: the folder already holds a recording (a "
+                             "recording is never written over); give a new folder")
     # the nearest folder that exists must be writable: the recording is made inside it
     q = p if (st is not None and not mcap) else p.absolute().parent
     while not q.exists() and q != q.parent:
@@ -74,7 +81,10 @@ def check_source(source: str) -> None:
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - a reader's own words, one line
-        raise InputError(f"{source}: --source: {one_line(e, 300)}") from None
+        why = str(e)
+        for said in (f"{source}: ", f"{getattr(reader, 'label', source)}: "):
+            why = why.removeprefix(said)  # the path is said once
+        raise InputError(f"{source}: --source: {one_line(why, 300)}") from None
     finally:
         try:
             reader.close()

@@ -279,6 +279,33 @@ def check_render_memory(camera: Camera, ss: int, what: str = "the camera") -> in
     return need
 
 
+def check_render_work(camera: Camera, ss: int, rendered_frames: int, detected_frames: int,
+                      detectors: int = 1, what: str = "the protocol") -> int:
+    """The pixel samples a job needs in all: ``rendered_frames`` renders of ``camera`` at
+    ``ss`` × ``ss`` samples a pixel, and ``detected_frames`` frames each read by
+    ``detectors`` methods; refused in one line before anything starts when over
+    :attr:`drovisio.errors.Limits.max_work_samples`. The memory of one render is checked too
+    (:func:`check_render_memory`).
+
+    Raises:
+        InputError: naming the frames, the image size and what to do.
+    """
+    from drovisio.errors import LIMITS, InputError
+
+    if rendered_frames:
+        check_render_memory(camera, ss, what)
+    px = int(camera.width) * int(camera.height)
+    need = rendered_frames * px * int(ss) ** 2 + detected_frames * px * max(1, detectors)
+    if need > LIMITS.max_work_samples:
+        raise InputError(
+            f"{what}: {rendered_frames} rendered and {detected_frames} detected frames of "
+            f"{camera.width}x{camera.height} pixels ({max(1, detectors)} methods) are about "
+            f"{need / 1e9:.0f} G pixel samples of work, more than the "
+            f"{LIMITS.max_work_samples / 1e9:.0f} G cap; give fewer steps or frames, or a "
+            "smaller image size (DROVISIO_MAX_WORK_GSAMPLES raises the cap)")
+    return need
+
+
 class _Canvas:
     """Colour and depth buffers at sample resolution, with polygon drawing."""
 

@@ -131,8 +131,10 @@ def run(args: argparse.Namespace) -> int:
     print("  stop with Ctrl+C", flush=True)
     _warm_up_in_background()
     install_log_redaction()
+    # a request still running at SIGTERM (a client that stalls, a slow route) delays the end
+    # by at most this many seconds: uvicorn's default waits for it for ever
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,
-                                           log_level="info"))
+                                           log_level="info", timeout_graceful_shutdown=5))
     app.state.uvicorn_server = server  # the lifespan ends the server, never raises to it
     server.run()
     error = getattr(app.state, "startup_error", None)

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drovisio.bounds import MAX_SUPERSAMPLING, whole
+from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
 
 FLIP_DEG = 20.0
 MIN_CODE_PX = 14.0
@@ -66,7 +66,7 @@ SIZE_BINS = ((MIN_CODE_PX, 20.0, "14-20 px"), (20.0, 30.0, "20-30 px"), (30.0, m
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="drovisio bench aruco",
         description="Speed (vs plain cv2 ArucoDetector.detectMarkers) and accuracy (vs the "
                     "renderer's truth) of the ArUco brick detector on rendered drick scenes.",
@@ -185,16 +185,17 @@ def _frames(kind: str, n_bricks: int, count: int, seed0: int, layouts, ss: int,
                     with open(path, "rb") as fh:
                         yield pickle.load(fh)
                     continue
-                except (OSError, EOFError, pickle.UnpicklingError, AttributeError):
-                    pass  # a broken or stale cache file: render again
+                except Exception:  # noqa: BLE001,S110 - unpickling a stale or cut file can
+                    pass           # raise almost anything (a renamed class: ImportError): render again
         scene, fx = random_scene(seed, spec)
         r = render(scene, fx, ss=ss)
         fr = Frame(r.image, r.bricks, gravity_in_camera(r.camera_from_world),
                    _visibility(scene), float(fx.blur_sigma_px))
         if path is not None:
-            cache.mkdir(parents=True, exist_ok=True)
-            with open(path, "wb") as fh:
-                pickle.dump(fr, fh)
+            from drovisio.fileio import atomic_write_bytes
+
+            # beside and renamed: a run killed mid-write leaves no half pickle behind
+            atomic_write_bytes(path, pickle.dumps(fr), make_parents=True)
         yield fr
 
 

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drovisio.bounds import whole
+from drovisio.bounds import ArgumentParser, whole
 
 EXAMPLE = """example:
   drovisio bench dots                      # all parts, default frame counts (~15 min first run)
@@ -60,7 +60,7 @@ PARTS = ("accuracy", "hidden", "clutter", "lighting", "timing", "memory", "kerne
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="drovisio bench dots",
         description="Benchmark of the colour-dot detector on rendered scenes: "
                     "recall, pose errors, flips, false bricks, lighting, speed, memory.",
@@ -216,12 +216,15 @@ class FrameSource:
             return None, None, None
         stem = f"{key}-{seed}-{tag}"
         png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
-        if png.exists() and js.exists():
-            img = cv2.imread(str(png), cv2.IMREAD_COLOR)
-            meta = json.loads(js.read_text())
-            if img is not None:
-                return (Frame(image=img, gravity=np.array(meta["gravity"]),
-                              bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
+        if png.is_file() and js.is_file():
+            try:
+                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
+                meta = json.loads(js.read_text())
+                if img is not None:
+                    return (Frame(image=img, gravity=np.array(meta["gravity"]),
+                                  bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
+            except (OSError, ValueError, KeyError, TypeError):
+                pass  # a broken or stale cache entry: render it again
         return None, png, js
 
     def get_scene(self, key: str, seed: int, build) -> Frame:
@@ -234,7 +237,6 @@ class FrameSource:
         return self._render(scene, fx, png, js, seed, None)
 
     def _render(self, scene, fx, png, js, seed, hide) -> Frame:
-        import cv2
 
         from drovisio.scenes import gravity_in_camera
         from drovisio.synth import render
@@ -249,9 +251,14 @@ class FrameSource:
         frame = Frame(image=res.image, gravity=gravity_in_camera(res.camera_from_world),
                       bricks=_visibility(scene, res, self.camera))
         if png is not None:
-            cv2.imwrite(str(png), frame.image)
-            js.write_text(json.dumps({"gravity": frame.gravity.tolist(),
-                                      "bricks": [asdict(b) for b in frame.bricks]}))
+            from drovisio.fileio import atomic_write_text, write_image
+
+            # each file written beside and renamed; the picture last, as the entry's mark of
+            # completeness (an entry is read only when both are there)
+            atomic_write_text(js, json.dumps({"gravity": frame.gravity.tolist(),
+                                              "bricks": [asdict(b) for b in frame.bricks]}),
+                              make_parents=True)
+            write_image(png, frame.image)
         return frame
 
 

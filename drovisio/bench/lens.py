@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drovisio.bounds import MAX_SUPERSAMPLING, whole
+from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
 from drovisio.camera import Camera
 from drovisio.cli import plain_help
 from drovisio.errors import InputError
@@ -127,7 +127,7 @@ def _p95(v: list) -> float:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="drovisio bench lens", description=plain_help(__doc__),
+    p = ArgumentParser(prog="drovisio bench lens", description=plain_help(__doc__),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default="detect,calibrate", help="detect, calibrate or both")
     p.add_argument("--scenes", type=whole(1, 100_000), default=40,

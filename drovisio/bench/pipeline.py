@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from drovisio.bounds import number
+from drovisio.bounds import ArgumentParser, number
 from drovisio.resources import layouts_dir, sample_sessions_dir
 from drovisio.sources import Pace
 
@@ -402,7 +402,7 @@ def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bo
 
 
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(
+    ap = ArgumentParser(
         prog="drovisio bench pipeline",
         description="Latency capture → sent at 30 fps, and resident memory over a long run, "
                     "of the drovisio run pipeline on the sample approach video.",

@@ -674,9 +674,10 @@ def _print(rep: dict) -> None:
 
 
 def main(argv: list[str]) -> int:
+    from drovisio.bounds import ArgumentParser
     from drovisio.cli import positive_float
 
-    p = argparse.ArgumentParser(prog="drovisio bench real", description=__doc__,
+    p = ArgumentParser(prog="drovisio bench real", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("folders", nargs="+", metavar="DIR", help="folders of real photos")
     p.add_argument("--repeat", type=int, default=1,

@@ -124,9 +124,10 @@ def calibration_check(camera: Camera | None = None, square: float = 0.025) -> di
 
 
 def main(argv: list[str]) -> int:
+    from drovisio.bounds import ArgumentParser
     from drovisio.cli import plain_help
 
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="drovisio bench renderer", description=plain_help(__doc__),
         epilog=f"Example:\n  {EXAMPLE}", formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.parse_args(argv)

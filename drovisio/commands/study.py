@@ -59,7 +59,8 @@ def _run(args: argparse.Namespace) -> int:
     res = run_study(protocol, base, methods=methods, memory_seconds=memory,
                     speed_bricks=(1, 10) if args.quick else (1, 2, 5, 10, 20),
                     speed_frames=2 if args.quick else 3, progress=_bar,
-                    landing_runs=4 if args.quick else 10)
+                    landing_runs=4 if args.quick else 10,
+                    where=args.protocol or "the default protocol")
     sys.stderr.write("\n")
     command = "drovisio study run " + " ".join(shlex.quote(a) for a in args.argv_tail)
     data = write_report(res, out, command, text)

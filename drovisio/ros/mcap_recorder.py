@@ -29,6 +29,20 @@ from drovisio.ros.msgdefs import encoder, schema_text
 __all__ = ["McapRecorder"]
 
 
+def _open_new(path: Path):
+    """``path`` created for writing, never over an existing file: when it exists (the web
+    tool's pipeline restarted on the same ``--record``), the first free ``STEM-N.mcap``;
+    ``path`` is then the name written. ``run`` refuses an existing file at start-up."""
+    stem, suffix = path.stem, path.suffix
+    for n in range(1, 10000):
+        p = path if n == 1 else path.with_name(f"{stem}-{n}{suffix}")
+        try:
+            return open(p, "xb")
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path}: --record: no free name next to it; give a new FILE.mcap")
+
+
 class McapRecorder:
     """Writes frames and outputs to ``path`` (see the module doc).
 
@@ -49,7 +63,8 @@ class McapRecorder:
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb")
+        self._f = _open_new(self.path)
+        self.path = Path(self._f.name)
         self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._w.start(profile="ros2", library="drovisio")
         self._w.add_metadata("drovisio", {

@@ -87,7 +87,7 @@ def _pick(found, layout) -> tuple[np.ndarray | None, bool]:
 def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
               memory_seconds: float = 20.0, speed_bricks=(1, 2, 5, 10, 20),
               speed_frames: int = 3, progress: Progress | None = None,
-              landing_runs: int = 10) -> StudyResult:
+              landing_runs: int = 10, where: str | None = None) -> StudyResult:
     """Run ``protocol`` (paths relative to ``base``).
 
     Args:
@@ -95,6 +95,11 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
         memory_seconds: Length of the memory run of each method (Fig. 6.11; 0: none).
         speed_bricks: Brick counts of the frame-rate run (Fig. 6.10; empty: none).
         landing_runs: Simulated precision landings per layout and mount (0: none).
+        where: The protocol file's name, for messages (None: "the protocol").
+
+    Raises:
+        InputError: an unknown method, or a protocol whose render memory or total work
+            (steps × frames × image size, estimated first) is over its cap.
     """
     from drovisio.camera import Camera
     from drovisio.camera_file import load_camera
@@ -112,10 +117,13 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
                          f"{', '.join(METHODS)}")
     camera = (load_camera(base / protocol.camera if not Path(protocol.camera).is_absolute()
                           else protocol.camera) if protocol.camera else Camera.drone_webcam())
-    from drovisio.synth import check_render_memory
+    from drovisio.synth import check_render_work
 
-    if any(step.source is None for step in protocol.steps):  # a render's memory, up front
-        check_render_memory(camera, 2, f"{protocol.camera or 'the renderer'}'s image size")
+    # a render's memory and the whole protocol's work, before anything starts (recorded
+    # steps are counted at the camera's size: their frames are checked when read)
+    check_render_work(camera, 2, sum(s.frames for s in protocol.steps if s.source is None),
+                      sum(s.frames for s in protocol.steps), len(names),
+                      f"{where or 'the protocol'}: steps and camera")
     layouts = resolve_layouts(protocol, base)
     try:
         import pupil_apriltags  # noqa: F401
