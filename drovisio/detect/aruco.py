@@ -661,7 +661,8 @@ class ArucoBrickDetector:
                 info[8 * i:8 * i + 8, 8 * i:8 * i + 8] = c.info
         res = solve_brick_pose(obj, img, self.camera, image_pts_norm=xn, points_info=info,
                                evidence=evidence, rule=self.params.ambiguity,
-                               gravity_prior_deg=self.params.gravity_prior_deg, planar=None)
+                               gravity_prior_deg=self.params.gravity_prior_deg, planar=None,
+                               point_groups=np.repeat(np.arange(len(group)), 4))
         if res is None or not np.isfinite(res.rmse_px) or (
                 res.rmse_px > self.params.max_rmse_px
                 and not self._fit_explained(res, group, obj, img, info)):
