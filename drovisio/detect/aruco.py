@@ -26,7 +26,8 @@ Pipeline of :class:`ArucoBrickDetector` for one frame:
    bits (a decoy, a partly hidden code), is dropped.
 3. **Bricks.** Codes are grouped by their layout's id blocks into brick instances; one joint
    PnP over every visible code of a brick (:func:`drovisio.pose.solve_brick_pose`), with the
-   corners' covariance from the fit.
+   corners' covariance from the fit; a code with a corner far beyond the noise the brick's
+   own residuals show is left out of the final refinement (its corners share one wrong fit).
 4. **Flips.** Candidates are chosen with gravity when known, then with the "up" of other,
    decided bricks in the same frame (bricks on one ground are parallel), then with the
    previous pose of the same brick when a :class:`drovisio.pose.PoseHistory` is given (a
@@ -661,7 +662,8 @@ class ArucoBrickDetector:
                 info[8 * i:8 * i + 8, 8 * i:8 * i + 8] = c.info
         res = solve_brick_pose(obj, img, self.camera, image_pts_norm=xn, points_info=info,
                                evidence=evidence, rule=self.params.ambiguity,
-                               gravity_prior_deg=self.params.gravity_prior_deg, planar=None)
+                               gravity_prior_deg=self.params.gravity_prior_deg, planar=None,
+                               point_groups=np.repeat(np.arange(len(group)), 4))
         if res is None or not np.isfinite(res.rmse_px) or (
                 res.rmse_px > self.params.max_rmse_px
                 and not self._fit_explained(res, group, obj, img, info)):

@@ -266,6 +266,56 @@ def _robust_weights(obj, img, cand: PoseCandidate, camera: Camera, Winv: np.ndar
     return np.where(dist > k, k / np.maximum(dist, 1e-12), 1.0)
 
 
+def _point_distances(obj, img, cand: PoseCandidate, camera: Camera, Winv: np.ndarray
+                     ) -> np.ndarray | None:
+    """Squared Mahalanobis distance (N,) of each point's reprojection residual at a pose, by
+    its own 2×2 covariance (the diagonal block of the inverse of ``Winv``); None when
+    ``Winv`` is not invertible."""
+    n = len(obj)
+    px, _ = camera.project_points(obj.reshape(-1, 1, 3), cand.rvec, cand.tvec)
+    r = img - px.reshape(-1, 2)
+    ok, C = cv2.invert(Winv, flags=cv2.DECOMP_CHOLESKY)
+    if not ok:
+        return None
+    blocks = C.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n), :]  # (n, 2, 2)
+    a, b, d = blocks[:, 0, 0], blocks[:, 0, 1], blocks[:, 1, 1]
+    det = a * d - b * b
+    x, y = r[:, 0], r[:, 1]
+    return np.where(det > 0, (d * x * x - 2 * b * x * y + a * y * y)
+                    / np.where(det > 0, det, 1.0), 0.0)
+
+
+def _group_outliers(m: np.ndarray, groups: np.ndarray, dof: int) -> np.ndarray:
+    """Which groups of points (codes) to leave out of a pose: those with a point beyond
+    what the brick's own residuals allow. Returns a weight per point (N,), 0 or 1.
+
+    Huber weights (:func:`_robust_weights`) bound a wrong corner's pull but keep it at
+    ``ROBUST_K`` standard deviations: a code fitted to the wrong edges (its corners 1-4 px
+    off on a 19-px code) still moved a two-code brick's pose by a centimetre through a
+    fisheye's rim. Its other corners share its wrong homography, so the whole code goes.
+    The noise scale is measured robustly from the brick itself (the median squared distance
+    against χ²(2)'s, 1.386, corrected for the fitted parameters; never below the assumed
+    noise); the limit is the χ²(2) quantile a right point exceeds with chance 0.1 % over the
+    brick's points, ``2 ln(N / 0.001)``. At least one group always stays.
+
+    Args:
+        m: (N,) squared Mahalanobis distances of the points (:func:`_point_distances`).
+        groups: (N,) group label of each point (the code it belongs to).
+        dof: Degrees of freedom of the fit (2N − 6).
+    """
+    n = len(m)
+    s2 = max(1.0, float(np.median(m)) / 1.386 * (2.0 * n / max(dof, 1)))
+    bad_pts = m / s2 > 2.0 * math.log(n / 0.001)
+    if not bad_pts.any():
+        return np.ones(n)
+    labels, inv = np.unique(groups, return_inverse=True)
+    bad = np.zeros(len(labels), bool)
+    np.logical_or.at(bad, inv, bad_pts)
+    if bad.all():   # nothing to tell the pose from: keep everything
+        return np.ones(n)
+    return np.where(bad[inv], 0.0, 1.0)
+
+
 def _covariance(info: np.ndarray, chi2: float, dof: int) -> np.ndarray:
     """(Jᵀ Σ⁻¹ J)⁻¹, inflated by χ²/dof when the residuals show more noise than assumed."""
     ok, cov = cv2.invert(info, flags=cv2.DECOMP_CHOLESKY)
@@ -299,7 +349,8 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
                      up_axis=(0.0, 0.0, 1.0), evidence: PoseEvidence | None = None,
                      rule: AmbiguityRule = AmbiguityRule(),
                      gravity_prior_deg: float | None = None,
-                     refine: bool = True) -> PoseResult | None:
+                     refine: bool = True,
+                     point_groups: np.ndarray | None = None) -> PoseResult | None:
     """Pose of an object from ≥ 4 point correspondences, flip ambiguity resolved with evidence.
 
     Args:
@@ -324,6 +375,10 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
             strong image evidence wins; None or 0: gravity only chooses between candidates).
             Applied only when the pose is within ``gravity_tol_deg`` of flat.
         refine: Refine in pixels (weighted Gauss–Newton through the full lens model).
+        point_groups: (N,) which measurement each point comes from (e.g. the code index of
+            each corner): with two groups or more, a group with a point far beyond the
+            brick's measured noise is left out of the final refinement
+            (:func:`_group_outliers`).
 
     Returns:
         The :class:`PoseResult`, or None when no pose in front of the camera fits.
@@ -334,6 +389,9 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
     if n < 4 or len(img) != n:
         raise ValueError(f"need at least 4 matching points, got {n} object and {len(img)} "
                          "image points")
+    groups = None if point_groups is None else np.asarray(point_groups).ravel()
+    if groups is not None and len(groups) != n:
+        raise ValueError(f"point_groups has {len(groups)} labels for {n} points")
     ev = evidence if evidence is not None else PoseEvidence()
     if gravity is not None:
         ev = PoseEvidence(np.asarray(gravity, np.float64), ev.reference_up, ev.previous)
@@ -460,6 +518,17 @@ def solve_brick_pose(object_pts: np.ndarray, image_pts: np.ndarray, camera: Came
             sw = np.repeat(np.sqrt(w), 2)
             best, info = _gauss_newton(obj, img, best, camera, Winv * sw[:, None] * sw[None, :],
                                        iterations=REFINE_ITERATIONS, prior=prior)
+        m = (None if groups is None or len(np.unique(groups)) < 2
+             else _point_distances(obj, img, best, camera, Winv))
+        if groups is not None and m is not None:
+            w = _group_outliers(m, groups, dof)
+            if w.min() < 1.0:
+                # the pose moves by the wrong code's whole pull: two steps, not one
+                sw = np.repeat(w, 2)
+                best, info = _gauss_newton(obj, img, best, camera,
+                                           Winv * sw[:, None] * sw[None, :],
+                                           iterations=2, prior=prior)
+                dof = int(2 * w.sum()) - 6
     return PoseResult(best.rvec, best.tvec, best.rmse_px, _covariance(info, best.chi2, dof),
                       amb, others if amb else [], decided_by, [best] + others)
 
