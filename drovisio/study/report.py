@@ -165,9 +165,9 @@ frame rate above (PLND_LAG equal to a 50 ms latency, initialisation after update
 0.5 s apart for 2 s, 2 s target timeout, descent on the last estimate once the brick leaves
 the picture), 3 m/s wind, camera 8 cm ahead of the body origin; blind height: the camera's
 height above the brick when it leaves the picture.</p>
-<table><tr><th>layout</th><th>camera tilt</th><th>detections/s</th><th>touchdown error median
-(cm)</th><th>p90 (cm)</th><th>filter initialised</th><th>blind height (m)</th></tr>{land or
-'<tr><td colspan="7">not run</td></tr>'}</table>
+<div class="scroll"><table><tr><th>layout</th><th>camera tilt</th><th>detections/s</th>
+<th>touchdown error median (cm)</th><th>p90 (cm)</th><th>filter initialised</th>
+<th>blind height (m)</th></tr>{land or '<tr><td colspan="7">not run</td></tr>'}</table></div>
 <h2>What was left out</h2><ul>{left or '<li>no method</li>'}</ul>
 <h3>Methods that cannot read a layout</h3><ul>{na or '<li>none</li>'}</ul>
 <h3>Steps skipped</h3><ul>{skipped}</ul>
