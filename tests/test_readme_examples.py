@@ -35,6 +35,8 @@ def _examples() -> list[str]:
                 "drovisio serve", "drovisio detect", "drovisio calibrate", "drovisio run",
                 "drovisio mission"):
             continue            # a name in a sentence or a synopsis (PLACEHOLDERS), not an example
+        if tuple(cmd.split()[1:]) in RUN:
+            continue            # a command named in a sentence: every one of them takes arguments
         out.append(" ".join(cmd.split()))
     return list(dict.fromkeys(out))
 
