@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from drovisio.detect.result import BrickPose
-from drovisio.geometry import skew, so3_exp, so3_log
+from drovisio.geometry import right_jacobian, right_jacobian_inv, skew, so3_exp, so3_log
 
 __all__ = [
     "CHI2_6_999",
@@ -50,29 +50,6 @@ CHI2_6_999 = 22.458
 #: Used when a detector gives no covariance: 2° and 2 cm (1σ), uncorrelated.
 DEFAULT_SIGMA_ROT = math.radians(2.0)
 DEFAULT_SIGMA_T = 0.02
-
-
-def right_jacobian(w: np.ndarray) -> np.ndarray:
-    """``J_r(w)``: ``exp(w + δw) ≈ exp(w) · exp(J_r(w) δw)``."""
-    w = np.asarray(w, np.float64).ravel()
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-6:
-        return np.eye(3) - 0.5 * K + K @ K / 6.0
-    return (np.eye(3) - (1 - math.cos(th)) / th ** 2 * K
-            + (th - math.sin(th)) / th ** 3 * K @ K)
-
-
-def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
-    w = np.asarray(w, np.float64).ravel()
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-6:
-        return np.eye(3) + 0.5 * K + K @ K / 12.0
-    if th > math.pi - 1e-3:  # singular at 2π, ill-conditioned at π: fall back to a solve
-        return np.linalg.inv(right_jacobian(w))
-    return (np.eye(3) + 0.5 * K
-            + (1 / th ** 2 - (1 + math.cos(th)) / (2 * th * math.sin(th))) * K @ K)
 
 
 def _block_j(rvec: np.ndarray, inv: bool = False) -> np.ndarray:

@@ -21,6 +21,8 @@ __all__ = [
     "invert",
     "ned_from_body",
     "quat_wxyz",
+    "right_jacobian",
+    "right_jacobian_inv",
     "rot_x",
     "rot_y",
     "rot_z",
@@ -82,6 +84,30 @@ def so3_log(R: np.ndarray) -> np.ndarray:
             out[idx] = th[idx] * axis
         out = out.reshape(shape)
     return out
+
+
+def right_jacobian(w: np.ndarray) -> np.ndarray:
+    """``J_r(w)``, SO(3)'s right Jacobian: ``exp(w + δw) ≈ exp(w) · exp(J_r(w) δw)``."""
+    w = np.asarray(w, np.float64).ravel()
+    th = float(np.linalg.norm(w))
+    K = skew(w)
+    if th < 1e-6:
+        return np.eye(3) - 0.5 * K + K @ K / 6.0
+    return (np.eye(3) - (1 - math.cos(th)) / th ** 2 * K
+            + (th - math.sin(th)) / th ** 3 * K @ K)
+
+
+def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
+    """``J_r(w)⁻¹``, in closed form away from |w| = π."""
+    w = np.asarray(w, np.float64).ravel()
+    th = float(np.linalg.norm(w))
+    K = skew(w)
+    if th < 1e-6:
+        return np.eye(3) + 0.5 * K + K @ K / 12.0
+    if th > math.pi - 1e-3:  # singular at 2π, ill-conditioned at π: fall back to a solve
+        return np.linalg.inv(right_jacobian(w))
+    return (np.eye(3) + 0.5 * K
+            + (1 / th ** 2 - (1 + math.cos(th)) / (2 * th * math.sin(th))) * K @ K)
 
 
 def rot_x(angle: float) -> np.ndarray:

@@ -55,6 +55,7 @@ from drovisio.images import (
     to_bgr8,
     video_header_size,
 )
+from drovisio.raw_frame import EndOfStream, RawFrame
 
 __all__ = [
     "CameraReader",
@@ -88,27 +89,6 @@ class SourceState(str, Enum):
     ENDED = "ended"      # finite source exhausted
     FAILED = "failed"    # finite source that could not be opened (not retried)
     STOPPED = "stopped"  # closed by us
-
-
-class EndOfStream(Exception):
-    """Raised by a finite reader when it has no more frames."""
-
-
-@dataclass
-class RawFrame:
-    """What a reader returns for one frame."""
-
-    image: np.ndarray | None
-    """BGR uint8 (H, W, 3); None when ``error`` says why the frame could not be decoded."""
-    index: int
-    media_time: float | None = None
-    """Position in the file/recording (s), used to pace playback; None for live sources."""
-    name: str = ""
-    t_wall: float | None = None
-    """Capture time if the reader knows it better than 'now' (UNIX s)."""
-    error: str | None = None
-    notes: list[str] = field(default_factory=list)
-    """Conversions made (e.g. "16-bit image scaled to 8 bits")."""
 
 
 @dataclass

@@ -21,8 +21,7 @@ import math
 
 import numpy as np
 
-from drovisio.fusion import right_jacobian
-from drovisio.geometry import so3_exp, so3_log
+from drovisio.geometry import right_jacobian, so3_exp, so3_log
 
 __all__ = [
     "mahalanobis2",

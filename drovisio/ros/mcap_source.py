@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drovisio.sources import EndOfStream, RawFrame
+from drovisio.raw_frame import EndOfStream, RawFrame
 
 __all__ = ["McapReader", "iter_images"]
 
