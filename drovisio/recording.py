@@ -29,7 +29,7 @@ import cv2
 
 from drovisio.fileio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["RECORDING_SCHEMA", "Recorder", "holds_recording", "read_index"]
+__all__ = ["RECORDING_SCHEMA", "Recorder", "holds_recording", "read_index", "stop_writer"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
 
@@ -58,6 +58,20 @@ def _next_frame_number(frames: Path) -> int:
     except OSError:
         pass
     return top + 1
+
+
+def stop_writer(q: queue.Queue, thread: threading.Thread, timeout: float) -> None:
+    """End a recorder's writer thread: queue the end mark (``None``) behind what is waiting,
+    then wait for the thread, both within ``timeout`` seconds in all."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            q.put(None, timeout=0.1)
+            break
+        except queue.Full:
+            if time.monotonic() > deadline:
+                break
+    thread.join(max(0.0, deadline - time.monotonic()))
 
 
 class Recorder:
@@ -140,15 +154,7 @@ class Recorder:
                 self.last_error = str(e)
 
     def close(self, timeout: float = 10.0) -> None:
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                self._q.put(None, timeout=0.1)
-                break
-            except queue.Full:
-                if time.monotonic() > deadline:
-                    break
-        self._thread.join(max(0.0, deadline - time.monotonic()))
+        stop_writer(self._q, self._thread, timeout)
         self._index.close()
 
     def status(self) -> dict:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import cv2
 
+from drovisio.recording import stop_writer
 from drovisio.ros.messages import RosMessages
 from drovisio.ros.msgdefs import encoder, schema_text
 
@@ -147,15 +148,7 @@ class McapRecorder:
 
     def close(self, timeout: float = 10.0) -> None:
         """Write what is queued, then the summary (the file is then complete)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                self._q.put(None, timeout=0.1)
-                break
-            except queue.Full:
-                if time.monotonic() > deadline:
-                    break
-        self._thread.join(max(0.0, deadline - time.monotonic()))
+        stop_writer(self._q, self._thread, timeout)
         try:
             self._w.finish()
         except (OSError, ValueError) as e:
