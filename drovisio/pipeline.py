@@ -9,9 +9,8 @@ to the recorder and to listeners (the live page). It never raises for a frame: a
 error is counted and reported (the frame gives no bricks); a lost source gives no frames, the
 tracks age out within ``max_age`` and the loop keeps waiting for the source to come back.
 
-Detectors follow a small protocol, :class:`Detector`: ``detect(image, timestamp,
-gravity=None) -> list[BrickPose]``. :class:`ArucoDetectorAdapter` and
-:class:`DotsDetectorAdapter` import the detectors lazily; :func:`detectors_for` picks them.
+Detectors follow one protocol, :class:`drovisio.detect.base.Detector`: ``detect(image,
+gravity=None) -> list[BrickPose]`` and ``reset()``; :func:`detectors_for` picks them.
 
 Gravity (the detectors' evidence for the flip ambiguity): a callable ``t_mono -> unit vector
 in the camera frame | None``; ``drovisio run`` gives the autopilot's attitude (from the MAVLink
@@ -30,10 +29,10 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
+from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
 from drovisio.fusion import fuse_frame
 from drovisio.sinks.target import TargetSelector
@@ -41,9 +40,7 @@ from drovisio.sources import Frame, FrameSource, SourceState
 from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
 
 __all__ = [
-    "ArucoDetectorAdapter",
     "Detector",
-    "DotsDetectorAdapter",
     "FrameOutput",
     "Pipeline",
     "PipelineStats",
@@ -53,55 +50,24 @@ __all__ = [
 log = logging.getLogger("drovisio.pipeline")
 
 
-class Detector(Protocol):
-    name: str
+def detectors_for(camera, layouts, stream: bool = True) -> list[Detector]:
+    """The detectors the layouts need: ArUco if any has codes, dots if any has dots.
 
-    def detect(self, image: np.ndarray, timestamp: float,
-               gravity: np.ndarray | None = None) -> list[BrickPose]: ...
+    Args:
+        camera: The camera of the frames.
+        layouts: The loaded layouts.
+        stream: The frames come in order from one stream (the detectors keep what the
+            previous frames tell); False for unrelated single images.
+    """
+    # deferred: the detectors load compiled kernels, which a status-only import never needs
+    from drovisio.detect.aruco import ArucoBrickDetector
+    from drovisio.detect.dots import DotDetector
 
-
-class ArucoDetectorAdapter:
-    """Bricks by their codes (:mod:`drovisio.detect.aruco`); a stream keeps a pose history
-    (the previous frame helps decide an ambiguous pose), single images do not."""
-
-    name = "aruco"
-
-    def __init__(self, camera, layouts, stream: bool = True):
-        from drovisio.detect.aruco import ArucoBrickDetector
-        from drovisio.pose import PoseHistory
-
-        self.impl = ArucoBrickDetector(camera, layouts,
-                                       history=PoseHistory() if stream else None)
-
-    def detect(self, image, timestamp, gravity=None):
-        return self.impl.detect(image, gravity=gravity)
-
-
-class DotsDetectorAdapter:
-    """Bricks by their colour dots (:mod:`drovisio.detect.dots`), with a state per stream
-    (symmetric yaws stay in the half-turn of the previous frame)."""
-
-    name = "dots"
-
-    def __init__(self, camera, layouts, stream: bool = True):
-        from drovisio.detect.dots import DotsState, detect_dots
-
-        self._detect = detect_dots
-        self.camera = camera
-        self.layouts = [lay for lay in layouts if getattr(lay, "has_dots", False)]
-        self.state = DotsState() if stream else None
-
-    def detect(self, image, timestamp, gravity=None):
-        return self._detect(image, self.camera, self.layouts, gravity=gravity, state=self.state)
-
-
-def detectors_for(camera, layouts) -> list[Detector]:
-    """The detectors the layouts need: ArUco if any has codes, dots if any has dots."""
     out: list[Detector] = []
     if any(getattr(lay, "has_codes", False) for lay in layouts):
-        out.append(ArucoDetectorAdapter(camera, layouts))
+        out.append(ArucoBrickDetector(camera, layouts, stream=stream))
     if any(getattr(lay, "has_dots", False) for lay in layouts):
-        out.append(DotsDetectorAdapter(camera, layouts))
+        out.append(DotDetector(camera, layouts, stream=stream))
     return out
 
 
@@ -263,7 +229,7 @@ class Pipeline:
 
         def one(d: Detector) -> list[BrickPose]:
             try:
-                return list(d.detect(image, frame.t_wall, gravity=g))
+                return list(d.detect(image, gravity=g))
             except Exception as e:  # noqa: BLE001
                 self.stats.detector_errors += 1
                 msg = f"{getattr(d, 'name', type(d).__name__)}: {type(e).__name__}: {e}"
@@ -372,7 +338,7 @@ class Pipeline:
         blank = np.full((height, width, 3), 127, np.uint8)
         for d in self.detectors:
             try:
-                d.detect(blank, time.time(), gravity=None)
+                d.detect(blank, gravity=None)
             except Exception:  # noqa: BLE001 - a real frame will report it
                 pass
 

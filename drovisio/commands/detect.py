@@ -182,7 +182,8 @@ class _Streams:
         self.noted: set[str] = set()
 
     def detectors(self, source: str, stream: bool, size: tuple[int, int]):
-        from drovisio.pipeline import ArucoDetectorAdapter, DotsDetectorAdapter
+        from drovisio.detect.aruco import ArucoBrickDetector
+        from drovisio.detect.dots import DotDetector
 
         key = (source if stream else "", stream)
         got = self._by_source.get(key)
@@ -193,9 +194,9 @@ class _Streams:
                 _err(f"{self.camera_file}: {note}")
             dets: list = []
             if self.aruco_layouts:
-                dets.append(ArucoDetectorAdapter(camera, self.aruco_layouts, stream=stream))
+                dets.append(ArucoBrickDetector(camera, self.aruco_layouts, stream=stream))
             if self.dots_layouts:
-                dets.append(DotsDetectorAdapter(camera, self.dots_layouts, stream=stream))
+                dets.append(DotDetector(camera, self.dots_layouts, stream=stream))
             if len(self._by_source) > 8:
                 self._by_source.pop(next(iter(self._by_source)))
             got = self._by_source[key] = (camera, dets)
@@ -261,7 +262,7 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
             t0 = time.perf_counter()
             for det in dets:
                 try:
-                    res.bricks.extend(det.detect(img, 0.0, gravity=g))
+                    res.bricks.extend(det.detect(img, gravity=g))
                 except Exception as e:  # noqa: BLE001 - a frame must never stop the run
                     res.bricks = []
                     res.error = f"detection failed: {type(e).__name__}: {e}"

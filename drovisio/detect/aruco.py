@@ -51,6 +51,7 @@ import numpy as np
 
 from drovisio._threads import one_blas_thread
 from drovisio.camera import Camera
+from drovisio.detect.base import decided_up, unit_gravity
 from drovisio.detect.code_reading import CodeReader, ring_quads
 from drovisio.detect.corners import RefinedCode, refine_codes
 from drovisio.detect.result import BrickPose
@@ -64,7 +65,6 @@ from drovisio.pose import (
     AmbiguityRule,
     PoseEvidence,
     PoseHistory,
-    reference_up,
     solve_brick_pose,
 )
 from drovisio.pose.ambiguity import noise_scale
@@ -227,13 +227,17 @@ class ArucoBrickDetector:
         params: Detector tuning.
         history: Give a :class:`drovisio.pose.PoseHistory` to use temporal consistency over
             a stream (call :meth:`detect` once per frame, in order).
+        stream: Frames come in order from one stream: keep a pose history of its own
+            (:meth:`reset` forgets it).
     """
 
+    name = "aruco"
+
     def __init__(self, camera: Camera, layouts, params: ArucoParams | None = None,
-                 history: PoseHistory | None = None):
+                 history: PoseHistory | None = None, *, stream: bool = False):
         self.camera = camera
         self.params = params or ArucoParams()
-        self.history = history
+        self.history = history if history is not None else (PoseHistory() if stream else None)
         self.layouts = [lay for lay in layouts if lay.has_codes]
         self._corners_m: dict[int, dict] = {id(lay): lay.code_corners_m() for lay in self.layouts}
         self.timing = _Timing()
@@ -539,6 +543,11 @@ class ArucoBrickDetector:
                 done.add(mid)
         return out
 
+    def reset(self) -> None:
+        """Forget the stream's past poses."""
+        if self.history is not None:
+            self.history = PoseHistory()
+
     def detect(self, image: np.ndarray, gravity: np.ndarray | None = None) -> list[BrickPose]:
         """Bricks in one frame (BGR or grey uint8), their poses ``camera_from_brick``.
 
@@ -564,10 +573,7 @@ class ArucoBrickDetector:
                 continue
             groups.setdefault((c.layout.name, c.instance, 0), []).append(c)
         groups = self._split_duplicates(groups)
-        g = None if gravity is None else np.asarray(gravity, np.float64).ravel()
-        if g is not None:
-            nrm = float(np.linalg.norm(g))
-            g = g / nrm if nrm > 0 and np.isfinite(nrm) else None
+        g = unit_gravity(gravity)
         results: dict[tuple[str, int, int], tuple] = {}
         for key, group in groups.items():
             res = self._solve(group, PoseEvidence(gravity=g,
@@ -576,9 +582,9 @@ class ArucoBrickDetector:
                 results[key] = res
         # second pass: undecided bricks, with the "up" of the decided ones in this frame
         if any(r[0].ambiguous for r in results.values()):
-            done = [r[0] for r in results.values() if not r[0].ambiguous]
-            up = reference_up(np.array([cv2.Rodrigues(d.rvec.reshape(3, 1))[0] for d in done]),
-                              [d.decided_by for d in done]) if done else None
+            chosen = [r[0] for r in results.values()]
+            up = decided_up(np.array([cv2.Rodrigues(d.rvec.reshape(3, 1))[0] for d in chosen]),
+                            [d.decided_by for d in chosen], np.array([d.ambiguous for d in chosen]))
             for key, (res, group) in list(results.items()):
                 if up is not None and res.ambiguous:
                     res2 = self._solve(group, PoseEvidence(

@@ -40,6 +40,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect import dots_kernels as _k
+from drovisio.detect.base import decided_up, unit_gravity
 from drovisio.detect.dots_blobs import (
     BlobFilter,
     Blobs,
@@ -70,7 +71,6 @@ from drovisio.pose import (
     alternative_plausible,
     canonical_half_turn,
     decide_flips,
-    reference_up,
 )
 from drovisio.pose.batch import (
     conic_center_offsets,
@@ -206,15 +206,20 @@ class DotDetector:
         camera: The calibrated camera the frames come from.
         layouts: Layouts to look for; those without dots are ignored.
         config: Settings.
+        stream: Frames come in order from one stream: keep a symmetric brick's yaw in the
+            previous frame's half-turn (:meth:`reset` forgets it).
 
     Raises:
         LayoutNotSupported: a layout's dots cannot be used (fewer than 4, not coplanar), or
             more than 8 distinct colours.
     """
 
+    name = "dots"
+
     def __init__(self, camera: Camera, layouts: Sequence[MarkerLayout],
-                 config: DotsConfig | None = None):
+                 config: DotsConfig | None = None, *, stream: bool = False):
         self.camera = camera
+        self.state: DotsState | None = DotsState() if stream else None
         self.config = cfg = config or DotsConfig()
         self.layouts = [lay for lay in layouts if getattr(lay, "has_dots", False)]
         specs, index = [], {}
@@ -362,6 +367,11 @@ class DotDetector:
         return qn[0], J @ blobs.cov @ J.transpose(0, 2, 1)
 
     # ------------------------------------------------------------------------------ detect
+    def reset(self) -> None:
+        """Forget the stream's previous frame."""
+        if self.state is not None:
+            self.state = DotsState()
+
     def detect(self, image_bgr, gravity: Sequence[float] | np.ndarray | None = None,
                state: DotsState | None = None) -> list[BrickPose]:
         """Find the bricks in one frame.
@@ -370,7 +380,8 @@ class DotDetector:
             image_bgr: (H, W, 3) uint8 BGR frame of this detector's camera.
             gravity: Direction of gravity in the camera frame (unit vector, pointing down),
                 if known: resolves the planar ambiguity of bricks lying roughly flat.
-            state: A :class:`DotsState` carried over a stream (optional).
+            state: A :class:`DotsState` carried over a stream (optional; default: the
+                detector's own, when built with ``stream=True``).
 
         Returns:
             One :class:`BrickPose` per brick found (``method="dots"``, ``instance=None``,
@@ -381,6 +392,8 @@ class DotDetector:
             DotsInputError: not an image (None, wrong dtype or shape).
         """
         img, note = check_image(image_bgr)
+        if state is None:
+            state = self.state
         if state is not None:
             state.note = note
             state.frames += 1
@@ -414,10 +427,7 @@ class DotDetector:
         cands = assign_greedy(hyps, len(blobs), cfg.min_dots, taken)
         if not cands:
             return []
-        g = None if gravity is None else np.asarray(gravity, np.float64).ravel()
-        if g is not None:
-            ng = float(np.linalg.norm(g)) if g.size == 3 else 0.0
-            g = g / ng if ng > 0 and np.all(np.isfinite(g)) else None
+        g = unit_gravity(gravity)
         return self._solve(img, blobs, cands, taken, g, state, cov)
 
     # ------------------------------------------------------------------------------ poses
@@ -849,7 +859,7 @@ class DotDetector:
         choose, why = decide_flips(R2, chi2, dof, gravity=gravity, previous=prev,
                                    rule=cfg.ambiguity)
         undecided = choose < 0
-        up = reference_up(R2[ar, np.maximum(choose, 0)], why) if undecided.any() else None
+        up = decided_up(R2[ar, np.maximum(choose, 0)], why, undecided)
         if up is not None:
             u = np.flatnonzero(undecided)
             choose[u], _ = decide_flips(R2[u], chi2[u], dof[u], gravity=gravity,

@@ -80,7 +80,7 @@ class FakeDetector:
         self.rng = np.random.default_rng(seed)
         self.lock = threading.Lock()
 
-    def detect(self, image, timestamp, gravity=None):
+    def detect(self, image, gravity=None):
         with self.lock:
             self.calls += 1
             k = self.calls

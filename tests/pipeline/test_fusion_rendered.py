@@ -48,7 +48,7 @@ def test_fused_pose_beats_the_code_pose():
         res = render(Scene(cam, cfw, Ground("gravel", 3), [BrickInstance(lay, W, instance=3)]),
                      Effects(noise_sigma=2.0, seed=k), ss=2)
         g = cfw[:3, :3] @ np.array([0.0, 0.0, -1.0])
-        poses = [q for d in dets for q in d.detect(res.image, 0.0, gravity=g)]
+        poses = [q for d in dets for q in d.detect(res.image, gravity=g)]
         from drovisio.fusion import fuse_frame
 
         fused = fuse_frame(poses, symmetric_dots=p._symmetric_dots)

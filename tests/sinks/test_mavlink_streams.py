@@ -28,8 +28,9 @@ def test_ardupilot_answers_set_message_interval_and_streams(vehicle):
         roll, pitch, _ = sink.attitude_at(time.monotonic())
         assert roll == pytest.approx(0.1, abs=1e-6) and pitch == pytest.approx(-0.05, abs=1e-6)
         # asked the right vehicle, the right message, by SET_MESSAGE_INTERVAL
+        # the two requests travel separately: wait for both rather than race the second
+        assert _wait(lambda: {int(c.param1) for c in v.commands if c.command == 511} >= {30, 32})
         cmd = [c for c in v.commands if c.command == 511]
-        assert {int(c.param1) for c in cmd} >= {30, 32}
         assert all(c.target_system == 1 and c.target_component == 1 for c in cmd)
         assert v.stream_requests == []         # no fallback needed
         st = sink.status()

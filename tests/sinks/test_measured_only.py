@@ -62,7 +62,7 @@ class ScriptedDetector:
         self.script = script
         self.sway = sway
 
-    def detect(self, image, timestamp, gravity=None):
+    def detect(self, image, gravity=None):
         i = int(image[0, 0, 0]) + 256 * int(image[0, 0, 1])
         d = self.script[i]
         if d is None:

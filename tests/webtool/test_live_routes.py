@@ -50,7 +50,7 @@ class NoiseCamera:
 class OneBrick:
     name = "fake"
 
-    def detect(self, image, timestamp, gravity=None):
+    def detect(self, image, gravity=None):
         return [BrickPose("drick-aruco-centre", 1, "aruco", np.array([3.1, 0.0, 0.0]),
                           np.array([0.1, 0.0, 1.5]), 0.2, markers=[1],
                           covariance=np.eye(6) * 1e-5,
