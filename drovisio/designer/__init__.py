@@ -6,9 +6,11 @@ drives :class:`drovisio.designer.model.DesignDocument`.
 
 Modules:
     * :mod:`.raycast` - viewer click ray -> point/face on the mesh (trimesh + rtree).
-    * :mod:`.model` - the editable document (mesh, units, brick frame, markers, undo).
+    * :mod:`.model` - the editable document (mesh files and units, code dictionaries, the
+      brick frame, markers, click modes, undo), one subject per module.
     * :mod:`.checks` - live warnings (overhang, overlap, coplanarity, symmetry, ids, range).
     * :mod:`.export` - layout JSON, GLB, print sheet PDF/SVG, saving into a layouts folder.
+    * :mod:`.verify` - a rendered view of the design read back by the detectors.
 """
 
 from drovisio.designer.model import DesignDocument, DesignError, DesignMarker

@@ -565,7 +565,7 @@ def _check_ids(doc: DesignDocument) -> list[Finding]:
                            f"{block.stop - 1}, more than this code family has. Make fewer "
                            "bricks, use a lower first id, or choose a family with more codes "
                            "(5x5, 6x6, 7x7).", idx))
-    for block_o, name in doc._taken_blocks():
+    for block_o, name in doc.taken_blocks():
         lo, hi = max(block.start, block_o.start), min(block.stop, block_o.stop)
         if lo < hi:
             free = doc.free_first_id()

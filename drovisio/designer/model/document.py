@@ -24,355 +24,58 @@
 Everything is in metres and radians; degrees only in the arguments named ``*_deg``.
 """
 
+
 from __future__ import annotations
 
 import copy
-import io
 import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any
 
 import numpy as np
 import trimesh
 
+from drovisio.designer.model.codes import dictionary_for_block, family_dictionaries
+from drovisio.designer.model.edits import (
+    KEEP,
+    check_colour,
+    check_defaults,
+    check_layout_numbers,
+    check_name,
+    check_size,
+    check_slot,
+    check_symmetry_and_family,
+)
+from drovisio.designer.model.errors import DesignError
+from drovisio.designer.model.frame import (
+    brick_axes_in_mesh,
+    brick_from_axes,
+    face_up,
+    in_plane_x,
+    longest_edge_direction,
+    t3,
+    turned,
+    unit,
+)
+from drovisio.designer.model.history import Snapshot, UndoHistory
+from drovisio.designer.model.marker import DesignMarker
+from drovisio.designer.model.meshfile import UNITS, guess_units, read_mesh, units_problem
+from drovisio.designer.model.modes import MODES, ClickResult
 from drovisio.designer.raycast import FlatFace, FlatFaces, RayHit, cast_ray
+from drovisio.geometry import invert, rot_x, rot_z, so3_exp
 from drovisio.layout import (
     DEFAULT_PALETTE,
+    SCHEMA_ID,
     UNITS_TO_M,
     ColorSpec,
     MarkerLayout,
-    aruco_dictionaries,
-    aruco_dictionary_size,
     aruco_family,
 )
+from drovisio.meshes import load_layout_mesh
 
-__all__ = [
-    "MESH_TYPES", "UNITS", "MODES", "DesignError", "DesignMarker", "DesignDocument",
-    "read_mesh", "guess_units", "units_problem", "code_families", "dictionary_for_block",
-    "rotation_about",
-]
-
-#: File extensions :func:`read_mesh` accepts.
-MESH_TYPES = ("stl", "obj", "ply", "glb", "gltf", "off")
-UNITS = ("mm", "cm", "m")
-#: What a click on the model does.
-MODES = ("code", "dot", "select", "origin")
-Mode = Literal["code", "dot", "select", "origin"]
-
-UNDO_LIMIT = 200
-
-
-class DesignError(ValueError):
-    """A user-facing problem (bad file, impossible edit). The message says what to do."""
-
-
-# ------------------------------------------------------------------------------ mesh files
-
-
-def _is_stl(data: bytes) -> bool:
-    if len(data) >= 84:
-        n = int.from_bytes(data[80:84], "little")
-        if 84 + 50 * n == len(data):
-            return True
-    head = data[:2048].lstrip().lower()
-    return head.startswith(b"solid") and (b"facet" in data[:1 << 20].lower()
-                                         or b"endsolid" in data.lower())
-
-
-def _is_text(data: bytes) -> bool:
-    if b"\0" in data[:65536]:
-        return False
-    try:
-        data[:65536].decode("utf-8")
-    except UnicodeDecodeError:
-        try:
-            data[:65536].decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes anything
-            return False
-    return True
-
-
-def _looks_like(ext: str, data: bytes) -> bool:
-    """Whether the bytes look like the format their extension claims."""
-    if ext == "stl":
-        return _is_stl(data)
-    if ext == "ply":
-        return data[:3] == b"ply"
-    if ext == "glb":
-        return data[:4] == b"glTF"
-    if ext == "off":
-        first = data.lstrip()[:16].upper()
-        return _is_text(data) and b"OFF" in first
-    if ext == "gltf":
-        return _is_text(data) and b'"asset"' in data[:1 << 20]
-    if ext == "obj":
-        if not _is_text(data):
-            return False
-        return re.search(rb"(?m)^\s*(v|f)\s", data[:1 << 22]) is not None
-    return False
-
-
-def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
-    """Read a triangle mesh from the bytes of an uploaded file.
-
-    Args:
-        data: the file's content.
-        filename: its name; the extension picks the format (STL, OBJ, PLY, GLB, GLTF, OFF).
-
-    Returns:
-        The mesh, in the file's own units and axes (vertices merged, degenerate triangles
-        dropped). A GLB/GLTF scene is flattened into one mesh.
-
-    Raises:
-        DesignError: not a mesh file, an unreadable one, or a mesh with no triangles; the
-            message says what to do.
-    """
-    name = Path(filename or "model").name
-    ext = Path(name).suffix.lower().lstrip(".")
-    kinds = "STL, OBJ, PLY, GLB/GLTF or OFF"
-    if ext not in MESH_TYPES:
-        what = f"'.{ext}' files" if ext else "files without an extension"
-        raise DesignError(f"{name}: {what} are not 3D models this tool can read. Export the "
-                          f"brick from your CAD program as {kinds} (STL is the safest) and "
-                          "upload that file.")
-    if not data:
-        raise DesignError(f"{name}: the file is empty (0 bytes). Export the model again and "
-                          "upload the new file.")
-    if not _looks_like(ext, data):
-        raise DesignError(f"{name}: this is not a {ext.upper()} 3D model (its content does not "
-                          f"match the format). Check that you picked the right file, or "
-                          f"export the brick again as {kinds}.")
-    try:
-        loaded = trimesh.load(io.BytesIO(data), file_type=ext, force="mesh", process=True)
-    except Exception as e:  # trimesh raises many kinds on corrupt files
-        reason = str(e).splitlines()[0][:160] if str(e) else type(e).__name__
-        extra = (" A .gltf file that refers to separate .bin or image files cannot be read "
-                 "alone: export a single .glb file instead." if ext == "gltf" else "")
-        raise DesignError(f"{name}: could not read this {ext.upper()} file ({reason}). It may "
-                          f"be damaged: export the model again.{extra}") from None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise DesignError(f"{name}: the model has no triangles (an empty model, or only points "
-                          "or lines). Export the solid brick as a surface mesh (STL).")
-    V = np.asarray(loaded.vertices, np.float64)
-    if not np.all(np.isfinite(V)):
-        raise DesignError(f"{name}: the model has invalid coordinates (NaN or infinite). "
-                          "Export it again.")
-    mesh = trimesh.Trimesh(V, np.asarray(loaded.faces, np.int64), process=True)
-    keep = mesh.nondegenerate_faces()
-    if not np.all(keep):
-        mesh.update_faces(keep)
-        mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) == 0 or float(np.max(mesh.extents)) <= 0:
-        raise DesignError(f"{name}: the model has no triangles with an area (all are "
-                          "flattened to lines or points). Export the solid brick again.")
-    return mesh
-
-
-def guess_units(extent: float) -> str:
-    """Guess a mesh's length unit from its largest extent, in file numbers.
-
-    Bricks are 2 cm to 5 m: up to 5 the numbers are metres, from 20 millimetres (CAD
-    programs' default), in between centimetres.
-    """
-    if extent <= 5.0:
-        return "m"
-    if extent < 20.0:
-        return "cm"
-    return "mm"
-
-
-def _fmt_len(m: float) -> str:
-    if m >= 1.0:
-        return f"{m:.3g} m"
-    if m >= 0.01:
-        return f"{m * 100:.3g} cm" if m * 1000 % 10 else f"{m * 1000:.0f} mm"
-    return f"{m * 1000:.3g} mm"
-
-
-def units_problem(extent: float, units: str) -> tuple[str, str] | None:
-    """A warning when ``units`` makes a brick of absurd size.
-
-    Args:
-        extent: largest extent of the mesh in file numbers.
-        units: the declared unit.
-
-    Returns:
-        ``(message, suggested_units)``, or None when the size is plausible (1 cm .. 5 m).
-    """
-    size = extent * UNITS_TO_M[units]
-    guess = guess_units(extent)
-    if 0.01 <= size <= 5.0 or guess == units:
-        return None
-    names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
-    msg = (f"In {names[units]}, this model is {_fmt_len(size)} long, which is not a brick "
-           f"size. Its numbers are probably {names[guess]} (then it is "
-           f"{_fmt_len(extent * UNITS_TO_M[guess])} long): choose '{guess}' as the unit.")
-    return msg, guess
-
-
-# ------------------------------------------------------------------------------ ids
-
-
-def code_families() -> list[tuple[str, str]]:
-    """Code families to choose from: ``(family, label)``; a family's dictionaries share codes.
-
-    ``DICT_4X4`` stands for DICT_4X4_50/100/250/1000 (the size is chosen to hold the ids).
-    """
-    labels = {
-        "DICT_4X4": "4x4 codes (big cells: read from farthest; the thesis's choice)",
-        "DICT_5X5": "5x5 codes",
-        "DICT_6X6": "6x6 codes",
-        "DICT_7X7": "7x7 codes (many ids, small cells)",
-    }
-    out: list[tuple[str, str]] = []
-    seen: set[str] = set()
-    for d in aruco_dictionaries():
-        fam = aruco_family(d)
-        if fam in seen:
-            continue
-        seen.add(fam)
-        out.append((fam, labels.get(fam, d)))
-    return out
-
-
-def _family_dictionaries(family: str) -> list[str]:
-    names = [d for d in aruco_dictionaries() if aruco_family(d) == family]
-    return sorted(names, key=aruco_dictionary_size)
-
-
-def dictionary_for_block(family: str, end: int) -> str | None:
-    """The smallest dictionary of ``family`` holding ids ``0 .. end-1``, or None."""
-    for d in _family_dictionaries(family):
-        if aruco_dictionary_size(d) >= end:
-            return d
-    return None
-
-
-# ------------------------------------------------------------------------------ geometry
-
-
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64)
-    n = np.linalg.norm(v)
-    return v / n if n > 0 else v
-
-
-def rotation_about(axis, angle_rad: float) -> np.ndarray:
-    """3x3 rotation by ``angle_rad`` about ``axis`` (right-handed)."""
-    k = _unit(axis)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle_rad) * K + (1 - math.cos(angle_rad)) * K @ K
-
-
-def _rigid_inv(T: np.ndarray) -> np.ndarray:
-    R, t = T[:3, :3], T[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ t
-    return out
-
-
-def _t3(v) -> tuple[float, float, float]:
-    a = np.asarray(v, np.float64).reshape(3)
-    return (float(a[0]), float(a[1]), float(a[2]))
-
-
-@dataclass(frozen=True)
-class DesignMarker:
-    """One marker of the design, in the **mesh frame**, metres.
-
-    Attributes:
-        kind: ``"aruco"`` (a printed code) or ``"dot"`` (a colour dot).
-        center: centre on the surface.
-        normal: unit direction the printed face looks toward (the face's outward normal).
-        up: unit in-plane direction toward the printed image's top edge (codes); for dots
-            only the reference of the face's grid.
-        size: code side (outer black border) or dot diameter.
-        slot: the code's slot in the id block (codes only).
-        color: dot colour name (dots only).
-        face: index of the flat face it lies on (None: not found on the surface).
-    """
-
-    kind: Literal["aruco", "dot"]
-    center: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    up: tuple[float, float, float]
-    size: float
-    slot: int | None = None
-    color: str | None = None
-    face: int | None = None
-
-    @property
-    def c(self) -> np.ndarray:
-        return np.array(self.center, np.float64)
-
-    @property
-    def n(self) -> np.ndarray:
-        return np.array(self.normal, np.float64)
-
-    @property
-    def u(self) -> np.ndarray:
-        return np.array(self.up, np.float64)
-
-    @property
-    def r(self) -> np.ndarray:
-        """Unit direction toward the printed image's right edge (``up x normal``)."""
-        return np.cross(self.u, self.n)
-
-    def label(self, index: int) -> str:
-        """Short name used in the panel and in warnings, e.g. ``"code 0"``, ``"dot 3 (red)"``
-        (``index`` counts dots from 1 among all markers)."""
-        if self.kind == "aruco":
-            return f"code {self.slot}"
-        return f"dot {index} ({self.color})"
-
-    def outline(self, samples: int = 8) -> np.ndarray:
-        """Points on and inside the marker's printed shape (mesh frame), for face tests."""
-        c, r, u = self.c, self.r, self.u
-        h = self.size / 2.0
-        if self.kind == "aruco":
-            t = np.linspace(-1.0, 1.0, samples + 1)
-            gx, gy = np.meshgrid(t, t)
-            pts = np.stack([gx.ravel(), gy.ravel()], axis=1) * h
-        else:
-            ang = np.linspace(0, 2 * np.pi, 4 * samples, endpoint=False)
-            ring = np.stack([np.cos(ang), np.sin(ang)], axis=1) * h
-            pts = np.concatenate([ring, ring * 0.5, [[0.0, 0.0]]])
-        return c + pts[:, :1] * r + pts[:, 1:] * u
-
-    def corners(self) -> np.ndarray:
-        """A code's corners TL, TR, BR, BL (OpenCV order; mesh frame)."""
-        c, r, u, h = self.c, self.r, self.u, self.size / 2.0
-        return np.array([c - r * h + u * h, c + r * h + u * h, c + r * h - u * h,
-                         c - r * h - u * h])
-
-
-@dataclass
-class _Snapshot:
-    units: str
-    brick_from_mesh: np.ndarray
-    markers: tuple[DesignMarker, ...]
-    first_id: int | None
-    ids_per_instance: int | None
-    instances: int
-    symmetry: str
-    code_family: str
-    name: str
-    description: str | None
-    selected: int | None
-
-
-@dataclass
-class ClickResult:
-    """What a click did: ``action`` in ``added``, ``selected``, ``origin``, ``missed``,
-    ``none``; ``marker`` the marker index concerned; ``message`` a sentence for the user."""
-
-    action: str
-    message: str
-    marker: int | None = None
-    point: tuple[float, float, float] | None = None
+__all__ = ["DesignDocument"]
 
 
 @dataclass
@@ -408,8 +111,7 @@ class DesignDocument:
     version: int = 0
     mesh_version: int = 0
     _mesh_raw: trimesh.Trimesh | None = field(default=None, repr=False)
-    _undo: list[_Snapshot] = field(default_factory=list, repr=False)
-    _redo: list[_Snapshot] = field(default_factory=list, repr=False)
+    _history: UndoHistory = field(default_factory=UndoHistory, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ loading
@@ -452,8 +154,6 @@ class DesignDocument:
         The mesh is the layout's mesh file (or the shipped procedural one, or a box of the
         layout's dimensions when it names none), in metres, already in the brick frame.
         """
-        from drovisio.meshes import load_layout_mesh
-
         mesh = load_layout_mesh(layout)
         if mesh is None:
             dims = layout.dimensions_m
@@ -478,12 +178,12 @@ class DesignDocument:
         for m in layout.markers:
             if m.kind == "aruco":
                 n = m.normal_array()
-                mk = DesignMarker("aruco", _t3(m.center_array() * s), _t3(n),
-                                  _t3(m.up_array()), float(m.size * s), slot=m.id)
+                mk = DesignMarker("aruco", t3(m.center_array() * s), t3(n),
+                                  t3(m.up_array()), float(m.size * s), slot=m.id)
             else:
                 n = m.normal_array()
-                mk = DesignMarker("dot", _t3(m.center_array() * s), _t3(n),
-                                  _t3(doc._default_up(n)), float(m.diameter * s),
+                mk = DesignMarker("dot", t3(m.center_array() * s), t3(n),
+                                  t3(doc._default_up(n)), float(m.diameter * s),
                                   color=m.color)
             doc.markers.append(replace(mk, face=doc._face_under(mk.c, n)))
         return doc
@@ -542,7 +242,8 @@ class DesignDocument:
 
     @property
     def mesh_from_brick(self) -> np.ndarray:
-        return _rigid_inv(self.brick_from_mesh)
+        """The inverse of ``brick_from_mesh`` (4x4)."""
+        return invert(self.brick_from_mesh)
 
     def to_brick(self, p) -> np.ndarray:
         """Points (N, 3) or (3,) from the mesh frame to the brick frame."""
@@ -557,9 +258,9 @@ class DesignDocument:
         """The markers in the brick frame (what the layout file holds)."""
         out = []
         for m in self.markers:
-            out.append(replace(m, center=_t3(self.to_brick(m.c)),
-                               normal=_t3(self.dir_to_brick(m.n)),
-                               up=_t3(self.dir_to_brick(m.u))))
+            out.append(replace(m, center=t3(self.to_brick(m.c)),
+                               normal=t3(self.dir_to_brick(m.n)),
+                               up=t3(self.dir_to_brick(m.u))))
         return out
 
     def brick_mesh(self) -> trimesh.Trimesh:
@@ -597,7 +298,8 @@ class DesignDocument:
         slots = [m.slot for _, m in self.codes() if m.slot is not None]
         return max(slots) + 1 if slots else 1
 
-    def _taken_blocks(self) -> list[tuple[range, str]]:
+    def taken_blocks(self) -> list[tuple[range, str]]:
+        """Id blocks of the other layouts in this design's code family: ``(block, name)``."""
         out = []
         for lay in self.others:
             if lay.name == self.name:
@@ -609,7 +311,7 @@ class DesignDocument:
     def free_first_id(self, span: int | None = None) -> int:
         """The lowest first id whose block (``span`` ids) clashes with no other layout."""
         span = span if span is not None else self.effective_ids_per_instance() * self.instances
-        taken = sorted(self._taken_blocks(), key=lambda b: b[0].start)
+        taken = sorted(self.taken_blocks(), key=lambda b: b[0].start)
         start = 0
         moved = True
         while moved:
@@ -634,18 +336,18 @@ class DesignDocument:
         none does, or no codes)."""
         block = self.id_block()
         if not block:
-            fams = _family_dictionaries(self.code_family)
+            fams = family_dictionaries(self.code_family)
             return fams[0] if fams else None
         return dictionary_for_block(self.code_family, block.stop)
 
     # ------------------------------------------------------------------ undo
 
-    def _snapshot(self) -> _Snapshot:
-        return _Snapshot(self.units, self.brick_from_mesh.copy(), tuple(self.markers),
-                         self.first_id, self.ids_per_instance, self.instances, self.symmetry,
-                         self.code_family, self.name, self.description, self.selected)
+    def _snapshot(self) -> Snapshot:
+        return Snapshot(self.units, self.brick_from_mesh.copy(), tuple(self.markers),
+                        self.first_id, self.ids_per_instance, self.instances, self.symmetry,
+                        self.code_family, self.name, self.description, self.selected)
 
-    def _restore(self, s: _Snapshot) -> None:
+    def _restore(self, s: Snapshot) -> None:
         units_changed = s.units != self.units
         self.units = s.units
         self.brick_from_mesh = s.brick_from_mesh.copy()
@@ -661,35 +363,33 @@ class DesignDocument:
             self.version += 1
 
     def _push(self) -> None:
-        self._undo.append(self._snapshot())
-        del self._undo[:-UNDO_LIMIT]
-        self._redo.clear()
+        self._history.record(self._snapshot())
 
     def _changed(self) -> None:
         self.version += 1
 
     @property
     def can_undo(self) -> bool:
-        return bool(self._undo)
+        return self._history.can_undo
 
     @property
     def can_redo(self) -> bool:
-        return bool(self._redo)
+        return self._history.can_redo
 
     def undo(self) -> bool:
         """Undo the last edit. Returns False when there is nothing to undo."""
-        if not self._undo:
+        previous = self._history.undo(self._snapshot())
+        if previous is None:
             return False
-        self._redo.append(self._snapshot())
-        self._restore(self._undo.pop())
+        self._restore(previous)
         return True
 
     def redo(self) -> bool:
         """Redo the last undone edit. Returns False when there is nothing to redo."""
-        if not self._redo:
+        following = self._history.redo(self._snapshot())
+        if following is None:
             return False
-        self._undo.append(self._snapshot())
-        self._restore(self._redo.pop())
+        self._restore(following)
         return True
 
     def checkpoint(self) -> None:
@@ -698,36 +398,14 @@ class DesignDocument:
 
     # ------------------------------------------------------------------ frame
 
-    def _brick_axes_in_mesh(self) -> np.ndarray:
-        """Columns: the brick's x, y, z axes expressed in the mesh frame."""
-        return self.brick_from_mesh[:3, :3].T
-
-    def _set_mesh_from_brick(self, origin_m, x_m, z_m) -> None:
-        z = _unit(z_m)
-        x = np.asarray(x_m, np.float64) - (np.asarray(x_m) @ z) * z
-        x = _unit(x)
-        y = np.cross(z, x)
-        M = np.eye(4)
-        M[:3, 0], M[:3, 1], M[:3, 2], M[:3, 3] = x, y, z, origin_m
-        B = _rigid_inv(M)
-        B[np.abs(B) < 1e-12] = 0.0
-        self.brick_from_mesh = B
-
-    def _pick_x(self, z: np.ndarray) -> np.ndarray:
-        axes = self._brick_axes_in_mesh()
-        for cand in (axes[:, 0], axes[:, 1], -axes[:, 2], np.array([1.0, 0, 0]),
-                     np.array([0, 1.0, 0])):
-            p = cand - (cand @ z) * z
-            if np.linalg.norm(p) > 0.2:
-                return p
-        return np.array([1.0, 0, 0])  # pragma: no cover
-
     def set_origin_on_face(self, face: int) -> None:
         """Put the brick origin at the centre of a flat face, z along its outward normal
         (x: the current x axis laid on the face)."""
         f = self.faces.faces[face]
         self._push()
-        self._set_mesh_from_brick(self.faces.centre(f), self._pick_x(f.normal), f.normal)
+        self.brick_from_mesh = brick_from_axes(self.faces.centre(f),
+                                               in_plane_x(self.brick_from_mesh, f.normal),
+                                               f.normal)
         self._changed()
 
     def origin_to_top_centre(self) -> None:
@@ -736,40 +414,16 @@ class DesignDocument:
         lo, hi = V.min(axis=0), V.max(axis=0)
         target_b = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2]])
         self._push()
-        axes = self._brick_axes_in_mesh()
+        axes = brick_axes_in_mesh(self.brick_from_mesh)
         origin_m = self.mesh_from_brick[:3, :3] @ target_b + self.mesh_from_brick[:3, 3]
-        self._set_mesh_from_brick(origin_m, axes[:, 0], axes[:, 2])
+        self.brick_from_mesh = brick_from_axes(origin_m, axes[:, 0], axes[:, 2])
         self._changed()
 
     def longest_edge_direction(self) -> np.ndarray | None:
         """Brick-frame direction (unit, in the xy plane) of the mesh's longest *feature* edge
         (between two faces meeting at an angle; triangulation diagonals inside a flat face do
         not count) that is perpendicular to z (within 1 deg), or None."""
-        mesh = self.mesh
-        E = np.asarray(mesh.face_adjacency_edges, np.int64).reshape(-1, 2)
-        if len(E):
-            E = E[np.asarray(mesh.face_adjacency_angles) > np.radians(1.0)]
-        # plus the open boundary of a mesh that is not closed (edges of a single face)
-        boundary = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)
-        if len(boundary):
-            E = np.vstack([E, mesh.edges_sorted[np.asarray(boundary).ravel()]])
-        if len(E) == 0:
-            return None
-        V = self.to_brick(mesh.vertices)
-        d = V[E[:, 1]] - V[E[:, 0]]
-        length = np.linalg.norm(d, axis=1)
-        flat = np.abs(d[:, 2]) <= np.sin(np.radians(1.0)) * length
-        if not np.any(flat & (length > 0)):
-            return None
-        L = np.where(flat, length, -1.0)
-        best = L.max()
-        cands = np.flatnonzero(L >= best * (1 - 1e-6))
-        # among equally long edges, the one closest to the current x axis
-        dirs = d[cands, :2] / length[cands, None]
-        k = cands[int(np.argmax(np.abs(dirs[:, 0])))]
-        v = np.array([d[k, 0], d[k, 1], 0.0])
-        v = _unit(v)
-        return v if v[0] >= 0 else -v
+        return longest_edge_direction(self.mesh, self.brick_from_mesh)
 
     def align_x_with_longest_edge(self) -> bool:
         """Turn the brick frame about z so that x runs along the longest horizontal edge.
@@ -779,28 +433,20 @@ class DesignDocument:
             return False
         self._push()
         angle = math.atan2(v[1], v[0])
-        self._rotate_frame(rotation_about([0, 0, 1], angle))
+        self.brick_from_mesh = turned(self.brick_from_mesh, rot_z(angle))
         self._changed()
         return True
-
-    def _rotate_frame(self, R_old_from_new: np.ndarray) -> None:
-        """New brick axes = old axes rotated by R (expressed in the old brick frame)."""
-        T = np.eye(4)
-        T[:3, :3] = R_old_from_new.T  # new_from_old
-        B = T @ self.brick_from_mesh
-        B[np.abs(B) < 1e-12] = 0.0
-        self.brick_from_mesh = B
 
     def turn_frame(self, angle_deg: float = 90.0) -> None:
         """Turn the brick's x and y axes about z by ``angle_deg``."""
         self._push()
-        self._rotate_frame(rotation_about([0, 0, 1], math.radians(angle_deg)))
+        self.brick_from_mesh = turned(self.brick_from_mesh, rot_z(math.radians(angle_deg)))
         self._changed()
 
     def flip_frame(self) -> None:
         """Turn the brick frame upside down (half-turn about x: z and y reverse)."""
         self._push()
-        self._rotate_frame(rotation_about([1, 0, 0], math.pi))
+        self.brick_from_mesh = turned(self.brick_from_mesh, rot_x(math.pi))
         self._changed()
 
     def reset_frame(self) -> None:
@@ -821,7 +467,7 @@ class DesignDocument:
             return
         self._push()
         k = UNITS_TO_M[units] / UNITS_TO_M[self.units]
-        self.markers = [replace(m, center=_t3(m.c * k)) for m in self.markers]
+        self.markers = [replace(m, center=t3(m.c * k)) for m in self.markers]
         B = self.brick_from_mesh.copy()
         B[:3, 3] *= k
         self.brick_from_mesh = B
@@ -831,16 +477,8 @@ class DesignDocument:
 
     # ------------------------------------------------------------------ placing
 
-    def _default_up(self, normal_m) -> np.ndarray:
-        """In-plane 'up' of a face: the brick's z laid on the face, or the brick's y for a
-        face looking along z."""
-        n = _unit(normal_m)
-        axes = self._brick_axes_in_mesh()
-        for cand in (axes[:, 2], axes[:, 1], axes[:, 0]):
-            p = cand - (cand @ n) * n
-            if np.linalg.norm(p) > 0.3:
-                return _unit(p)
-        return _unit(np.cross(n, [1.0, 0, 0]))  # pragma: no cover
+    def _default_up(self, normal_m: np.ndarray) -> np.ndarray:
+        return face_up(self.brick_from_mesh, normal_m)
 
     def _face_axes(self, face: FlatFace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(centre, right, up) of a face's grid (mesh frame)."""
@@ -863,7 +501,7 @@ class DesignDocument:
 
     def _face_under(self, point, normal, reach: float = 0.002) -> int | None:
         """Flat face a point lies on (ray from just above it along -normal)."""
-        n = _unit(normal)
+        n = unit(normal)
         hit = cast_ray(self.mesh, np.asarray(point) + n * reach, -n)
         if hit is None or hit.distance > 2 * reach:
             return None
@@ -895,7 +533,7 @@ class DesignDocument:
         if self.mode == "origin":
             self.set_origin_on_face(face.index)
             return ClickResult("origin", "The brick origin is now at the centre of the clicked "
-                                         "face, z pointing out of it.", point=_t3(h.point))
+                                         "face, z pointing out of it.", point=t3(h.point))
         if self.mode == "select":
             idx = self.marker_at(h.point)
             self.select(idx)
@@ -936,14 +574,12 @@ class DesignDocument:
         up = self._default_up(f.normal)
         self._push()
         if kind == "aruco":
-            m = DesignMarker("aruco", _t3(p), _t3(f.normal), _t3(up),
+            m = DesignMarker("aruco", t3(p), t3(f.normal), t3(up),
                              float(size or self.code_size), slot=self._next_slot(), face=face)
         else:
             colour = color or self.dot_color
-            if colour not in self.palette():
-                raise DesignError(f"unknown colour {colour!r}: use one of "
-                                  f"{', '.join(self.palette())}")
-            m = DesignMarker("dot", _t3(p), _t3(f.normal), _t3(up),
+            check_colour(colour, self.palette())
+            m = DesignMarker("dot", t3(p), t3(f.normal), t3(up),
                              float(size or self.dot_diameter), color=colour, face=face)
         self.markers.append(m)
         self.selected = len(self.markers) - 1
@@ -977,7 +613,7 @@ class DesignDocument:
         up = m.u
         if f.index != m.face:
             up = self._default_up(f.normal)
-        self.markers[index] = replace(m, center=_t3(p), normal=_t3(f.normal), up=_t3(up),
+        self.markers[index] = replace(m, center=t3(p), normal=t3(f.normal), up=t3(up),
                                       face=f.index)
         self._changed()
         return True
@@ -991,7 +627,7 @@ class DesignDocument:
             r, u = m.r, m.u
         self._push()
         p = m.c + right * r + up * u
-        self.markers[index] = replace(m, center=_t3(p))
+        self.markers[index] = replace(m, center=t3(p))
         self._changed()
 
     def centre_marker(self, index: int) -> None:
@@ -1002,7 +638,7 @@ class DesignDocument:
                               "move it onto the model first")
         self._push()
         c = self.faces.centre(self.faces.faces[m.face])
-        self.markers[index] = replace(m, center=_t3(c))
+        self.markers[index] = replace(m, center=t3(c))
         self._changed()
 
     def rotate_marker(self, index: int, angle_deg: float) -> None:
@@ -1010,10 +646,10 @@ class DesignDocument:
         front)."""
         m = self._check_index(index)
         self._push()
-        R = rotation_about(m.n, math.radians(angle_deg))
+        R = so3_exp(unit(m.n) * math.radians(angle_deg))
         up = R @ m.u
         up[np.abs(up) < 1e-12] = 0.0
-        self.markers[index] = replace(m, up=_t3(_unit(up)))
+        self.markers[index] = replace(m, up=t3(unit(up)))
         self._changed()
 
     def set_marker(self, index: int, *, size: float | None = None, color: str | None = None,
@@ -1021,35 +657,34 @@ class DesignDocument:
         """Change a marker's size (code side / dot diameter, metres), colour (dots) or slot
         (codes; a slot already used by another code is swapped with it)."""
         m = self._check_index(index)
-        changes: dict = {}
-        if size is not None:
-            if not (isinstance(size, (int, float)) and math.isfinite(size) and size > 0):
-                raise DesignError("the size must be a positive number")
-            if size > 5.0:
-                raise DesignError("the size is given in metres and must be below 5 m")
-            changes["size"] = float(size)
-        if color is not None:
-            if m.kind != "dot":
-                raise DesignError("only dots have a colour")
-            if color not in self.palette():
-                raise DesignError(f"unknown colour {color!r}: use one of "
-                                  f"{', '.join(self.palette())}")
-            changes["color"] = color
-        swap = None
-        if slot is not None:
-            if m.kind != "aruco":
-                raise DesignError("only codes have a slot")
-            if not isinstance(slot, int) or slot < 0 or slot > 999:
-                raise DesignError("the slot must be a whole number from 0 to 999")
-            changes["slot"] = slot
-            swap = next((i for i, o in self.codes() if o.slot == slot and i != index), None)
+        changes = self._marker_changes(m, size, color, slot)
         if not changes:
             return
+        swap = None
+        if slot is not None:
+            swap = next((i for i, o in self.codes() if o.slot == slot and i != index), None)
         self._push()
         if swap is not None:
             self.markers[swap] = replace(self.markers[swap], slot=m.slot)
         self.markers[index] = replace(m, **changes)
         self._changed()
+
+    def _marker_changes(self, m: DesignMarker, size: float | None, color: str | None,
+                        slot: int | None) -> dict[str, Any]:
+        """The checked field changes :meth:`set_marker` makes to ``m``."""
+        changes: dict[str, Any] = {}
+        if size is not None:
+            changes["size"] = check_size(size)
+        if color is not None:
+            if m.kind != "dot":
+                raise DesignError("only dots have a colour")
+            check_colour(color, self.palette())
+            changes["color"] = color
+        if slot is not None:
+            if m.kind != "aruco":
+                raise DesignError("only codes have a slot")
+            changes["slot"] = check_slot(slot)
+        return changes
 
     def delete_marker(self, index: int) -> None:
         self._check_index(index)
@@ -1075,15 +710,8 @@ class DesignDocument:
                      dot_color: str | None = None, grid: float | None = None,
                      snap_radius: float | None = None) -> None:
         """Sizes/colour for the next markers and the snapping (metres; no undo)."""
-        for name, v in (("code size", code_size), ("dot diameter", dot_diameter)):
-            if v is not None and not (math.isfinite(v) and 0 < v <= 5):
-                raise DesignError(f"the {name} must be between 0 and 5 m")
-        for name, v in (("grid step", grid), ("snap distance", snap_radius)):
-            if v is not None and not (math.isfinite(v) and 0 <= v <= 1):
-                raise DesignError(f"the {name} must be between 0 and 1 m (0 turns it off)")
-        if dot_color is not None and dot_color not in self.palette():
-            raise DesignError(f"unknown colour {dot_color!r}: use one of "
-                              f"{', '.join(self.palette())}")
+        check_defaults(code_size=code_size, dot_diameter=dot_diameter, dot_color=dot_color,
+                       grid=grid, snap_radius=snap_radius, palette=self.palette())
         if code_size is not None:
             self.code_size = float(code_size)
         if dot_diameter is not None:
@@ -1104,28 +732,17 @@ class DesignDocument:
         """Change the layout-level fields (undoable). ``first_id``/``ids_per_instance``
         ``None`` means automatic; ``"keep"`` leaves them."""
         if name is not None:
-            name = name.strip()
-            if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", name):
-                raise DesignError("the name may use letters, digits, '-', '_' and '.', start "
-                                  "with a letter or digit, and be at most 64 characters "
-                                  "(it becomes the file name)")
-        for label, v, lo in (("first id", first_id, 0), ("ids per brick", ids_per_instance, 1),
-                             ("number of bricks", instances, 1)):
-            if v not in (None, "keep") and (not isinstance(v, int) or isinstance(v, bool)
-                                            or v < lo or v > 100000):
-                raise DesignError(f"the {label} must be a whole number from {lo}")
-        if symmetry is not None and symmetry not in ("none", "rot180_z"):
-            raise DesignError("symmetry must be 'none' or 'rot180_z'")
-        if code_family is not None and code_family not in dict(code_families()):
-            raise DesignError(f"unknown code family {code_family!r}")
+            name = check_name(name)
+        check_layout_numbers(first_id, ids_per_instance, instances)
+        check_symmetry_and_family(symmetry, code_family)
         self._push()
         if name is not None:
             self.name = name
         if description is not None:
             self.description = description.strip() or None
-        if first_id != "keep":
+        if first_id != KEEP:
             self.first_id = first_id  # type: ignore[assignment]
-        if ids_per_instance != "keep":
+        if ids_per_instance != KEEP:
             self.ids_per_instance = ids_per_instance  # type: ignore[assignment]
         if instances is not None:
             self.instances = instances
@@ -1137,31 +754,18 @@ class DesignDocument:
 
     # ------------------------------------------------------------------ layout
 
-    def layout_data(self, mesh_ref: str | None = None) -> dict:
+    def layout_data(self, mesh_ref: str | None = None) -> dict[str, Any]:
         """The design as layout-file data (brick frame, metres), not yet validated: send
-        it through :func:`drovisio.layout.parse_layout` (see :mod:`.export`).
+        it through :func:`drovisio.layout.parse_layout` (see :mod:`drovisio.designer.export`).
 
         Args:
             mesh_ref: the ``mesh`` field (path relative to the layout file), or None.
         """
-
-        def r(v, nd: int = 7) -> list[float]:
-            return [float(round(float(x), nd)) + 0.0 for x in np.ravel(v)]
-
-        markers = []
-        dictionary = self.dictionary() or _family_dictionaries(self.code_family)[-1]
-        for m in self.brick_markers():
-            if m.kind == "aruco":
-                markers.append({"kind": "aruco", "dictionary": dictionary, "id": m.slot,
-                                "size": float(round(m.size, 7)), "center": r(m.center),
-                                "normal": r(_unit(m.normal), 9), "up": r(_unit(m.up), 9)})
-            else:
-                markers.append({"kind": "dot", "color": m.color,
-                                "diameter": float(round(m.size, 7)), "center": r(m.center),
-                                "normal": r(_unit(m.normal), 9)})
+        dictionary = self.dictionary() or family_dictionaries(self.code_family)[-1]
+        markers = [_marker_data(m, dictionary) for m in self.brick_markers()]
         dims = [max(float(round(d, 6)), 1e-6) for d in self.dimensions()]
-        data: dict = {
-            "schema": "drovisio/marker-layout@1",
+        data: dict[str, Any] = {
+            "schema": SCHEMA_ID,
             "name": self.name,
             "description": self.description or (
                 f"Designed with the Drovisio marker designer on {self.mesh_name or 'a mesh'}: "
@@ -1189,6 +793,22 @@ class DesignDocument:
         new = copy.copy(self)
         new.brick_from_mesh = self.brick_from_mesh.copy()
         new.markers = list(self.markers)
-        new._undo, new._redo = list(self._undo), list(self._redo)
+        new._history = self._history.copy()
         new._cache = dict(self._cache)
         return new
+
+
+def _rounded(v: Any, nd: int = 7) -> list[float]:
+    """A vector as a list of floats rounded to ``nd`` decimals (no negative zero)."""
+    return [float(round(float(x), nd)) + 0.0 for x in np.ravel(v)]
+
+
+def _marker_data(m: DesignMarker, dictionary: str) -> dict[str, Any]:
+    """One marker (brick frame, metres) as a layout file's marker entry."""
+    if m.kind == "aruco":
+        return {"kind": "aruco", "dictionary": dictionary, "id": m.slot,
+                "size": float(round(m.size, 7)), "center": _rounded(m.center),
+                "normal": _rounded(unit(m.normal), 9), "up": _rounded(unit(m.up), 9)}
+    return {"kind": "dot", "color": m.color,
+            "diameter": float(round(m.size, 7)), "center": _rounded(m.center),
+            "normal": _rounded(unit(m.normal), 9)}
