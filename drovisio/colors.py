@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from drovisio.detect.dots_color import clahe_value
 from drovisio.layout import ColorSpec
 
 __all__ = ["ColorProposal", "propose_color", "propose_color_report", "selection_mask"]
@@ -94,11 +95,11 @@ def _circular_hue(h: np.ndarray) -> tuple[float, np.ndarray]:
 
 
 def _inside(hsv: np.ndarray, spec: ColorSpec) -> np.ndarray:
-    m = None
-    for lo, hi in spec.cv_ranges():
-        r = cv2.inRange(hsv, lo, hi)
-        m = r if m is None else cv2.bitwise_or(m, r)
-    return m > 0
+    masks = [cv2.inRange(hsv, lo, hi) for lo, hi in spec.cv_ranges()]
+    m = masks[0]
+    for r in masks[1:]:
+        m = cv2.bitwise_or(m, r)
+    return np.asarray(m > 0)
 
 
 def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 3.0,
@@ -140,8 +141,6 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     if clahe:
-        from drovisio.detect.dots_color import clahe_value
-
         hsv = clahe_value(hsv)
     sel = selection_mask(img.shape[:2], points_or_mask, radius)
     n_sel = int(sel.sum())

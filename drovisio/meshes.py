@@ -19,6 +19,7 @@ import trimesh
 
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write
+from drovisio.layout import shipped_layouts_dir
 
 __all__ = [
     "DRICK_BODY",
@@ -58,10 +59,11 @@ def _from_polygons(polygons: Sequence[Sequence[Sequence[float]]]) -> trimesh.Tri
     faces: list[tuple[int, int, int]] = []
 
     def vid(p: Sequence[float]) -> int:
-        key = tuple(round(float(c), 12) for c in p)
+        x, y, z = (round(float(c), 12) for c in p)
+        key = (x, y, z)
         if key not in index:
             index[key] = len(verts)
-            verts.append(key)  # type: ignore[arg-type]
+            verts.append(key)
         return index[key]
 
     for poly in polygons:
@@ -133,6 +135,13 @@ def shipped_mesh(file_name: str) -> trimesh.Trimesh | None:
     return make() if make is not None else None
 
 
+def _stl_writer(make: Callable[[], trimesh.Trimesh]) -> Callable[[Path], None]:
+    """A writer for :func:`drovisio.fileio.atomic_write` of the mesh ``make`` builds."""
+    def write(tmp: Path) -> None:
+        make().export(tmp, file_type="stl")
+    return write
+
+
 def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[Path]:
     """Write the shipped meshes as binary STL (metres).
 
@@ -142,14 +151,12 @@ def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[P
     Returns:
         The files written.
     """
-    from .layout import shipped_layouts_dir
-
     out = Path(folder) if folder is not None else shipped_layouts_dir() / "meshes"
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, make in _SHIPPED.items():
         path = out / name
-        atomic_write(path, lambda tmp, make=make: make().export(tmp, file_type="stl"))
+        atomic_write(path, _stl_writer(make))
         written.append(path)
     return written
 
@@ -193,11 +200,11 @@ def load_layout_mesh(layout) -> trimesh.Trimesh | None:  # noqa: ANN001 (MarkerL
         if layout.scale_to_m != 1.0:
             mesh.apply_scale(layout.scale_to_m)
         return mesh
-    mesh = shipped_mesh(path.name)
-    if mesh is None:
+    shipped = shipped_mesh(path.name)
+    if shipped is None:
         raise InputError(f"{where}: {path} not found (or not a regular file); put the mesh "
                          "beside the layout or remove the mesh field")
-    return mesh
+    return shipped
 
 
 if __name__ == "__main__":

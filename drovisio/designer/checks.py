@@ -22,7 +22,8 @@ Detection distance: a code must span at least :data:`MIN_CODE_PX` pixels and a d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -203,8 +204,6 @@ def _fits(doc: DesignDocument, m: DesignMarker) -> bool:
 def fit_size(doc: DesignDocument, m: DesignMarker, min_size: float = 0.005) -> float | None:
     """The largest size (whole millimetres, at most the current size) at which the marker
     fits its face where it is, or None if not even ``min_size`` fits."""
-    from dataclasses import replace
-
     if m.face is None:
         return None
     lo, hi = min_size, m.size
@@ -291,9 +290,7 @@ def symmetry_breaking_colour(markers: list[DesignMarker], palette: list[str]
                              ) -> tuple[int, str] | None:
     """A single dot colour change that leaves the pattern with no symmetry:
     ``(index into markers, new colour)``, preferring colours already used, or None."""
-    from dataclasses import replace
-
-    used = list(dict.fromkeys(m.color for m in markers))
+    used = list(dict.fromkeys(m.dot_color for m in markers))
     order = used + [c for c in palette if c not in used]
     for i, m in enumerate(markers):
         for c in order:
@@ -358,6 +355,7 @@ def _check_detectors(doc: DesignDocument, layout) -> list[Finding]:
     so that no layout is saved that the drone then cannot use."""
     if not layout.has_dots:
         return []
+    # deferred: the dot detector loads its compiled kernels, which only this check needs
     from drovisio.detect.dots_match import DotModel, LayoutNotSupported
 
     names = list(dict.fromkeys(layout.dot_colors()))
@@ -428,8 +426,6 @@ def _check_faces(doc: DesignDocument) -> list[Finding]:
             continue
         fixes = []
         face = doc.faces.faces[m.face]
-        from dataclasses import replace
-
         centred = replace(m, center=tuple(doc.faces.centre(face)))
         if _fits(doc, centred) and np.linalg.norm(centred.c - m.c) > 1e-6:
             fixes.append(Fix(f"Move {label} to the centre of its face",
@@ -460,64 +456,84 @@ def _check_overlaps(doc: DesignDocument) -> list[Finding]:
 
 
 def _check_dots(doc: DesignDocument) -> list[Finding]:
-    out: list[Finding] = []
     dots = doc.dots()
     if not dots:
-        if doc.symmetry == "rot180_z":
-            out.append(Finding("symmetry-wrong", "error", "The layout is marked symmetric "
-                               "(half-turn) but has no dots: mark it not symmetric.",
-                               fixes=[Fix("Mark as not symmetric",
-                                          {"op": "set_symmetry", "value": "none"})]))
-        return out
+        return _no_dots_findings(doc)
     bricks = doc.brick_markers()
     idx = [i for i, _ in dots]
     bdots = [bricks[i] for i in idx]
-    # coplanar
     if len(bdots) >= 4:
-        pts = np.array([m.center for m in bdots])
-        centred = pts - pts.mean(axis=0)
-        normal = np.linalg.svd(centred)[2][2]
-        dist = np.abs(centred @ normal)
-        k = int(np.argmax(dist))
-        if dist[k] > DOT_COPLANAR_TOL_M:
-            i = idx[k]
-            out.append(Finding("dots-not-coplanar", "error", f"{doc.marker_label(i).capitalize()}"
-                               f" is {dist[k] * 1000:.0f} mm off the plane of the other dots: "
-                               "the dot detector needs all dots on one flat surface. Move it "
-                               "onto the same face as the others, or delete it.", [i],
-                               [Fix(f"Delete {doc.marker_label(i)}",
-                                    {"op": "delete_marker", "marker": i})]))
-            return out
+        off = _off_plane_dot(doc, idx, bdots)
+        if off is not None:
+            return [off]
     if len(bdots) < 4:
-        # the dot detector refuses such a layout outright, codes or not
-        out.append(Finding("dots-few", "error", f"Only {len(bdots)} dot(s): the drone needs "
-                           "at least 4 dots on one face to find the brick's position and "
-                           "turn. Add more dots (the thesis used 6: two rows of 3)"
-                           + (", or delete the dots and rely on the codes." if doc.codes()
-                              else "."), idx,
-                           [Fix("Delete the dots (keep the codes)",
-                                {"op": "delete_markers", "markers": idx})]
-                           if doc.codes() else []))
-        return out
-    # symmetry
+        return [_few_dots(doc, idx, bdots)]
+    return _dot_symmetry_findings(doc, idx, bdots)
+
+
+def _no_dots_findings(doc: DesignDocument) -> list[Finding]:
+    if doc.symmetry != "rot180_z":
+        return []
+    return [Finding("symmetry-wrong", "error", "The layout is marked symmetric "
+                    "(half-turn) but has no dots: mark it not symmetric.",
+                    fixes=[Fix("Mark as not symmetric",
+                               {"op": "set_symmetry", "value": "none"})])]
+
+
+def _off_plane_dot(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker]
+                   ) -> Finding | None:
+    """The dot farthest from the dots' plane when beyond the layout's tolerance (brick
+    frame, metres)."""
+    pts = np.array([m.center for m in bdots])
+    centred = pts - pts.mean(axis=0)
+    normal = np.linalg.svd(centred)[2][2]
+    dist = np.abs(centred @ normal)
+    k = int(np.argmax(dist))
+    if not dist[k] > DOT_COPLANAR_TOL_M:
+        return None
+    i = idx[k]
+    return Finding("dots-not-coplanar", "error", f"{doc.marker_label(i).capitalize()}"
+                   f" is {dist[k] * 1000:.0f} mm off the plane of the other dots: "
+                   "the dot detector needs all dots on one flat surface. Move it "
+                   "onto the same face as the others, or delete it.", [i],
+                   [Fix(f"Delete {doc.marker_label(i)}",
+                        {"op": "delete_marker", "marker": i})])
+
+
+def _few_dots(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker]) -> Finding:
+    # the dot detector refuses such a layout outright, codes or not
+    return Finding("dots-few", "error", f"Only {len(bdots)} dot(s): the drone needs "
+                   "at least 4 dots on one face to find the brick's position and "
+                   "turn. Add more dots (the thesis used 6: two rows of 3)"
+                   + (", or delete the dots and rely on the codes." if doc.codes()
+                      else "."), idx,
+                   [Fix("Delete the dots (keep the codes)",
+                        {"op": "delete_markers", "markers": idx})]
+                   if doc.codes() else [])
+
+
+def _dot_symmetry_findings(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker]
+                           ) -> list[Finding]:
     angles = dot_symmetries(bdots)
     about_z = _rot180_z_symmetric(bdots)
     if doc.symmetry == "rot180_z" and not about_z:
-        out.append(Finding("symmetry-wrong", "error", "The layout is marked symmetric "
-                           "(half-turn about the brick's z axis) but the dots do not look the "
-                           "same after that half-turn: mark it not symmetric.", idx,
-                           [Fix("Mark as not symmetric", {"op": "set_symmetry", "value": "none"})]))
-        return out
+        return [Finding("symmetry-wrong", "error", "The layout is marked symmetric "
+                        "(half-turn about the brick's z axis) but the dots do not look the "
+                        "same after that half-turn: mark it not symmetric.", idx,
+                        [Fix("Mark as not symmetric", {"op": "set_symmetry", "value": "none"})])]
     others = [a for a in angles if not (doc.symmetry == "rot180_z" and abs(a - 180) < 1)]
     if not angles:
-        return out
+        return []
     if not others:
-        out.append(Finding("symmetric-declared", "info", "The dot pattern is symmetric and the "
-                           "layout says so: from the dots alone the yaw is known only up to a "
-                           "half-turn (180 deg)." + (" The codes tell the two ends apart."
-                                                     if doc.codes() else "")))
-        return out
-    turns = ", ".join(f"{a:g} deg" for a in others)
+        return [Finding("symmetric-declared", "info", "The dot pattern is symmetric and the "
+                        "layout says so: from the dots alone the yaw is known only up to a "
+                        "half-turn (180 deg)." + (" The codes tell the two ends apart."
+                                                  if doc.codes() else ""))]
+    return [_symmetric_dots(doc, idx, bdots, others, about_z)]
+
+
+def _symmetry_fixes(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker],
+                    others: list[float], about_z: bool) -> list[Fix]:
     fixes = []
     swap = symmetry_breaking_colour(bdots, list(doc.palette()))
     if swap is not None:
@@ -528,21 +544,29 @@ def _check_dots(doc: DesignDocument) -> list[Finding]:
     if about_z and others == [180.0] and doc.symmetry != "rot180_z":
         fixes.append(Fix("Keep the pattern and mark the layout as symmetric",
                          {"op": "set_symmetry", "value": "rot180_z"}))
+    return fixes
+
+
+def _symmetric_dots(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker],
+                    others: list[float], about_z: bool) -> Finding:
+    """The dots look the same after the turns ``others`` (degrees) the layout does not
+    declare: an error when the layout model would refuse it, else a warning."""
+    turns = ", ".join(f"{a:g} deg" for a in others)
+    fixes = _symmetry_fixes(doc, idx, bdots, others, about_z)
     refuses = about_z and doc.symmetry == "none" and not doc.codes()
     if 180.0 in others:
         what = ("so from the dots the drone cannot tell the brick's two ends apart: its turn "
                 "(yaw) is ambiguous by 180 deg")
     else:
         what = f"so its turn (yaw) is ambiguous by {turns}"
-    out.append(Finding("symmetric-dots", "error" if refuses else "warning",
-                       f"The dot pattern looks the same after a turn of {turns}, {what}. "
-                       "Change one dot's colour to break the symmetry"
-                       + (", or mark the layout as symmetric." if about_z else
-                          " (the layout file can only declare a half-turn about the brick's "
-                          "z axis through its origin).")
-                       + (" The codes still give the full turn when they are seen."
-                          if doc.codes() else ""), idx, fixes))
-    return out
+    return Finding("symmetric-dots", "error" if refuses else "warning",
+                   f"The dot pattern looks the same after a turn of {turns}, {what}. "
+                   "Change one dot's colour to break the symmetry"
+                   + (", or mark the layout as symmetric." if about_z else
+                      " (the layout file can only declare a half-turn about the brick's "
+                      "z axis through its origin).")
+                   + (" The codes still give the full turn when they are seen."
+                      if doc.codes() else ""), idx, fixes)
 
 
 def _check_ids(doc: DesignDocument) -> list[Finding]:
@@ -552,7 +576,7 @@ def _check_ids(doc: DesignDocument) -> list[Finding]:
         return out
     block = doc.id_block()
     idx = [i for i, _ in codes]
-    slots = sorted(m.slot for _, m in codes)
+    slots = sorted(m.code_slot for _, m in codes)
     ipi = doc.effective_ids_per_instance()
     if slots[-1] >= ipi:
         out.append(Finding("ids-slots", "error", f"Code slots go up to {slots[-1]} but each "
@@ -607,6 +631,33 @@ def _check_range(doc: DesignDocument, camera: Camera) -> list[Finding]:
 # ------------------------------------------------------------------------------ fixes
 
 
+def _delete_markers(doc: DesignDocument, action: dict[str, Any]) -> None:
+    gone = sorted({int(i) for i in action["markers"]}, reverse=True)
+    if not gone:
+        raise ValueError("nothing to delete")
+    for i in gone:          # from the last, so that the others keep their index
+        doc.delete_marker(i)
+
+
+def _optional_int(v: Any) -> int | None:
+    return None if v is None else int(v)
+
+
+#: What each fix's ``op`` does to the document.
+_FIX_OPS: dict[str, Callable[[DesignDocument, dict[str, Any]], None]] = {
+    "set_symmetry": lambda doc, a: doc.set_layout_fields(symmetry=a["value"]),
+    "set_color": lambda doc, a: doc.set_marker(int(a["marker"]), color=str(a["color"])),
+    "centre_marker": lambda doc, a: doc.centre_marker(int(a["marker"])),
+    "set_size": lambda doc, a: doc.set_marker(int(a["marker"]), size=float(a["size"])),
+    "delete_marker": lambda doc, a: doc.delete_marker(int(a["marker"])),
+    "delete_markers": _delete_markers,
+    "set_first_id": lambda doc, a: doc.set_layout_fields(first_id=_optional_int(a["value"])),
+    "set_ids_per_instance": lambda doc, a: doc.set_layout_fields(
+        ids_per_instance=_optional_int(a["value"])),
+    "set_units": lambda doc, a: doc.set_units(str(a["units"])),
+}
+
+
 def apply_fix(doc: DesignDocument, action: dict[str, Any]) -> None:
     """Perform a :class:`Fix` action on the document (undoable like any edit).
 
@@ -616,33 +667,11 @@ def apply_fix(doc: DesignDocument, action: dict[str, Any]) -> None:
     if not isinstance(action, dict) or not isinstance(action.get("op"), str):
         raise DesignError("this fix is not valid any more: reload the page")
     op = action["op"]
+    fix = _FIX_OPS.get(op)
+    if fix is None:
+        raise DesignError(f"unknown fix {op!r}: reload the page")
     try:
-        if op == "set_symmetry":
-            doc.set_layout_fields(symmetry=action["value"])
-        elif op == "set_color":
-            doc.set_marker(int(action["marker"]), color=str(action["color"]))
-        elif op == "centre_marker":
-            doc.centre_marker(int(action["marker"]))
-        elif op == "set_size":
-            doc.set_marker(int(action["marker"]), size=float(action["size"]))
-        elif op == "delete_marker":
-            doc.delete_marker(int(action["marker"]))
-        elif op == "delete_markers":
-            gone = sorted({int(i) for i in action["markers"]}, reverse=True)
-            if not gone:
-                raise ValueError("nothing to delete")
-            for i in gone:          # from the last, so that the others keep their index
-                doc.delete_marker(i)
-        elif op == "set_first_id":
-            v = action["value"]
-            doc.set_layout_fields(first_id=None if v is None else int(v))
-        elif op == "set_ids_per_instance":
-            v = action["value"]
-            doc.set_layout_fields(ids_per_instance=None if v is None else int(v))
-        elif op == "set_units":
-            doc.set_units(str(action["units"]))
-        else:
-            raise DesignError(f"unknown fix {op!r}: reload the page")
+        fix(doc, action)
     except (KeyError, TypeError, ValueError) as e:
         if isinstance(e, DesignError):
             raise

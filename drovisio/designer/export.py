@@ -21,12 +21,14 @@ import os
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import trimesh
 
 from drovisio.designer.checks import blocking, check_design, fit_size
 from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
+from drovisio.fileio import atomic_write_bytes
 from drovisio.layout import (
     LayoutError,
     MarkerLayout,
@@ -69,7 +71,7 @@ def build_layout(doc: DesignDocument, mesh_ref: str | None = None) -> MarkerLayo
 
 def mesh_stl_bytes(doc: DesignDocument) -> bytes:
     """The mesh in the brick frame, metres, as binary STL."""
-    return doc.brick_mesh().export(file_type="stl")
+    return cast(bytes, doc.brick_mesh().export(file_type="stl"))
 
 
 @dataclass
@@ -80,8 +82,6 @@ class SavedDesign:
 
 
 def _write_new(path: Path, data: bytes, overwrite: bool) -> None:
-    from drovisio.fileio import atomic_write_bytes
-
     try:
         atomic_write_bytes(path, data, overwrite=overwrite, mode=0o644)
     except FileExistsError:
@@ -217,9 +217,9 @@ def export_glb(doc: DesignDocument, instance: int = 0) -> bytes:
         if m.kind == "aruco":
             if dictionary is None:
                 continue
-            g = marker_geometry(m, dictionary, first + instance * ipi + m.slot, None)
+            g = marker_geometry(m, dictionary, first + instance * ipi + m.code_slot, None)
         else:
-            g = marker_geometry(m, None, None, pal[m.color].display_rgb())
+            g = marker_geometry(m, None, None, pal[m.dot_color].display_rgb())
         scene.add_geometry(g, geom_name=f"marker-{i}-{doc.marker_label(i).replace(' ', '-')}")
     return scene.export(file_type="glb")
 
@@ -257,7 +257,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
     bm = doc.brick_markers()
     dictionary = doc.dictionary()
     codes = sorted(((i, m) for i, m in enumerate(bm) if m.kind == "aruco"),
-                   key=lambda t: t[1].slot)
+                   key=lambda t: t[1].code_slot)
     if codes:
         if dictionary is None:
             raise DesignError("the codes need more ids than their family has: fix the ids "
@@ -280,7 +280,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
             margins[i] = margin
         for k in ks:
             for i, m in codes:
-                mid = first + k * ipi + m.slot
+                mid = first + k * ipi + m.code_slot
                 margin = margins[i]
                 pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
                 items.append(SheetItem(
@@ -295,7 +295,7 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
             pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
             items.append(SheetItem("dot", m.size, f"dot {k} {m.color}",
                                    f"Ø {m.size * 1000:g} mm · at ({pos}) mm",
-                                   rgb=pal[m.color].display_rgb()))
+                                   rgb=pal[m.dot_color].display_rgb()))
     return items
 
 

@@ -15,7 +15,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.designer.model import DesignError
 from drovisio.layout import MarkerLayout
+from drovisio.pose.measures import rotation_angle_deg, yaw_about_axis_deg
+from drovisio.synth import (
+    BrickInstance,
+    Effects,
+    Ground,
+    Scene,
+    camera_over,
+    render,
+    rot_z,
+    transform,
+)
 
 __all__ = ["VerifyResult", "verify_layout"]
 
@@ -54,24 +66,6 @@ class VerifyResult:
                 "markers": self.markers, "distance_m": self.distance_m}
 
 
-def _rot_err_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
-    c = (np.trace(Ra.T @ Rb) - 1) / 2
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
-def _yaw_err_deg(R_true: np.ndarray, R_est: np.ndarray) -> float:
-    """Twist about the brick's z of ``R_true.T @ R_est`` (swing-twist decomposition)."""
-    import cv2
-
-    rvec = cv2.Rodrigues(R_true.T @ R_est)[0].ravel()
-    th = float(np.linalg.norm(rvec))
-    if th < 1e-15:
-        return 0.0
-    w, z = math.cos(th / 2), math.sin(th / 2) * rvec[2] / th
-    ang = 2.0 * math.atan2(z, w)
-    return math.degrees((ang + math.pi) % (2 * math.pi) - math.pi)
-
-
 def verify_layout(layout: MarkerLayout, camera: Camera | None = None,
                   distance_m: float | None = None, tilt_deg: float = 20.0,
                   yaw_deg: float = 25.0, instance: int = 0, ground: str = "concrete",
@@ -92,17 +86,6 @@ def verify_layout(layout: MarkerLayout, camera: Camera | None = None,
     Returns:
         The results (one per detector that applies) and the rendered BGR image.
     """
-    from drovisio.synth import (
-        BrickInstance,
-        Effects,
-        Ground,
-        Scene,
-        camera_over,
-        render,
-        rot_z,
-        transform,
-    )
-
     camera = camera or Camera.drone_webcam()
     size = float(np.max(layout.dimensions_m))
     dist = distance_m if distance_m is not None else max(0.6, 2.5 * size)
@@ -125,18 +108,19 @@ def verify_layout(layout: MarkerLayout, camera: Camera | None = None,
         err_t = float(np.linalg.norm(T[:3, 3] - truth[:3, 3]))
         Rt = truth[:3, :3]
         if layout.symmetry == "rot180_z" and method == "dots" and \
-                _rot_err_deg(T[:3, :3], Rt @ half) < _rot_err_deg(T[:3, :3], Rt):
+                rotation_angle_deg(T[:3, :3], Rt @ half) < rotation_angle_deg(T[:3, :3], Rt):
             Rt = Rt @ half
-        out.append(VerifyResult(method, True, err_t, _rot_err_deg(T[:3, :3], Rt),
-                                _yaw_err_deg(Rt, T[:3, :3]), [int(m) for m in p.markers],
+        out.append(VerifyResult(method, True, err_t, rotation_angle_deg(T[:3, :3], Rt),
+                                yaw_about_axis_deg(Rt, T[:3, :3]), [int(m) for m in p.markers],
                                 round(dist, 3)))
 
     if layout.has_codes:
+        # deferred: the detectors load their compiled kernels, which only a check needs
         from drovisio.detect.aruco import detect_aruco
 
         score("aruco", detect_aruco(res.image, camera, [layout]))
     if layout.has_dots:
-        from drovisio.designer.model import DesignError
+        # deferred: the detectors load their compiled kernels, which only a check needs
         from drovisio.detect.dots import LayoutNotSupported, detect_dots
 
         try:

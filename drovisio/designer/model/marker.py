@@ -51,6 +51,20 @@ class DesignMarker:
         return np.array(self.up, np.float64)
 
     @property
+    def code_slot(self) -> int:
+        """``slot`` of a code (every code has one; a dot has none)."""
+        if self.slot is None:
+            raise ValueError(f"this {self.kind} marker has no slot")
+        return self.slot
+
+    @property
+    def dot_color(self) -> str:
+        """``color`` of a dot (every dot has one; a code has none)."""
+        if self.color is None:
+            raise ValueError(f"this {self.kind} marker has no colour")
+        return self.color
+
+    @property
     def r(self) -> np.ndarray:
         """Unit direction toward the printed image's right edge (``up x normal``)."""
         return np.cross(self.u, self.n)
