@@ -102,6 +102,64 @@ def _inside(hsv: np.ndarray, spec: ColorSpec) -> np.ndarray:
     return np.asarray(m > 0)
 
 
+def _frame_hsv(image_bgr: np.ndarray, clahe: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The frame as (H, W, 3) uint8 BGR and its HSV (V after CLAHE when ``clahe``)."""
+    img = np.asarray(image_bgr)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ValueError("propose_color: needs an (H, W, 3) uint8 BGR colour image (the "
+                         "camera's frame), got " + f"{img.dtype} {img.shape}")
+    if img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    if clahe:
+        hsv = clahe_value(hsv)
+    return img, hsv
+
+
+def _hue_range(h: np.ndarray, hue_margin: int, min_hue_width: int) -> tuple[float, int, int]:
+    """Circular centre of the hues ``h`` and the proposed range's low and high hue (OpenCV
+    units; low > high wraps through 0)."""
+    center, off = _circular_hue(h)
+    lo_off, hi_off = np.percentile(off, [2, 98])
+    lo_h = center + lo_off - hue_margin
+    hi_h = center + hi_off + hue_margin
+    if hi_h - lo_h < min_hue_width:
+        mid = (hi_h + lo_h) / 2
+        lo_h, hi_h = mid - min_hue_width / 2, mid + min_hue_width / 2
+    if hi_h - lo_h >= 179:
+        raise ValueError("propose_color: the selected pixels have every hue; select pixels of "
+                         "one dot colour only")
+    return center, int(np.floor(lo_h)) % 180, int(np.ceil(hi_h)) % 180
+
+
+def _overlaps(use: np.ndarray, palette: Mapping[str, ColorSpec], exclude: Sequence[str]
+              ) -> tuple[list[str], list[str]]:
+    """Palette colours catching over 2 % of the used pixels ((N, 3) HSV), with a warning
+    for each."""
+    overlaps, warnings = [], []
+    for name, other in palette.items():
+        if name in exclude:
+            continue
+        share = float(_inside(use[None, :, :], other).mean())
+        if share > 0.02:
+            overlaps.append(name)
+            warnings.append(f"{100 * share:.0f} % of the selected pixels are also in the "
+                            f"'{name}' range: the two colours would be confused")
+    return overlaps, warnings
+
+
+def _range_warnings(in_rest: float, in_sel: float) -> list[str]:
+    """Warnings on the shares of the rest of the frame and of the selection in the range."""
+    warnings = []
+    if in_rest > 0.01:
+        warnings.append(f"the range also covers {100 * in_rest:.1f} % of the rest of the frame: "
+                        "expect many candidate blobs (a more distinct paint helps)")
+    if in_sel < 0.9:
+        warnings.append(f"only {100 * in_sel:.0f} % of the selected pixels fall in the range: "
+                        "the selection mixes colours")
+    return warnings
+
+
 def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 3.0,
                          hue_margin: int = 4, min_hue_width: int = 8,
                          sat_floor: int = 40, val_floor: int = 40, clahe: bool = True,
@@ -133,15 +191,7 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
         ValueError: not a colour image, nothing selected, or the selection is not colourful
             (greys, white, black cannot be told apart by hue); the message says what to do.
     """
-    img = np.asarray(image_bgr)
-    if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ValueError("propose_color: needs an (H, W, 3) uint8 BGR colour image (the "
-                         "camera's frame), got " + f"{img.dtype} {img.shape}")
-    if img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
-    if clahe:
-        hsv = clahe_value(hsv)
+    img, hsv = _frame_hsv(image_bgr, clahe)
     sel = selection_mask(img.shape[:2], points_or_mask, radius)
     n_sel = int(sel.sum())
     if n_sel == 0:
@@ -155,17 +205,7 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
                          f"saturation {med_s}/255): grey, white or black cannot be told apart "
                          "from the ground by colour; choose a saturated paint for dots")
     use = px[colourful]
-    center, off = _circular_hue(use[:, 0])
-    lo_off, hi_off = np.percentile(off, [2, 98])
-    lo_h = center + lo_off - hue_margin
-    hi_h = center + hi_off + hue_margin
-    if hi_h - lo_h < min_hue_width:
-        mid = (hi_h + lo_h) / 2
-        lo_h, hi_h = mid - min_hue_width / 2, mid + min_hue_width / 2
-    if hi_h - lo_h >= 179:
-        raise ValueError("propose_color: the selected pixels have every hue; select pixels of "
-                         "one dot colour only")
-    lo_h, hi_h = int(np.floor(lo_h)) % 180, int(np.ceil(hi_h)) % 180
+    center, lo_h, hi_h = _hue_range(use[:, 0], hue_margin, min_hue_width)
     s5, v5 = np.percentile(use[:, 1], 5), np.percentile(use[:, 2], 5)
     lo_s = int(max(sat_floor, np.floor(0.6 * s5)))
     lo_v = int(max(val_floor, np.floor(0.5 * v5)))
@@ -175,21 +215,8 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
     in_sel = float(inside[sel][colourful].mean())
     rest = ~sel
     in_rest = float(inside[rest].mean()) if rest.any() else 0.0
-    overlaps, warnings = [], []
-    for name, other in (palette or {}).items():
-        if name in exclude:
-            continue
-        share = float(_inside(use[None, :, :], other).mean())
-        if share > 0.02:
-            overlaps.append(name)
-            warnings.append(f"{100 * share:.0f} % of the selected pixels are also in the "
-                            f"'{name}' range: the two colours would be confused")
-    if in_rest > 0.01:
-        warnings.append(f"the range also covers {100 * in_rest:.1f} % of the rest of the frame: "
-                        "expect many candidate blobs (a more distinct paint helps)")
-    if in_sel < 0.9:
-        warnings.append(f"only {100 * in_sel:.0f} % of the selected pixels fall in the range: "
-                        "the selection mixes colours")
+    overlaps, warnings = _overlaps(use, palette or {}, exclude)
+    warnings += _range_warnings(in_rest, in_sel)
     ignored = n_sel - int(colourful.sum())
     if ignored > 0.5 * n_sel:
         warnings.append(f"{ignored} of {n_sel} selected pixels were too grey or dark and were "

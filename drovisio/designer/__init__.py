@@ -8,7 +8,10 @@ Modules:
     * :mod:`.raycast` - viewer click ray -> point/face on the mesh (trimesh + rtree).
     * :mod:`.model` - the editable document (mesh files and units, code dictionaries, the
       brick frame, markers, click modes, undo), one subject per module.
-    * :mod:`.checks` - live warnings (overhang, overlap, coplanarity, symmetry, ids, range).
+    * :mod:`.checks` - live warnings (overhang, overlap, coplanarity, symmetry, ids, range)
+      and the one-click fixes.
+    * :mod:`.fitting` - a marker on its face: fits, largest size that fits, overlaps.
+    * :mod:`.symmetry` - the turns that map a dot pattern onto itself, and breaking them.
     * :mod:`.export` - layout JSON, GLB, print sheet PDF/SVG, saving into a layouts folder.
     * :mod:`.verify` - a rendered view of the design read back by the detectors.
 """

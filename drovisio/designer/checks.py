@@ -29,10 +29,15 @@ from typing import Any
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.designer.fitting import fit_size, fits, markers_overlap
 from drovisio.designer.model import DesignDocument, DesignError, DesignMarker
+from drovisio.designer.symmetry import (
+    dot_symmetries,
+    rot180_z_symmetric,
+    symmetry_breaking_colour,
+)
 from drovisio.layout import (
     DOT_COPLANAR_TOL_M,
-    SYMMETRY_TOL_M,
     LayoutError,
     parse_layout,
 )
@@ -48,8 +53,6 @@ MIN_DOT_PX = 6.0
 #: Markers should be seen from at least this far (the drone climbs above 1 m and aligns from
 #: about 1.5 m); smaller ones get a warning.
 WORKING_DISTANCE_M = 1.5
-#: Edge tolerance of the overhang test (printing and cutting are not more precise).
-OVERHANG_TOL_M = 0.0002
 
 
 @dataclass
@@ -126,181 +129,6 @@ def max_detection_distance(size_m: float, camera: Camera, kind: str,
         mid = math.sqrt(lo * hi)
         lo, hi = (mid, hi) if span(mid) >= need else (lo, mid)
     return lo
-
-
-def _plane_coords(m: DesignMarker, origin: np.ndarray, r: np.ndarray, u: np.ndarray):
-    d = m.c - origin
-    return np.array([d @ r, d @ u])
-
-
-def _square2d(m: DesignMarker, origin, r, u) -> np.ndarray:
-    return np.array([[p @ r, p @ u] for p in (m.corners() - origin)])
-
-
-def _sat(a: np.ndarray, b: np.ndarray, gap: float = 0.0) -> bool:
-    """Do two convex 2D polygons overlap (by more than -gap)?"""
-    for poly in (a, b):
-        for i in range(len(poly)):
-            e = poly[(i + 1) % len(poly)] - poly[i]
-            axis = np.array([-e[1], e[0]])
-            n = np.linalg.norm(axis)
-            if n == 0:
-                continue
-            axis /= n
-            pa, pb = a @ axis, b @ axis
-            if pa.max() <= pb.min() + gap or pb.max() <= pa.min() + gap:
-                return False
-    return True
-
-
-def _circle_polygon(center: np.ndarray, radius: float, poly: np.ndarray) -> bool:
-    # inside?
-    inside = True
-    sign = None
-    for i in range(len(poly)):
-        a, b = poly[i], poly[(i + 1) % len(poly)]
-        cr = (b[0] - a[0]) * (center[1] - a[1]) - (b[1] - a[1]) * (center[0] - a[0])
-        s = cr >= 0
-        if sign is None:
-            sign = s
-        elif s != sign:
-            inside = False
-    if inside:
-        return True
-    for i in range(len(poly)):
-        a, b = poly[i], poly[(i + 1) % len(poly)]
-        ab = b - a
-        t = np.clip((center - a) @ ab / max(ab @ ab, 1e-30), 0, 1)
-        if np.linalg.norm(center - (a + t * ab)) < radius:
-            return True
-    return False
-
-
-def markers_overlap(a: DesignMarker, b: DesignMarker) -> bool:
-    """Do two markers on (nearly) the same plane overlap? Markers on different planes
-    never count (they sit on different faces)."""
-    if a.n @ b.n < math.cos(math.radians(5)):
-        return False
-    if abs((b.c - a.c) @ a.n) > 0.002:
-        return False
-    origin, r, u = a.c, a.r, a.u
-    if a.kind == "dot" and b.kind == "dot":
-        return float(np.linalg.norm(_plane_coords(b, origin, r, u))) < (a.size + b.size) / 2
-    if a.kind == "aruco" and b.kind == "aruco":
-        return _sat(_square2d(a, origin, r, u), _square2d(b, origin, r, u))
-    code, dot = (a, b) if a.kind == "aruco" else (b, a)
-    return _circle_polygon(_plane_coords(dot, origin, r, u), dot.size / 2,
-                           _square2d(code, origin, r, u))
-
-
-def _fits(doc: DesignDocument, m: DesignMarker) -> bool:
-    if m.face is None:
-        return False
-    face = doc.faces.faces[m.face]
-    return bool(np.all(doc.faces.contains(face, m.outline(), tol=OVERHANG_TOL_M,
-                                          plane_tol=0.001)))
-
-
-def fit_size(doc: DesignDocument, m: DesignMarker, min_size: float = 0.005) -> float | None:
-    """The largest size (whole millimetres, at most the current size) at which the marker
-    fits its face where it is, or None if not even ``min_size`` fits."""
-    if m.face is None:
-        return None
-    lo, hi = min_size, m.size
-    if not _fits(doc, replace(m, size=lo)):
-        return None
-    for _ in range(30):
-        mid = (lo + hi) / 2
-        if _fits(doc, replace(m, size=mid)):
-            lo = mid
-        else:
-            hi = mid
-    return math.floor(lo * 1000 + 1e-9) / 1000
-
-
-# ------------------------------------------------------------------------------ symmetry
-
-
-def _dot_plane(markers: list[DesignMarker]):
-    pts = np.array([m.center for m in markers], np.float64)
-    n = np.mean([m.n for m in markers], axis=0)
-    n = n / np.linalg.norm(n) if np.linalg.norm(n) > 0 else np.array([0, 0, 1.0])
-    c = pts.mean(axis=0)
-    u = np.cross(n, [1.0, 0, 0])
-    if np.linalg.norm(u) < 0.3:
-        u = np.cross(n, [0, 1.0, 0])
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    xy = np.stack([(pts - c) @ u, (pts - c) @ v], axis=1)
-    return xy
-
-
-def dot_symmetries(markers: list[DesignMarker], tol: float = SYMMETRY_TOL_M) -> list[float]:
-    """Angles (deg, in (0, 360)) of the rotations about the dot pattern's own centre and
-    normal that map every dot onto a dot of the same colour and diameter.
-
-    An empty list means the dots alone fix the brick's yaw; ``[180.0]`` is the thesis's
-    red-blue-red pattern (yaw ambiguous by 180 deg).
-    """
-    if len(markers) < 2:
-        return []
-    xy = _dot_plane(markers)
-    rho = np.linalg.norm(xy, axis=1)
-    keys = [(m.color, round(m.size / tol)) for m in markers]
-    ref = int(np.argmax(rho))
-    if rho[ref] <= tol:
-        return []
-    base = math.atan2(xy[ref, 1], xy[ref, 0])
-    out: list[float] = []
-    for j in range(len(markers)):
-        if j == ref or keys[j] != keys[ref] or abs(rho[j] - rho[ref]) > 2 * tol:
-            continue
-        th = math.atan2(xy[j, 1], xy[j, 0]) - base
-        c, s = math.cos(th), math.sin(th)
-        rot = xy @ np.array([[c, s], [-s, c]])
-        ok = True
-        for k in range(len(markers)):
-            d = np.linalg.norm(xy - rot[k], axis=1)
-            if not any(d[q] <= 2 * tol and keys[q] == keys[k] for q in range(len(markers))):
-                ok = False
-                break
-        if ok:
-            deg = math.degrees(th) % 360.0
-            if 0.5 < deg < 359.5:
-                out.append(round(deg, 1))
-    return sorted(set(out))
-
-
-def _rot180_z_symmetric(markers: list[DesignMarker], tol: float = SYMMETRY_TOL_M) -> bool:
-    """The layout file's ``rot180_z``: a half-turn about the brick's z axis (through the
-    origin) maps the dots onto dots of the same colour and diameter (brick frame)."""
-    if not markers:
-        return False
-    pts = np.array([m.center for m in markers], np.float64)
-    rot = pts * np.array([-1.0, -1.0, 1.0])
-    for j, d in enumerate(markers):
-        dist = np.linalg.norm(pts - rot[j], axis=1)
-        if not any(dist[k] <= tol and markers[k].color == d.color
-                   and abs(markers[k].size - d.size) <= tol for k in range(len(markers))):
-            return False
-    return True
-
-
-def symmetry_breaking_colour(markers: list[DesignMarker], palette: list[str]
-                             ) -> tuple[int, str] | None:
-    """A single dot colour change that leaves the pattern with no symmetry:
-    ``(index into markers, new colour)``, preferring colours already used, or None."""
-    used = list(dict.fromkeys(m.dot_color for m in markers))
-    order = used + [c for c in palette if c not in used]
-    for i, m in enumerate(markers):
-        for c in order:
-            if c == m.color:
-                continue
-            trial = list(markers)
-            trial[i] = replace(m, color=c)
-            if not dot_symmetries(trial):
-                return i, c
-    return None
 
 
 # ------------------------------------------------------------------------------ checks
@@ -422,12 +250,12 @@ def _check_faces(doc: DesignDocument) -> list[Finding]:
             out.append(Finding("off-surface", "warning", f"{label.capitalize()} is not on the "
                                "model's surface: drag it onto the model or delete it.", [i]))
             continue
-        if _fits(doc, m):
+        if fits(doc, m):
             continue
         fixes = []
         face = doc.faces.faces[m.face]
         centred = replace(m, center=tuple(doc.faces.centre(face)))
-        if _fits(doc, centred) and np.linalg.norm(centred.c - m.c) > 1e-6:
+        if fits(doc, centred) and np.linalg.norm(centred.c - m.c) > 1e-6:
             fixes.append(Fix(f"Move {label} to the centre of its face",
                              {"op": "centre_marker", "marker": i}))
         s = fit_size(doc, m)
@@ -515,7 +343,7 @@ def _few_dots(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker]) ->
 def _dot_symmetry_findings(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker]
                            ) -> list[Finding]:
     angles = dot_symmetries(bdots)
-    about_z = _rot180_z_symmetric(bdots)
+    about_z = rot180_z_symmetric(bdots)
     if doc.symmetry == "rot180_z" and not about_z:
         return [Finding("symmetry-wrong", "error", "The layout is marked symmetric "
                         "(half-turn about the brick's z axis) but the dots do not look the "

@@ -253,41 +253,10 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
                 dot_sets: int = 1) -> list[SheetItem]:
     """What a print sheet holds: every code of the chosen brick instances (default all) and
     ``dot_sets`` sets of dots."""
-    items: list[SheetItem] = []
     bm = doc.brick_markers()
-    dictionary = doc.dictionary()
     codes = sorted(((i, m) for i, m in enumerate(bm) if m.kind == "aruco"),
                    key=lambda t: t[1].code_slot)
-    if codes:
-        if dictionary is None:
-            raise DesignError("the codes need more ids than their family has: fix the ids "
-                              "first (see the checks)")
-        first, ipi = doc.effective_first_id(), doc.effective_ids_per_instance()
-        ks = list(range(doc.instances)) if instances is None else list(instances)
-        for k in ks:
-            if not 0 <= k < doc.instances:
-                raise DesignError(f"brick number {k} is outside 0..{doc.instances - 1}")
-        cells = aruco_code_bits(dictionary, 0).shape[0]
-        margins = {}
-        for i, m in codes:  # white paper around a code: one cell (at most 10 mm), less if
-            cell = min(m.size / cells, 0.01)  # the face is smaller
-            margin = cell
-            fm = doc.markers[i]
-            if fm.face is not None:
-                s = fit_size(doc, replace(fm, size=m.size + 2 * cell), min_size=m.size)
-                margin = max((s - m.size) / 2, 0.001) if s is not None else 0.001
-                margin = min(margin, cell)
-            margins[i] = margin
-        for k in ks:
-            for i, m in codes:
-                mid = first + k * ipi + m.code_slot
-                margin = margins[i]
-                pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
-                items.append(SheetItem(
-                    "aruco", m.size, f"id {mid}",
-                    f"brick {k} slot {m.slot} · {m.size * 1000:g} mm · at ({pos}) mm · "
-                    f"top edge toward {_axis_name(m.u)}",
-                    marker_id=mid, dictionary=dictionary, margin=margin))
+    items = _code_items(doc, codes, instances) if codes else []
     pal = doc.palette()
     dots = [(i, m) for i, m in enumerate(bm) if m.kind == "dot"]
     for _ in range(max(0, dot_sets)):
@@ -297,6 +266,49 @@ def sheet_items(doc: DesignDocument, instances: list[int] | None = None,
                                    f"Ø {m.size * 1000:g} mm · at ({pos}) mm",
                                    rgb=pal[m.dot_color].display_rgb()))
     return items
+
+
+def _code_items(doc: DesignDocument, codes: list[tuple[int, DesignMarker]],
+                instances: list[int] | None) -> list[SheetItem]:
+    """The codes (brick frame, by slot) of the chosen brick instances (default all)."""
+    dictionary = doc.dictionary()
+    if dictionary is None:
+        raise DesignError("the codes need more ids than their family has: fix the ids "
+                          "first (see the checks)")
+    first, ipi = doc.effective_first_id(), doc.effective_ids_per_instance()
+    ks = list(range(doc.instances)) if instances is None else list(instances)
+    for k in ks:
+        if not 0 <= k < doc.instances:
+            raise DesignError(f"brick number {k} is outside 0..{doc.instances - 1}")
+    margins = _code_margins(doc, codes, aruco_code_bits(dictionary, 0).shape[0])
+    items: list[SheetItem] = []
+    for k in ks:
+        for i, m in codes:
+            mid = first + k * ipi + m.code_slot
+            pos = ", ".join(f"{v * 1000:.0f}" for v in m.center)
+            items.append(SheetItem(
+                "aruco", m.size, f"id {mid}",
+                f"brick {k} slot {m.slot} · {m.size * 1000:g} mm · at ({pos}) mm · "
+                f"top edge toward {_axis_name(m.u)}",
+                marker_id=mid, dictionary=dictionary, margin=margins[i]))
+    return items
+
+
+def _code_margins(doc: DesignDocument, codes: list[tuple[int, DesignMarker]], cells: int
+                  ) -> dict[int, float]:
+    """White paper kept around each code (metres, by marker index): one cell (at most
+    10 mm), less if the face is smaller."""
+    margins = {}
+    for i, m in codes:
+        cell = min(m.size / cells, 0.01)
+        margin = cell
+        fm = doc.markers[i]
+        if fm.face is not None:
+            s = fit_size(doc, replace(fm, size=m.size + 2 * cell), min_size=m.size)
+            margin = max((s - m.size) / 2, 0.001) if s is not None else 0.001
+            margin = min(margin, cell)
+        margins[i] = margin
+    return margins
 
 
 def _header(page: Page, title: str, note: str, number: int, total_hint: str) -> float:
@@ -358,6 +370,66 @@ def _draw_item(page: Page, it: SheetItem, x: float, y: float) -> None:
     page.ops.append(("text", x, y + box + 7.0, 6.5, it.detail, False))
 
 
+class _Sheets:
+    """Pages being filled with items, left to right then row by row (millimetres)."""
+
+    def __init__(self, title: str, note: str):
+        self.title, self.note = title, note
+        self.pages: list[Page] = []
+        self.page: Page | None = None  # the A4 page being filled
+        self.x = self.y = self.row_h = 0.0
+
+    def new_page(self, w: float, h: float) -> tuple[Page, float]:
+        """A new page with its header; returns it and the top of its free area."""
+        p = Page(w, h)
+        y = _header(p, self.title, self.note, len(self.pages) + 1, "")
+        self.pages.append(p)
+        return p, y
+
+    def place_big(self, it: SheetItem, need_w: float, need_h: float) -> None:
+        """An item too big for A4: on an A3 page, or a page of its own size."""
+        if need_w <= A3_MM[0] - 2 * PAGE_MARGIN_MM and \
+                need_h <= A3_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM:
+            w, h = A3_MM
+        else:
+            w = max(need_w + 2 * PAGE_MARGIN_MM, 130.0)
+            h = need_h + 2 * PAGE_MARGIN_MM + HEADER_MM
+        big, by = self.new_page(w, h)
+        _draw_item(big, it, PAGE_MARGIN_MM, by)
+        size_name = "A3" if (w, h) == A3_MM else f"{w:.0f} x {h:.0f} mm (bigger than A3)"
+        big.ops.append(("text", PAGE_MARGIN_MM, h - 4, 8, f"This page is {size_name}: print "
+                        "it at 100 % on paper that large (a print shop), or as poster "
+                        "tiles at 100 % taped together.", True))
+        self.page = None
+
+    def place(self, it: SheetItem, need_w: float, need_h: float) -> None:
+        """An item on the current A4 page: next in the row, on a new row, or a new page."""
+        if self.page is None or self.page.width != A4_MM[0]:
+            self.page, self.y = self.new_page(*A4_MM)
+            self.x, self.row_h = PAGE_MARGIN_MM, 0.0
+        if self.x + need_w > A4_MM[0] - PAGE_MARGIN_MM + 1e-9:
+            self.x = PAGE_MARGIN_MM
+            self.y += self.row_h + GAP_MM
+            self.row_h = 0.0
+        if self.y + need_h > A4_MM[1] - PAGE_MARGIN_MM + 1e-9:
+            self.page, self.y = self.new_page(*A4_MM)
+            self.x, self.row_h = PAGE_MARGIN_MM, 0.0
+        _draw_item(self.page, it, self.x, self.y)
+        label_w = max(len(it.detail) * 6.5 * 0.5 * 25.4 / 72, len(it.label) * 8.5 * 0.55
+                      * 25.4 / 72)
+        self.x += max(need_w, min(label_w, A4_MM[0] - 2 * PAGE_MARGIN_MM)) + GAP_MM
+        self.row_h = max(self.row_h, need_h)
+
+
+def _number_pages(pages: list[Page]) -> None:
+    """Turn each header's "page n" into "page n of N"."""
+    total = len(pages)
+    for p in pages:
+        for k, op in enumerate(p.ops):
+            if op[0] == "text" and op[4].startswith("page ") and len(op) > 6:
+                p.ops[k] = op[:4] + (f"{op[4]} of {total}",) + op[5:]
+
+
 def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
                 dot_sets: int = 1) -> list[Page]:
     """Lay the items out on pages (A4 portrait; an item too big for A4 gets an A3 page, or a
@@ -366,61 +438,21 @@ def sheet_pages(doc: DesignDocument, instances: list[int] | None = None,
     if not items:
         raise DesignError("nothing to print: add codes or dots first")
     dictionary = doc.dictionary() if doc.codes() else None
-    title = f"Drovisio markers - {doc.name}"
     note = (f"Cut along the dashed lines. Codes: {dictionary}, glue each one flat with its "
             "top edge as written under it." if dictionary else
             "Cut along the dashed lines (or use the discs as painting templates).")
-    pages: list[Page] = []
-
-    def new_page(w: float, h: float) -> tuple[Page, float]:
-        p = Page(w, h)
-        y = _header(p, title, note, len(pages) + 1, "")
-        pages.append(p)
-        return p, y
-
-    page: Page | None = None
-    x = y = row_h = 0.0
+    sheets = _Sheets(f"Drovisio markers - {doc.name}", note)
+    aw = A4_MM[0] - 2 * PAGE_MARGIN_MM
+    ah = A4_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM
     for it in items:
         box = it.size * 1000 + 2 * it.margin * 1000
         need_w, need_h = box, box + LABEL_MM
-        aw = A4_MM[0] - 2 * PAGE_MARGIN_MM
-        ah = A4_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM
-        if need_w > aw or need_h > ah:  # a big item: its own page
-            if need_w <= A3_MM[0] - 2 * PAGE_MARGIN_MM and \
-                    need_h <= A3_MM[1] - 2 * PAGE_MARGIN_MM - HEADER_MM:
-                w, h = A3_MM
-            else:
-                w = max(need_w + 2 * PAGE_MARGIN_MM, 130.0)
-                h = need_h + 2 * PAGE_MARGIN_MM + HEADER_MM
-            big, by = new_page(w, h)
-            _draw_item(big, it, PAGE_MARGIN_MM, by)
-            size_name = "A3" if (w, h) == A3_MM else f"{w:.0f} x {h:.0f} mm (bigger than A3)"
-            big.ops.append(("text", PAGE_MARGIN_MM, h - 4, 8, f"This page is {size_name}: print "
-                            "it at 100 % on paper that large (a print shop), or as poster "
-                            "tiles at 100 % taped together.", True))
-            page = None
-            continue
-        if page is None or page.width != A4_MM[0]:
-            page, y = new_page(*A4_MM)
-            x, row_h = PAGE_MARGIN_MM, 0.0
-        if x + need_w > A4_MM[0] - PAGE_MARGIN_MM + 1e-9:
-            x = PAGE_MARGIN_MM
-            y += row_h + GAP_MM
-            row_h = 0.0
-        if y + need_h > A4_MM[1] - PAGE_MARGIN_MM + 1e-9:
-            page, y = new_page(*A4_MM)
-            x, row_h = PAGE_MARGIN_MM, 0.0
-        _draw_item(page, it, x, y)
-        label_w = max(len(it.detail) * 6.5 * 0.5 * 25.4 / 72, len(it.label) * 8.5 * 0.55
-                      * 25.4 / 72)
-        x += max(need_w, min(label_w, A4_MM[0] - 2 * PAGE_MARGIN_MM)) + GAP_MM
-        row_h = max(row_h, need_h)
-    total = len(pages)
-    for p in pages:  # "page n of N"
-        for k, op in enumerate(p.ops):
-            if op[0] == "text" and op[4].startswith("page ") and len(op) > 6:
-                p.ops[k] = op[:4] + (f"{op[4]} of {total}",) + op[5:]
-    return pages
+        if need_w > aw or need_h > ah:
+            sheets.place_big(it, need_w, need_h)
+        else:
+            sheets.place(it, need_w, need_h)
+    _number_pages(sheets.pages)
+    return sheets.pages
 
 
 # ---- PDF
