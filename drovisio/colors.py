@@ -17,9 +17,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from drovisio.detect.dots_color import clahe_value
 from drovisio.layout import ColorSpec
@@ -52,7 +54,8 @@ class ColorProposal:
     warnings: list[str] = field(default_factory=list)
 
 
-def selection_mask(shape: tuple[int, int], points_or_mask, radius: float = 3.0) -> np.ndarray:
+def selection_mask(shape: tuple[int, int], points_or_mask: ArrayLike, radius: float = 3.0
+                   ) -> np.ndarray:
     """The pixels a user selected, as a bool mask.
 
     Args:
@@ -160,7 +163,7 @@ def _range_warnings(in_rest: float, in_sel: float) -> list[str]:
     return warnings
 
 
-def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 3.0,
+def propose_color_report(image_bgr: np.ndarray, points_or_mask: ArrayLike, radius: float = 3.0,
                          hue_margin: int = 4, min_hue_width: int = 8,
                          sat_floor: int = 40, val_floor: int = 40, clahe: bool = True,
                          palette: Mapping[str, ColorSpec] | None = None,
@@ -226,8 +229,8 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
                          overlaps=overlaps, warnings=warnings)
 
 
-def propose_color(image_bgr: np.ndarray, points_or_mask, radius: float = 3.0,
-                  **options) -> ColorSpec:
+def propose_color(image_bgr: np.ndarray, points_or_mask: ArrayLike, radius: float = 3.0,
+                  **options: Any) -> ColorSpec:
     """Propose a palette entry (HSV range and paint colour) from pixels the user points at.
 
     Args:

@@ -19,7 +19,7 @@ import trimesh
 
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write
-from drovisio.layout import shipped_layouts_dir
+from drovisio.layout import MarkerLayout, shipped_layouts_dir
 
 __all__ = [
     "DRICK_BODY",
@@ -165,7 +165,7 @@ MAX_MESH_BYTES = 256 * 2**20
 """Largest mesh file a layout may name (a brick's mesh is a few MB at most)."""
 
 
-def load_layout_mesh(layout) -> trimesh.Trimesh | None:  # noqa: ANN001 (MarkerLayout)
+def load_layout_mesh(layout: MarkerLayout) -> trimesh.Trimesh | None:
     """The mesh of a layout, scaled to metres.
 
     Reads ``layout.mesh`` (relative to the layout file, in the layout's units); if that file

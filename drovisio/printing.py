@@ -12,14 +12,18 @@ Operations (tuples): ``("rect", x, y, w, h, fill, stroke, dash, line_width)``,
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-__all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "LETTER_MM", "Page", "num", "pdf_bytes"]
+__all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "LETTER_MM", "Rgb", "Page", "num", "pdf_bytes"]
 
 MM_TO_PT = 72.0 / 25.4
 A4_MM = (210.0, 297.0)
 A3_MM = (297.0, 420.0)
 LETTER_MM = (215.9, 279.4)
+
+#: A colour of an operation: red, green, blue in 0..1.
+Rgb = tuple[float, float, float]
 
 
 @dataclass
@@ -51,13 +55,14 @@ def _pdf_page_content(p: Page) -> bytes:
     H = p.height * MM_TO_PT
     out: list[str] = []
 
-    def X(x):
+    def X(x: float) -> str:
         return num(x * MM_TO_PT)
 
-    def Y(y):
+    def Y(y: float) -> str:
         return num(H - y * MM_TO_PT)
 
-    def style(fill, stroke, dash, lw):
+    def style(fill: Rgb | None, stroke: Rgb | None, dash: Sequence[float] | None,
+              lw: float) -> list[str]:
         s = []
         if fill is not None:
             s.append(f"{num(fill[0])} {num(fill[1])} {num(fill[2])} rg")
@@ -67,7 +72,7 @@ def _pdf_page_content(p: Page) -> bytes:
             s.append(f"[{' '.join(num(d * MM_TO_PT) for d in dash)}] 0 d" if dash else "[] 0 d")
         return s
 
-    def paint(fill, stroke):
+    def paint(fill: Rgb | None, stroke: Rgb | None) -> str:
         return "B" if fill is not None and stroke is not None else ("f" if fill is not None
                                                                    else "S")
 

@@ -39,6 +39,7 @@ from drovisio.designer.symmetry import (
 from drovisio.layout import (
     DOT_COPLANAR_TOL_M,
     LayoutError,
+    MarkerLayout,
     parse_layout,
 )
 
@@ -178,7 +179,7 @@ def check_design(doc: DesignDocument, camera: Camera | None = None, *,
     return out
 
 
-def _check_detectors(doc: DesignDocument, layout) -> list[Finding]:
+def _check_detectors(doc: DesignDocument, layout: MarkerLayout) -> list[Finding]:
     """What the detectors themselves refuse (the dot detector's own model of the layout),
     so that no layout is saved that the drone then cannot use."""
     if not layout.has_dots:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import cast
@@ -36,7 +37,7 @@ from drovisio.layout import (
     parse_layout,
     save_layout,
 )
-from drovisio.printing import A3_MM, A4_MM, MM_TO_PT, Page, num, pdf_bytes
+from drovisio.printing import A3_MM, A4_MM, MM_TO_PT, Page, Rgb, num, pdf_bytes
 
 __all__ = ["MM_TO_PT", "A4_MM", "A3_MM", "SavedDesign", "build_layout", "save_design",
            "export_glb", "SheetItem", "sheet_items", "sheet_pages",
@@ -151,7 +152,10 @@ def code_image_rgb(dictionary: str, marker_id: int, px_per_cell: int = 16,
 # ------------------------------------------------------------------------------ GLB
 
 
-def _quad(c, r, u, x0, x1, y0, y1):
+def _quad(c: np.ndarray, r: np.ndarray, u: np.ndarray, x0: float, x1: float, y0: float,
+          y1: float) -> np.ndarray:
+    """(4, 3) corners of the rectangle [x0, x1] x [y0, y1] on the plane through ``c``
+    spanned by ``r`` and ``u``."""
     return np.array([c + r * x0 + u * y0, c + r * x1 + u * y0, c + r * x1 + u * y1,
                      c + r * x0 + u * y1])
 
@@ -489,10 +493,10 @@ def print_sheet_svg(doc: DesignDocument, page: int = 1, instances: list[int] | N
            f'{len(pages)})</title>',
            f'<rect x="0" y="0" width="{num(p.width)}" height="{num(p.height)}" fill="#fff"/>']
 
-    def col(c):
+    def col(c: Rgb | None) -> str:
         return "none" if c is None else "#" + "".join(f"{int(round(v * 255)):02x}" for v in c)
 
-    def stroke_attrs(stroke, dash, lw):
+    def stroke_attrs(stroke: Rgb | None, dash: Sequence[float] | None, lw: float) -> str:
         if stroke is None:
             return ""
         s = f' stroke="{col(stroke)}" stroke-width="{num(lw)}"'

@@ -20,6 +20,8 @@ from functools import cached_property
 
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
+from trimesh.ray.ray_triangle import RayMeshIntersector
 
 __all__ = ["RayHit", "cast_ray", "FlatFace", "FlatFaces"]
 
@@ -45,19 +47,17 @@ class RayHit:
     distance: float
 
 
-def _intersector(mesh: trimesh.Trimesh):
+def _intersector(mesh: trimesh.Trimesh) -> RayMeshIntersector:
     # trimesh caches the intersector on the mesh (mesh.ray); force the rtree-based one so
     # results do not depend on whether embree happens to be installed.
     cached = getattr(mesh, "_drovisio_ray", None)
     if cached is None:
-        from trimesh.ray.ray_triangle import RayMeshIntersector
-
         cached = RayMeshIntersector(mesh)
         mesh._drovisio_ray = cached  # type: ignore[attr-defined]
     return cached
 
 
-def cast_ray(mesh: trimesh.Trimesh, origin_world, direction_world,
+def cast_ray(mesh: trimesh.Trimesh, origin_world: ArrayLike, direction_world: ArrayLike,
              world_from_mesh: np.ndarray | None = None) -> RayHit | None:
     """First intersection of a world-frame ray with a posed mesh.
 

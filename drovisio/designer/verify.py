@@ -10,12 +10,14 @@ layout (``rot180_z``) counts a pose turned by a half-turn about z as right.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.designer.model import DesignError
+from drovisio.detect.result import BrickPose
 from drovisio.layout import MarkerLayout
 from drovisio.pose.measures import rotation_angle_deg, yaw_about_axis_deg
 from drovisio.synth import (
@@ -98,7 +100,7 @@ def verify_layout(layout: MarkerLayout, camera: Camera | None = None,
     half = np.diag([-1.0, -1.0, 1.0])
     out: list[VerifyResult] = []
 
-    def score(method: str, poses) -> None:
+    def score(method: str, poses: Sequence[BrickPose]) -> None:
         mine = [p for p in poses if p.layout == layout.name]
         if not mine:
             out.append(VerifyResult(method, False, distance_m=round(dist, 3)))

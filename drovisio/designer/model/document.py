@@ -32,6 +32,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from drovisio.designer.model.codes import family_dictionaries
 from drovisio.designer.model.edits import (
@@ -159,7 +160,7 @@ class DesignDocument(DesignState):
         up = self._default_up(face.normal)
         return self.faces.centre(face), np.cross(up, face.normal), up
 
-    def snap(self, face: FlatFace, point) -> np.ndarray:
+    def snap(self, face: FlatFace, point: ArrayLike) -> np.ndarray:
         """Snap a point on a face: to the face centre within ``snap_radius``, else to the
         face's grid (step ``grid`` from the face centre, along the face's right/up axes)."""
         c, r, u = self._face_axes(face)
@@ -173,14 +174,14 @@ class DesignDocument(DesignState):
             return c + a * r + b * u
         return p
 
-    def hit(self, origin, direction, world_from_mesh: np.ndarray | None = None
+    def hit(self, origin: ArrayLike, direction: ArrayLike, world_from_mesh: np.ndarray | None = None
             ) -> RayHit | None:
         """Cast a world-frame click ray on the mesh drawn with pose ``world_from_mesh``
         (default: the brick frame is the world, i.e. ``brick_from_mesh``)."""
         pose = self.brick_from_mesh if world_from_mesh is None else world_from_mesh
         return cast_ray(self.mesh, origin, direction, pose)
 
-    def click(self, origin, direction, world_from_mesh: np.ndarray | None = None
+    def click(self, origin: ArrayLike, direction: ArrayLike, world_from_mesh: np.ndarray | None = None
               ) -> ClickResult:
         """Handle a click ray from the 3D view according to :attr:`mode`.
 
@@ -211,7 +212,7 @@ class DesignDocument(DesignState):
         return ClickResult("added", f"Added {self.marker_label(idx)}.", idx,
                            point=self.markers[idx].center)
 
-    def marker_at(self, point) -> int | None:
+    def marker_at(self, point: ArrayLike) -> int | None:
         """Index of the marker covering a point (mesh frame), nearest centre first."""
         p = np.asarray(point, np.float64)
         best, best_d = None, np.inf
@@ -229,7 +230,7 @@ class DesignDocument(DesignState):
             s += 1
         return s
 
-    def add_marker(self, kind: str, face: int, point, size: float | None = None,
+    def add_marker(self, kind: str, face: int, point: ArrayLike, size: float | None = None,
                    color: str | None = None, snap: bool = True) -> int:
         """Add a code or a dot on a flat face at a point (mesh frame, snapped unless
         ``snap`` is False). Returns its index; it becomes the selection."""
@@ -264,7 +265,8 @@ class DesignDocument(DesignState):
             self.selected = index
             self._changed()
 
-    def move_marker(self, index: int, origin, direction, world_from_mesh=None,
+    def move_marker(self, index: int, origin: ArrayLike, direction: ArrayLike,
+                    world_from_mesh: np.ndarray | None = None,
                     record: bool = True) -> bool:
         """Move a marker to where a ray meets the model (it may change face). Returns False
         if the ray misses. ``record=False`` during a drag (call :meth:`checkpoint` once)."""

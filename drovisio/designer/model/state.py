@@ -11,6 +11,7 @@ from typing import Any, Self
 
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
 
 from drovisio.designer.model.codes import dictionary_for_block, family_dictionaries
 from drovisio.designer.model.errors import DesignError
@@ -195,13 +196,14 @@ class DesignState:
         """The inverse of ``brick_from_mesh`` (4x4)."""
         return invert(self.brick_from_mesh)
 
-    def to_brick(self, p) -> np.ndarray:
+    def to_brick(self, p: ArrayLike) -> np.ndarray:
         """Points (N, 3) or (3,) from the mesh frame to the brick frame."""
         p = np.asarray(p, np.float64)
         T = self.brick_from_mesh
         return p @ T[:3, :3].T + T[:3, 3]
 
-    def dir_to_brick(self, v) -> np.ndarray:
+    def dir_to_brick(self, v: ArrayLike) -> np.ndarray:
+        """Directions (N, 3) or (3,) from the mesh frame to the brick frame."""
         return np.asarray(v, np.float64) @ self.brick_from_mesh[:3, :3].T
 
     def brick_markers(self) -> list[DesignMarker]:
@@ -351,7 +353,8 @@ class DesignState:
     def _default_up(self, normal_m: np.ndarray) -> np.ndarray:
         return face_up(self.brick_from_mesh, normal_m)
 
-    def _face_under(self, point, normal, reach: float = 0.002) -> int | None:
+    def _face_under(self, point: ArrayLike, normal: np.ndarray, reach: float = 0.002
+                    ) -> int | None:
         """Flat face a point lies on (ray from just above it along -normal)."""
         n = unit(normal)
         hit = cast_ray(self.mesh, np.asarray(point) + n * reach, -n)
