@@ -42,6 +42,7 @@ from drovisio.layout import (
     MarkerLayout,
     parse_layout,
 )
+from drovisio.layout.checks import plane_outlier
 
 __all__ = ["MIN_CODE_PX", "MIN_DOT_PX", "WORKING_DISTANCE_M", "Fix", "Finding",
            "check_design", "apply_fix", "max_detection_distance", "dot_symmetries",
@@ -313,16 +314,12 @@ def _off_plane_dot(doc: DesignDocument, idx: list[int], bdots: list[DesignMarker
                    ) -> Finding | None:
     """The dot farthest from the dots' plane when beyond the layout's tolerance (brick
     frame, metres)."""
-    pts = np.array([m.center for m in bdots])
-    centred = pts - pts.mean(axis=0)
-    normal = np.linalg.svd(centred)[2][2]
-    dist = np.abs(centred @ normal)
-    k = int(np.argmax(dist))
-    if not dist[k] > DOT_COPLANAR_TOL_M:
+    k, off = plane_outlier(np.array([m.center for m in bdots]))
+    if not off > DOT_COPLANAR_TOL_M:
         return None
     i = idx[k]
     return Finding("dots-not-coplanar", "error", f"{doc.marker_label(i).capitalize()}"
-                   f" is {dist[k] * 1000:.0f} mm off the plane of the other dots: "
+                   f" is {off * 1000:.0f} mm off the plane of the other dots: "
                    "the dot detector needs all dots on one flat surface. Move it "
                    "onto the same face as the others, or delete it.", [i],
                    [Fix(f"Delete {doc.marker_label(i)}",

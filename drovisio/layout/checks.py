@@ -21,6 +21,7 @@ __all__ = [
     "coplanar_issues",
     "symmetry_issues",
     "dots_rot180_z_symmetric",
+    "plane_outlier",
 ]
 
 DOT_COPLANAR_TOL_M = 0.001  #: dots within 1 mm of their common plane.
@@ -100,6 +101,16 @@ def color_issues(dots: Sequence[tuple[int, DotMarker]], palette: dict[str, Color
             for i, m in dots if m.color not in palette]
 
 
+def plane_outlier(points: np.ndarray) -> tuple[int, float]:
+    """The point farthest from the best-fit plane of ``points`` ((N, 3), N >= 3) and its
+    distance to that plane (same unit as ``points``)."""
+    centred = points - points.mean(axis=0)
+    normal = np.linalg.svd(centred)[2][2]
+    dist = np.abs(centred @ normal)
+    worst = int(np.argmax(dist))
+    return worst, float(dist[worst])
+
+
 def coplanar_issues(dots: Sequence[tuple[int, DotMarker]], scale_to_m: float) -> list[Located]:
     """The dot farthest from the dots' best-fit plane, when beyond the tolerance.
 
@@ -109,15 +120,11 @@ def coplanar_issues(dots: Sequence[tuple[int, DotMarker]], scale_to_m: float) ->
     """
     if len(dots) < 4:
         return []
-    pts = np.array([m.center for _, m in dots], np.float64) * scale_to_m
-    centred = pts - pts.mean(axis=0)
-    sv = np.linalg.svd(centred)
-    dist = np.abs(centred @ sv[2][2])
-    worst = int(np.argmax(dist))
-    if dist[worst] > DOT_COPLANAR_TOL_M:
+    worst, off = plane_outlier(np.array([m.center for _, m in dots], np.float64) * scale_to_m)
+    if off > DOT_COPLANAR_TOL_M:
         i = dots[worst][0]
         return [(("markers", i, "center"), f"dots are not coplanar: this dot is "
-                 f"{dist[worst] * 1000:.1f} mm off the best-fit plane of the "
+                 f"{off * 1000:.1f} mm off the best-fit plane of the "
                  f"layout's dots (tolerance {DOT_COPLANAR_TOL_M * 1000:g} mm); put "
                  "all dots on one plane")]
     return []
