@@ -111,10 +111,11 @@ class ZenohSink:
         spec: The SINK string.
         messages: The message builder (camera, mount, layouts; its namespace carries the
             drone id).
-        queue_frames: Frames waiting at most (older ones are dropped when the link is slow).
+        queue_frames: Frames waiting at most (older ones are dropped when the link is slow):
+            16, half a second at 30 fps, so that a busy machine's stall loses nothing.
     """
 
-    def __init__(self, spec: str, messages: RosMessages, queue_frames: int = 4):
+    def __init__(self, spec: str, messages: RosMessages, queue_frames: int = 16):
         self.opts = parse_spec(spec)
         self.name = spec
         self.messages = messages
