@@ -18,6 +18,7 @@ BENCHMARKS = {
     "pipeline": "the live pipeline: latency, frame rate, memory",
     "real": "real photos (tags, ChArUco, chessboards): Drovisio beside OpenCV and AprilTag 3",
     "renderer": "exactness of the synthetic renderer",
+    "fleet": "a station and several drones over Zenoh: memory, latency, frames lost",
 }
 
 

@@ -16,7 +16,9 @@ keeps no publication cache for late joiners.
 
 SINK string: ``zenoh:`` followed by ``&``-separated options: ``connect=ENDPOINT[,ENDPOINT]``
 (e.g. ``tcp/192.168.1.10:7447``, a router or the ground station), ``listen=ENDPOINT``,
-``mode=peer|client`` (default peer), ``domain=N`` (the ROS domain id, default 0). Multicast
+``mode=peer|client`` (default peer), ``domain=N`` (the ROS domain id, default 0),
+``web=URL`` (this drone's web tool, linked from a station's Fleet page; sent once a second
+on ``info``). Multicast
 scouting is off (a site's Wi-Fi rarely carries it): give ``connect`` or ``listen``.
 
 Never in the flight controller's way: :meth:`ZenohSink.send` only queues (a bounded queue;
@@ -28,6 +30,7 @@ session and publishes with congestion control *drop*. Zenoh reconnects a lost li
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import struct
@@ -41,6 +44,11 @@ from drovisio.ros.type_hash import dds_type_name, full_name, rihs01
 from drovisio.sinks.base import SinkError
 
 __all__ = ["ZenohSink", "parse_spec", "topic_key"]
+
+IMAGE_HZ = 1.0
+"""Camera images a second sent for a station's thumbnail (the ROS image topic, small)."""
+IMAGE_WIDTH = 320
+"""Their width in pixels."""
 
 
 def topic_key(domain: int, topic: str, type_name: str) -> str:
@@ -57,7 +65,7 @@ def parse_spec(spec: str) -> dict:
     """Options of a ``zenoh:...`` SINK string (module doc); raises SinkError naming the
     option."""
     body = spec[len("zenoh:"):] if spec.startswith("zenoh:") else spec
-    opts: dict = {"connect": [], "listen": [], "mode": "peer", "domain": 0}
+    opts: dict = {"connect": [], "listen": [], "mode": "peer", "domain": 0, "web": None}
     for part in filter(None, body.split("&")):
         key, eq, value = part.partition("=")
         if not eq or not value:
@@ -75,13 +83,19 @@ def parse_spec(spec: str) -> dict:
             if value not in ("peer", "client"):
                 raise SinkError(f"{spec}: mode: {value!r}: use peer or client")
             opts["mode"] = value
+        elif key == "web":
+            if not value.startswith(("http://", "https://")) or len(value) > 200 \
+                    or any(c in value for c in " \"'<>"):
+                raise SinkError(f"{spec}: web: {value!r}: give this drone's web tool address, "
+                                "e.g. web=http://192.168.1.21:8080/")
+            opts["web"] = value
         elif key == "domain":
             if not value.isdigit() or int(value) > 232:
                 raise SinkError(f"{spec}: domain: {value!r}: use a ROS domain id, 0–232")
             opts["domain"] = int(value)
         else:
-            raise SinkError(f"{spec}: unknown option {key!r}: use connect, listen, mode or "
-                            "domain")
+            raise SinkError(f"{spec}: unknown option {key!r}: use connect, listen, mode, "
+                            "domain or web")
     if opts["mode"] == "client" and not opts["connect"]:
         raise SinkError(f"{spec}: mode=client needs connect=tcp/HOST:PORT (a router)")
     if not opts["connect"] and not opts["listen"]:
@@ -97,13 +111,16 @@ class ZenohSink:
         spec: The SINK string.
         messages: The message builder (camera, mount, layouts; its namespace carries the
             drone id).
-        queue_frames: Frames waiting at most (older ones are dropped when the link is slow).
+        queue_frames: Frames waiting at most (older ones are dropped when the link is slow):
+            16, half a second at 30 fps, so that a busy machine's stall loses nothing.
     """
 
-    def __init__(self, spec: str, messages: RosMessages, queue_frames: int = 4):
+    def __init__(self, spec: str, messages: RosMessages, queue_frames: int = 16):
         self.opts = parse_spec(spec)
         self.name = spec
         self.messages = messages
+        ns = messages.namespace.strip("/").split("/")
+        self.drone_id: str | None = ns[1] if len(ns) > 1 else None
         self.domain = self.opts["domain"]
         self.sent = 0
         self.dropped = 0
@@ -116,6 +133,9 @@ class ZenohSink:
         self._session: Any = None
         self._stop = threading.Event()
         self._last_tf = 0.0
+        self._token: Any = None
+        self._image: tuple[float, Any] | None = None   # (capture time, BGR frame) to send
+        self._last_image = -math.inf
         self._thread = threading.Thread(target=self._run, daemon=True, name="zenoh-sink")
         self._thread.start()
 
@@ -143,6 +163,10 @@ class ZenohSink:
 
         try:
             self._session = zenoh.open(self._config())
+            # held while the session lives: a station sees this drone go the moment the
+            # process ends, however it ends
+            self._token = self._session.liveliness().declare_token(
+                f"drovisio_lv/{self.domain}/{self.drone_id or '_'}")
         except Exception as e:  # noqa: BLE001 - said in the status, the pipeline goes on
             self.errors += 1
             self.last_error = f"cannot open a Zenoh session: {e}"
@@ -178,6 +202,9 @@ class ZenohSink:
 
     def _publish(self, output) -> None:
         now = time.monotonic()
+        image, self._image = self._image, None
+        if image is not None:
+            self._put_image(*image)
         if now - self._last_tf >= 1.0:   # the mount and the camera, once a second
             m = self.messages
             for topic, type_name, msg in m.run_messages(output.t):
@@ -185,12 +212,39 @@ class ZenohSink:
             if m.camera is not None:
                 self._put(m.topic("camera/camera_info"), TOPIC_TYPES["camera/camera_info"],
                           m.camera_info(output.t), output.t)
+            if self.opts["web"]:   # for a station's Fleet page: a link to this drone's tool
+                self._put(m.topic("info"), "std_msgs/msg/String",
+                          {"data": json.dumps({"web": self.opts["web"]})}, output.t)
             self._last_tf = now
         for topic, type_name, msg in self.messages.frame_messages(output, None):
             self._put(topic, type_name, msg, output.t)
         self.sent += 1
 
+    def _put_image(self, t: float, bgr: Any) -> None:
+        import cv2
+
+        h, w = bgr.shape[:2]
+        scale = min(1.0, IMAGE_WIDTH / max(w, 1))
+        small = cv2.resize(bgr, (max(1, round(w * scale)), max(1, round(h * scale))),
+                           interpolation=cv2.INTER_AREA) if scale < 1 else bgr
+        ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, 70])
+        if ok:
+            m = self.messages
+            self._put(m.topic("camera/image_raw/compressed"),
+                      TOPIC_TYPES["camera/image_raw/compressed"],
+                      m.compressed_image(buf.tobytes(), t, m.camera_frame), t)
+
     # ------------------------------------------------------------------ sink API
+    def on_frame(self, frame, output) -> None:
+        """A pipeline listener: keeps one camera image a second (small, JPEG) to send
+        with the next frame's messages, for a station's thumbnail."""
+        now = time.monotonic()
+        if frame is None or output is None or getattr(frame, "image", None) is None \
+                or now - self._last_image < 1.0 / IMAGE_HZ:
+            return
+        self._last_image = now
+        self._image = (output.t, frame.image)
+
     def send(self, output) -> None:
         """Queue the frame (never waits: the oldest queued frame gives way)."""
         while True:
@@ -211,6 +265,11 @@ class ZenohSink:
         except queue.Full:
             pass
         self._thread.join(3)
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
         if self._session is not None:
             try:
                 self._session.close()

@@ -9,6 +9,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -104,8 +105,18 @@ def test_a_run_publishes_the_recordings_messages_under_its_drone(tmp_path):
             topic_key(0, "/drovisio/d1/target", "geometry_msgs/msg/PoseWithCovarianceStamped"),
             topic_key(0, "/drovisio/d1/output", "std_msgs/msg/String"),
             topic_key(0, "/drovisio/d1/camera/camera_info", "sensor_msgs/msg/CameraInfo"),
-            topic_key(0, "/tf_static", "tf2_msgs/msg/TFMessage")}
+            topic_key(0, "/tf_static", "tf2_msgs/msg/TFMessage"),
+            # a small image a second, for a station's thumbnail
+            topic_key(0, "/drovisio/d1/camera/image_raw/compressed",
+                      "sensor_msgs/msg/CompressedImage")}
     assert set(keys) == want, keys
+    img_key = topic_key(0, "/drovisio/d1/camera/image_raw/compressed",
+                        "sensor_msgs/msg/CompressedImage")
+    for k, payload, _ in st.samples:
+        if k == img_key:
+            m = decoder("sensor_msgs/CompressedImage")(payload)
+            img = cv2.imdecode(np.frombuffer(bytes(m.data), np.uint8), cv2.IMREAD_COLOR)
+            assert m.format == "jpeg" and img.shape == (240, 320, 3)
     # no frame lost on a link that is up (the sink's queue never overflowed here)
     bricks_key = topic_key(0, "/drovisio/d1/bricks", "vision_msgs/msg/Detection3DArray")
     assert keys[bricks_key] == len(js)
