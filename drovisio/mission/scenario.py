@@ -49,6 +49,7 @@ from pydantic import (
 
 from drovisio.errors import InputError, one_line
 from drovisio.mission.frames import rot2, wrap_half
+from drovisio.mission.scenario_rules import semantic_issues
 from drovisio.resources import scenarios_dir
 from drovisio.textfile import parse_yaml, read_text
 
@@ -338,12 +339,15 @@ class Scenario(_M):
         out: dict[str, Pose4] = {}
         w = self.wall
         d = np.array([math.cos(self.wall_yaw), math.sin(self.wall_yaw)])
+        # PlanEntry's validator: course 1 has a slot, the upper courses rest on two bricks
         for e in sorted(w.plan, key=lambda e: e.course):
             if e.course == 1:
+                assert e.slot is not None
                 xy = np.asarray(w.origin) + e.slot * w.brick_pitch_m * d
                 out[e.brick] = Pose4(float(xy[0]), float(xy[1]), w.course_height_m,
                                      self.wall_yaw)
             else:
+                assert e.rests_on is not None
                 a, b = out[e.rests_on[0]], out[e.rests_on[1]]
                 out[e.brick] = Pose4((a.x + b.x) / 2, (a.y + b.y) / 2,
                                      e.course * w.course_height_m, self.wall_yaw)
@@ -362,8 +366,11 @@ class Scenario(_M):
             return list(e.rests_on)
         order = self.order
         before = set(order[:order.index(brick_id)])
+        slot = e.slot
+        assert slot is not None  # PlanEntry's validator: a brick without rests_on has a slot
         return [o.brick for o in self.wall.plan
-                if o.course == 1 and o.brick in before and abs(o.slot - e.slot) == 1]
+                if o.course == 1 and o.brick in before and o.slot is not None
+                and abs(o.slot - slot) == 1]
 
     def wall_top_m(self) -> float:
         return max(e.course for e in self.wall.plan) * self.wall.course_height_m
@@ -390,157 +397,8 @@ class Scenario(_M):
 
     # ------------------------------------------------------------------ semantic checks
     def _semantic_issues(self) -> list[tuple[str, str]]:
-        issues: list[tuple[str, str]] = []
-        add = issues.append
-        site, th, alt = self.site, self.thresholds, self.altitudes
-        ids = [b.id for b in self.bricks]
-        for i, b in enumerate(self.bricks):
-            if ids.count(b.id) > 1 and ids.index(b.id) != i:
-                add((f"bricks[{i}].id", f"duplicate brick id {b.id!r}"))
-            if b.layout not in self.layouts:
-                add((f"bricks[{i}].layout", f"{b.layout!r} is not in 'layouts' "
-                                            f"({', '.join(self.layouts)})"))
-                continue
-            lay = self._layouts.get(b.layout)
-            if lay is None:
-                continue
-            if lay.has_codes:
-                if b.instance is None:
-                    add((f"bricks[{i}].instance", f"layout {b.layout!r} has codes: give the "
-                                                  "brick's instance number"))
-                elif lay.instances is not None and b.instance >= lay.instances:
-                    add((f"bricks[{i}].instance", f"{b.instance} is out of range: layout "
-                                                  f"{b.layout!r} has instances 0..{lay.instances - 1}"))
-            elif b.instance is not None:
-                add((f"bricks[{i}].instance", f"layout {b.layout!r} has no codes: instance "
-                                              "must be null"))
-            p = b.pick.position
-            a = site.pick_area
-            if not (abs(p[0] - a.center[0]) <= a.size[0] / 2 + 1e-9
-                    and abs(p[1] - a.center[1]) <= a.size[1] / 2 + 1e-9):
-                add((f"bricks[{i}].pick.position", f"{p} is outside site.pick_area"))
-            for j in range(i):
-                q = self.bricks[j].pick.position
-                if math.dist(p, q) < self.wall.brick_pitch_m * 1.5:
-                    add((f"bricks[{i}].pick.position",
-                         f"{p} is within {self.wall.brick_pitch_m * 1.5:.2f} m of brick "
-                         f"{self.bricks[j].id!r}: bricks to pick must lie apart"))
-        seen_codes: dict[tuple[str, int], str] = {}
-        for i, b in enumerate(self.bricks):
-            if b.instance is not None:
-                key = (b.layout, b.instance)
-                if key in seen_codes:
-                    add((f"bricks[{i}].instance", f"brick {b.id!r} has the same codes as "
-                                                  f"{seen_codes[key]!r} ({b.layout} #{b.instance})"))
-                seen_codes[key] = b.id
-        plan_ids = [e.brick for e in self.wall.plan]
-        slots: dict[int, str] = {}
-        pairs: dict[frozenset, str] = {}
-        for i, e in enumerate(self.wall.plan):
-            where = f"wall.plan[{i}]"
-            if e.brick not in self.brick_by_id:
-                add((f"{where}.brick", f"{e.brick!r} is not in 'bricks'"))
-            if plan_ids.count(e.brick) > 1 and plan_ids.index(e.brick) != i:
-                add((f"{where}.brick", f"brick {e.brick!r} is planned twice"))
-            if e.course == 1:
-                if e.slot in slots:
-                    add((f"{where}.slot", f"slot {e.slot} already holds {slots[e.slot]!r}"))
-                slots[e.slot] = e.brick
-        if issues:
-            return issues
-        for i, e in enumerate(self.wall.plan):
-            if e.course == 1:
-                continue
-            where = f"wall.plan[{i}].rests_on"
-            below = []
-            for o in e.rests_on:
-                oe = self.plan_by_id.get(o)
-                if oe is None:
-                    add((where, f"{o!r} is not planned in the wall"))
-                elif oe.course != e.course - 1:
-                    add((where, f"{o!r} is in course {oe.course}; a course-{e.course} brick "
-                                f"rests on course {e.course - 1}"))
-                else:
-                    below.append(o)
-            if len(below) == 2 and below[0] == below[1]:
-                add((where, "the two bricks below must differ"))
-            if issues:
-                continue
-            key = frozenset(e.rests_on)
-            if key in pairs:
-                add((where, f"the pair {e.rests_on} already carries {pairs[key]!r}"))
-            pairs[key] = e.brick
-        if issues:
-            return issues
-        for i, e in enumerate(self.wall.plan):
-            if e.course > 1:
-                a, b = (self.slot_pose(o) for o in e.rests_on)
-                gap = math.dist((a.x, a.y), (b.x, b.y))
-                if abs(gap - self.wall.brick_pitch_m) > 1e-6 or abs(a.z - b.z) > 1e-9:
-                    add((f"wall.plan[{i}].rests_on", f"{e.rests_on} are not neighbours (centres "
-                                               f"{gap:.3f} m apart, pitch "
-                                               f"{self.wall.brick_pitch_m} m)"))
-        order = self.order
-        if sorted(order) != sorted(plan_ids):
-            add(("wall.order", "must list every planned brick exactly once"))
-        else:
-            for k, bid in enumerate(order):
-                for o in self.supports(bid):
-                    if o not in order[:k]:
-                        add(("wall.order", f"{bid!r} is built before {o!r}, which it rests on"))
-        unplanned = [b for b in ids if b not in plan_ids]
-        if unplanned:
-            add(("bricks", f"bricks not in the wall plan: {', '.join(unplanned)}"))
-        if issues:
-            return issues
-        # geometry against the site
-        b = site.bounds
-        for name, xy in [("site.home", site.home), ("site.safe_zone.center", site.safe_zone.center),
-                         ("site.pick_area.center", site.pick_area.center)]:
-            if not b.contains(xy, margin=0.3):
-                add((name, f"{xy} is not inside site.bounds with a 0.3 m margin"))
-        sz = site.safe_zone
-        if not (b.contains(np.asarray(sz.center) - sz.radius) and
-                b.contains(np.asarray(sz.center) + sz.radius)):
-            add(("site.safe_zone", "the safe zone must lie inside site.bounds"))
-        for bid in order:
-            s = self.slot_pose(bid)
-            if not b.contains((s.x, s.y), margin=0.3):
-                add(("wall", f"{bid!r}'s slot ({s.x:.2f}, {s.y:.2f}) is not inside site.bounds "
-                             "with a 0.3 m margin"))
-            for what, xy in [("site.safe_zone", sz.center)]:
-                if math.dist((s.x, s.y), xy) < sz.radius + 0.5:
-                    add((what, f"the safe zone is within 0.5 m of the wall (brick {bid!r})"))
-        hang = self.drone.picker_depth_m + max(
-            float(self._layouts[n].dimensions_m[2]) for n in self.layouts if n in self._layouts)
-        if alt.cruise_m < 1.0:
-            add(("altitudes.cruise_m", "the thesis climbs above 1 m between phases"))
-        if alt.cruise_m < self.wall_top_m() + hang + 0.3:
-            add(("altitudes.cruise_m", f"{alt.cruise_m} m does not clear the wall "
-                                       f"({self.wall_top_m():.2f} m) with a held brick "
-                                       f"({hang:.2f} m below the body) and 0.3 m to spare"))
-        if alt.cruise_m > b.max[2] - 0.2:
-            add(("altitudes.cruise_m", f"{alt.cruise_m} m is above the geofence ceiling minus "
-                                       "0.2 m"))
-        if self.wall_top_m() + alt.approach_m > alt.cruise_m + 1e-9:
-            add(("altitudes.approach_m", "approach height above the wall top must not exceed the "
-                                         "cruise altitude"))
-        if alt.blind_below_m >= alt.approach_m - self.drone.camera.mount.offset_m[2]:
-            add(("altitudes.blind_below_m", "must be below the camera's approach height"))
-        if th.align_yaw_tolerance_deg > self.placement_tolerance.yaw_deg:
-            add(("thresholds.align_yaw_tolerance_deg", "must not exceed "
-                                                       "placement_tolerance.yaw_deg"))
-        if th.align_position_tolerance_m > th.descent_position_tolerance_m:
-            add(("thresholds.align_position_tolerance_m", "must not exceed "
-                                                          "descent_position_tolerance_m"))
-        if th.disagreement_m <= th.match_radius_m * 0.2:
-            add(("thresholds.disagreement_m", "too small to tolerate a brick's pick error"))
-        if not self.sensors.total_station:
-            add(("sensors.total_station", "this strategy needs the total station (the site "
-                                          "frame); a mission without it is not supported"))
-        if not self.sensors.vision:
-            add(("sensors.vision", "the alignment phases need vision"))
-        return issues
+        """The rules beyond the schema (:mod:`drovisio.mission.scenario_rules`)."""
+        return semantic_issues(self)
 
 
 def _format_loc(loc: tuple) -> str:
@@ -621,8 +479,8 @@ def parse_scenario(data: dict | str | bytes, source: str | os.PathLike[str] = "<
     if data.get("schema") != SCHEMA_ID:
         raise ScenarioError(f"{src}: schema: expected {SCHEMA_ID!r}, got {data.get('schema')!r}")
     plan = data.get("wall", {}).get("plan") if isinstance(data.get("wall"), dict) else None
-    for i, e in enumerate(plan if isinstance(plan, list) else []):
-        if isinstance(e, dict) and True in e:
+    for i, entry in enumerate(plan if isinstance(plan, list) else []):
+        if isinstance(entry, dict) and True in entry:
             raise ScenarioError(f"{src}: wall.plan[{i}]: a key reads as true: YAML takes a bare "
                                 "'on' for a boolean; the field is 'rests_on'")
     try:
