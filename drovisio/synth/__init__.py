@@ -4,8 +4,8 @@ The renderer is a ray caster, not a rasteriser: every sub-pixel sample's viewing
 undistorting its pixel position through the camera's lens model (OpenCV's Brown and rational
 models, or the Kannala–Brandt fisheye: samples more than 90° off a fisheye's axis see the
 background), and is intersected with the scene's planar polygons (ground, mesh triangles,
-printed codes, dots, chessboards). Geometry is therefore exact under distortion: a 3D point seen in the image is
-where ``Camera.project`` puts it. Anti-aliasing is a box filter over ``ss × ss`` samples per
+printed codes, dots, chessboards). Geometry is therefore exact under distortion: a 3D point
+seen in the image is where ``Camera.project`` puts it. Anti-aliasing is a box filter over ``ss × ss`` samples per
 pixel, placed symmetrically about the pixel centre (pixel (0, 0) is the centre of the top-left
 pixel). Image effects (blur, motion blur, lighting, noise, JPEG) are applied afterwards.
 

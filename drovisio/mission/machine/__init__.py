@@ -10,8 +10,8 @@ so the diagram drawn from the table (:mod:`drovisio.mission.diagram`) is the mac
 (:class:`Readings`): the time, the total station's position (or None), the autopilot's own
 position/heading estimate, the vision frame (bricks in the drone's body frame, or None when no
 frame arrived this tick), the picker sensor. Outputs (:class:`Output`): a setpoint (position
-and heading in the site frame, see :mod:`drovisio.mission.frames`), the picker command, the motors, events and
-telemetry.
+and heading in the site frame, see :mod:`drovisio.mission.frames`), the picker command, the
+motors, events and telemetry.
 
 The strategy, as the thesis states it, with the choices made where it is silent:
 
@@ -26,8 +26,8 @@ The strategy, as the thesis states it, with the choices made where it is silent:
 * climb to the cruise altitude; **drop phase**: go above the slot; find it from the bricks
   below it (course ≥ 2: the two it straddles, recognised by id or position; course 1: the
   plan through the total station and the heading, the placed neighbour must be seen);
-  align, descend, blind descent, release; the picker sensor must confirm; climb and **verify** the placement by
-  vision against the plan.
+  align, descend, blind descent, release; the picker sensor must confirm; climb and
+  **verify** the placement by vision against the plan.
 * each phase has ``retries`` attempts: a failure (vision lost above the blind height, target
   not found, alignment timeout, total station lost, grab or release not confirmed) climbs
   straight up and starts the phase again; the ``retries``-th failure sends the drone to the
