@@ -11,18 +11,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # the scenario calls these rules: a type only, no import at run time
-    from drovisio.mission.scenario import Brick, Scenario
+from drovisio.mission.scenario_model import Brick, ScenarioModel
 
 __all__ = ["Issue", "Rule", "RULE_STAGES", "semantic_issues"]
 
 Issue = tuple[str, str]
 """(field, message)."""
-Rule = Callable[["Scenario"], list[Issue]]
+Rule = Callable[[ScenarioModel], list[Issue]]
 
 
 # ------------------------------------------------------------------------- the inventory
@@ -41,7 +40,7 @@ def _instance_issues(i: int, b: Brick, lay: Any) -> list[Issue]:
     return []
 
 
-def _pick_issues(scn: Scenario, i: int, b: Brick) -> list[Issue]:
+def _pick_issues(scn: ScenarioModel, i: int, b: Brick) -> list[Issue]:
     out: list[Issue] = []
     p = b.pick.position
     a = scn.site.pick_area
@@ -58,7 +57,7 @@ def _pick_issues(scn: Scenario, i: int, b: Brick) -> list[Issue]:
     return out
 
 
-def _brick_issues(scn: Scenario, i: int, b: Brick, ids: list[str]) -> list[Issue]:
+def _brick_issues(scn: ScenarioModel, i: int, b: Brick, ids: list[str]) -> list[Issue]:
     """One brick of the inventory: its id, its layout, its instance, where it lies."""
     out: list[Issue] = []
     if ids.count(b.id) > 1 and ids.index(b.id) != i:
@@ -73,13 +72,13 @@ def _brick_issues(scn: Scenario, i: int, b: Brick, ids: list[str]) -> list[Issue
     return out + _instance_issues(i, b, lay) + _pick_issues(scn, i, b)
 
 
-def bricks(scn: Scenario) -> list[Issue]:
+def bricks(scn: ScenarioModel) -> list[Issue]:
     """Each brick of the inventory (see :func:`_brick_issues`)."""
     ids = [b.id for b in scn.bricks]
     return [x for i, b in enumerate(scn.bricks) for x in _brick_issues(scn, i, b, ids)]
 
 
-def codes_unique(scn: Scenario) -> list[Issue]:
+def codes_unique(scn: ScenarioModel) -> list[Issue]:
     """No two bricks carry the same codes."""
     out: list[Issue] = []
     seen_codes: dict[tuple[str, int], str] = {}
@@ -94,7 +93,7 @@ def codes_unique(scn: Scenario) -> list[Issue]:
     return out
 
 
-def plan_entries(scn: Scenario) -> list[Issue]:
+def plan_entries(scn: ScenarioModel) -> list[Issue]:
     """Each planned brick exists, is planned once, and course 1's slots are distinct."""
     out: list[Issue] = []
     plan_ids = [e.brick for e in scn.wall.plan]
@@ -113,7 +112,7 @@ def plan_entries(scn: Scenario) -> list[Issue]:
 
 
 # ------------------------------------------------------------------------- the courses
-def rests_on(scn: Scenario) -> list[Issue]:
+def rests_on(scn: ScenarioModel) -> list[Issue]:
     """An upper brick rests on two different bricks of the course below, and no pair carries
     two bricks (checked only while nothing else is wrong)."""
     out: list[Issue] = []
@@ -144,7 +143,7 @@ def rests_on(scn: Scenario) -> list[Issue]:
 
 
 # ------------------------------------------------------------------------- the wall
-def neighbours(scn: Scenario) -> list[Issue]:
+def neighbours(scn: ScenarioModel) -> list[Issue]:
     """The two bricks below an upper brick are neighbours of one course."""
     out: list[Issue] = []
     pitch = scn.wall.brick_pitch_m
@@ -159,7 +158,7 @@ def neighbours(scn: Scenario) -> list[Issue]:
     return out
 
 
-def build_order(scn: Scenario) -> list[Issue]:
+def build_order(scn: ScenarioModel) -> list[Issue]:
     """The order lists every planned brick once, each after the bricks it rests on."""
     order = scn.order
     if sorted(order) != sorted(e.brick for e in scn.wall.plan):
@@ -168,7 +167,7 @@ def build_order(scn: Scenario) -> list[Issue]:
             for k, bid in enumerate(order) for o in scn.supports(bid) if o not in order[:k]]
 
 
-def all_planned(scn: Scenario) -> list[Issue]:
+def all_planned(scn: ScenarioModel) -> list[Issue]:
     """Every brick of the inventory is in the wall."""
     plan_ids = [e.brick for e in scn.wall.plan]
     unplanned = [b.id for b in scn.bricks if b.id not in plan_ids]
@@ -178,7 +177,7 @@ def all_planned(scn: Scenario) -> list[Issue]:
 
 
 # ------------------------------------------------------------------------- the site
-def site_points(scn: Scenario) -> list[Issue]:
+def site_points(scn: ScenarioModel) -> list[Issue]:
     """Home, the safe zone's and the pick area's centres lie inside the geofence."""
     site = scn.site
     return [(name, f"{xy} is not inside site.bounds with a 0.3 m margin")
@@ -188,7 +187,7 @@ def site_points(scn: Scenario) -> list[Issue]:
             if not site.bounds.contains(xy, margin=0.3)]
 
 
-def safe_zone_inside(scn: Scenario) -> list[Issue]:
+def safe_zone_inside(scn: ScenarioModel) -> list[Issue]:
     b, sz = scn.site.bounds, scn.site.safe_zone
     if not (b.contains(np.asarray(sz.center) - sz.radius) and
             b.contains(np.asarray(sz.center) + sz.radius)):
@@ -196,7 +195,7 @@ def safe_zone_inside(scn: Scenario) -> list[Issue]:
     return []
 
 
-def slots_on_site(scn: Scenario) -> list[Issue]:
+def slots_on_site(scn: ScenarioModel) -> list[Issue]:
     """Each slot lies inside the geofence, and 0.5 m or more from the safe zone."""
     out: list[Issue] = []
     b, sz = scn.site.bounds, scn.site.safe_zone
@@ -212,7 +211,7 @@ def slots_on_site(scn: Scenario) -> list[Issue]:
 
 
 # ------------------------------------------------------------------------- the flight
-def cruise_altitude(scn: Scenario) -> list[Issue]:
+def cruise_altitude(scn: ScenarioModel) -> list[Issue]:
     """Above 1 m, over the wall with a held brick, under the ceiling."""
     out: list[Issue] = []
     alt = scn.altitudes
@@ -230,7 +229,7 @@ def cruise_altitude(scn: Scenario) -> list[Issue]:
     return out
 
 
-def approach_and_blind(scn: Scenario) -> list[Issue]:
+def approach_and_blind(scn: ScenarioModel) -> list[Issue]:
     out: list[Issue] = []
     alt = scn.altitudes
     if scn.wall_top_m() + alt.approach_m > alt.cruise_m + 1e-9:
@@ -241,7 +240,7 @@ def approach_and_blind(scn: Scenario) -> list[Issue]:
     return out
 
 
-def tolerances(scn: Scenario) -> list[Issue]:
+def tolerances(scn: ScenarioModel) -> list[Issue]:
     out: list[Issue] = []
     th = scn.thresholds
     if th.align_yaw_tolerance_deg > scn.placement_tolerance.yaw_deg:
@@ -255,7 +254,7 @@ def tolerances(scn: Scenario) -> list[Issue]:
     return out
 
 
-def sensors(scn: Scenario) -> list[Issue]:
+def sensors(scn: ScenarioModel) -> list[Issue]:
     out: list[Issue] = []
     if not scn.sensors.total_station:
         out.append(("sensors.total_station", "this strategy needs the total station (the site "
@@ -275,7 +274,7 @@ RULE_STAGES: tuple[tuple[Rule, ...], ...] = (
 """The rules, stage by stage, in the order their messages are listed."""
 
 
-def semantic_issues(scn: Scenario) -> list[Issue]:
+def semantic_issues(scn: ScenarioModel) -> list[Issue]:
     """Every broken rule of the first stage that has one (empty: the scenario is valid)."""
     for stage in RULE_STAGES:
         issues = [x for rule in stage for x in rule(scn)]

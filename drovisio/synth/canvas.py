@@ -90,6 +90,27 @@ def check_render_work(camera: Camera, ss: int, rendered_frames: int, detected_fr
     return need
 
 
+def _edges_within(p: np.ndarray, R: float) -> list[np.ndarray]:
+    """The parts of a polygon's edges (``p``: (n, 2) normalised image coordinates) within
+    radius ``R``, each sampled at 17 points."""
+    pieces = []
+    for k in range(len(p)):
+        p0, d = p[k], p[(k + 1) % len(p)] - p[k]
+        a, b, c = float(d @ d), 2 * float(p0 @ d), float(p0 @ p0) - R * R
+        if a < 1e-30:
+            s0, s1 = (0.0, 0.0) if c <= 0 else (1.0, 0.0)
+        else:
+            disc = b * b - 4 * a * c
+            if disc < 0:
+                continue
+            q = math.sqrt(disc)
+            s0, s1 = max(0.0, (-b - q) / (2 * a)), min(1.0, (-b + q) / (2 * a))
+        if s0 <= s1:
+            s = np.linspace(s0, s1, 17)[:, None]
+            pieces.append(p0 + s * d)
+    return pieces
+
+
 class Canvas:
     """Colour and depth buffers at sample resolution, with polygon drawing."""
 
@@ -129,21 +150,7 @@ class Canvas:
             return 0, H, 0, W
         p = verts_c[:, :2] / verts_c[:, 2:3]
         R = self.max_r
-        pieces = []
-        for k in range(len(p)):
-            p0, d = p[k], p[(k + 1) % len(p)] - p[k]
-            a, b, c = float(d @ d), 2 * float(p0 @ d), float(p0 @ p0) - R * R
-            if a < 1e-30:
-                s0, s1 = (0.0, 0.0) if c <= 0 else (1.0, 0.0)
-            else:
-                disc = b * b - 4 * a * c
-                if disc < 0:
-                    continue
-                q = math.sqrt(disc)
-                s0, s1 = max(0.0, (-b - q) / (2 * a)), min(1.0, (-b + q) / (2 * a))
-            if s0 <= s1:
-                s = np.linspace(s0, s1, 17)[:, None]
-                pieces.append(p0 + s * d)
+        pieces = _edges_within(p, R)
         ss = self.ss
         lo, hi = np.array([np.inf, np.inf]), np.array([-np.inf, -np.inf])  # (x, y) sample
         if pieces:
@@ -152,17 +159,7 @@ class Canvas:
             lo = np.minimum(lo, (px.min(axis=0) + 0.5) * ss)
             hi = np.maximum(hi, (px.max(axis=0) + 0.5) * ss)
         if not pieces or any(np.hypot(*q) > R for q in p):
-            e = np.roll(p, -1, axis=0) - p
-            area = float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
-            sign = 1.0 if area >= 0 else -1.0
-            bx, by = self.border_xy[:, 0], self.border_xy[:, 1]
-            inside = np.ones(len(bx), bool)
-            for k in range(len(p)):
-                inside &= sign * (e[k, 0] * (by - p[k, 1]) - e[k, 1] * (bx - p[k, 0])) >= 0
-            if inside.any():
-                yx = self.border_yx[inside]
-                lo = np.minimum(lo, [yx[:, 1].min(), yx[:, 0].min()])
-                hi = np.maximum(hi, [yx[:, 1].max() + 1, yx[:, 0].max() + 1])
+            lo, hi = self._border_covered(p, lo, hi)
         if not np.all(np.isfinite(lo)):
             return None
         x0 = max(int(math.floor(lo[0])) - 2 * ss, 0)
@@ -172,6 +169,23 @@ class Canvas:
         if x0 >= x1 or y0 >= y1:
             return None
         return y0, y1, x0, x1
+
+    def _border_covered(self, p: np.ndarray, lo: np.ndarray, hi: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """``lo``, ``hi`` (x, y sample) grown over the image border's samples the polygon
+        ``p`` (n, 2 normalised) covers."""
+        e = np.roll(p, -1, axis=0) - p
+        area = float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+        sign = 1.0 if area >= 0 else -1.0
+        bx, by = self.border_xy[:, 0], self.border_xy[:, 1]
+        inside = np.ones(len(bx), bool)
+        for k in range(len(p)):
+            inside &= sign * (e[k, 0] * (by - p[k, 1]) - e[k, 1] * (bx - p[k, 0])) >= 0
+        if inside.any():
+            yx = self.border_yx[inside]
+            lo = np.minimum(lo, [yx[:, 1].min(), yx[:, 0].min()])
+            hi = np.maximum(hi, [yx[:, 1].max() + 1, yx[:, 0].max() + 1])
+        return lo, hi
 
     def draw(self, origin: np.ndarray, axis_u: np.ndarray, axis_v: np.ndarray,
              poly_uv: np.ndarray, texture: Texture, shade: float, decal: bool = False,

@@ -3,7 +3,7 @@ and each brick's ground truth."""
 
 from __future__ import annotations
 
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -33,8 +33,11 @@ def _plane_axes(normal: np.ndarray, hint: np.ndarray | None = None
     return u, np.cross(n, u)
 
 
-def draw_mesh(canvas: Canvas, mesh, camera_from_object: np.ndarray,
-               world_from_object: np.ndarray, bgr, scene: Scene) -> None:
+def draw_mesh(canvas: Canvas, mesh: Any, camera_from_object: np.ndarray,
+               world_from_object: np.ndarray, bgr: tuple[float, float, float],
+               scene: Scene) -> None:
+    """Draw a mesh's triangles (``mesh``: a ``trimesh.Trimesh``) in one colour, lit by the
+    scene's light."""
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64)
     R, t = camera_from_object[:3, :3], camera_from_object[:3, 3]
@@ -58,7 +61,7 @@ def draw_mesh(canvas: Canvas, mesh, camera_from_object: np.ndarray,
         canvas.draw(a, u, v, poly, tex, shade)
 
 
-def brick_mesh_for(layout) -> object:
+def brick_mesh_for(layout: MarkerLayout) -> Any:
     """The mesh a layout's brick is drawn with: its ``mesh`` file if it has one, else a box
     of its ``dimensions`` whose top face is z = 0 (metres)."""
     import trimesh  # heavy, and only needed once a brick is drawn
