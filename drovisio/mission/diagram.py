@@ -27,8 +27,6 @@ from drovisio.mission.machine import (
 
 __all__ = ["mermaid", "dot", "svg", "grouped_edges", "GROUPS"]
 
-S = State
-
 
 @dataclass(frozen=True)
 class Group:
@@ -41,14 +39,15 @@ class Group:
 
 GROUPS: tuple[Group, ...] = (
     Group("PICK_PHASE", "pick phase", PICK_STATES),
-    Group("PICK_VISION", "vision-guided", (S.ACQUIRE_BRICK, S.ALIGN_BRICK, S.DESCEND_BRICK),
-          parent="PICK_PHASE"),
+    Group("PICK_VISION", "vision-guided",
+          (State.ACQUIRE_BRICK, State.ALIGN_BRICK, State.DESCEND_BRICK), parent="PICK_PHASE"),
     Group("DROP_PHASE", "drop phase", DROP_STATES),
     Group("CARRYING", "carrying the brick", DROP_STATES[:-1], parent="DROP_PHASE"),
-    Group("DROP_VISION", "vision-guided", (S.ACQUIRE_SLOT, S.ALIGN_SLOT, S.DESCEND_SLOT),
-          parent="CARRYING"),
+    Group("DROP_VISION", "vision-guided",
+          (State.ACQUIRE_SLOT, State.ALIGN_SLOT, State.DESCEND_SLOT), parent="CARRYING"),
     Group("ANY_FLYING", "any flying state except the safe ones",
-          tuple(s for s in FLYING_STATES if s not in (S.GO_SAFE, S.LAND_SAFE)), drawn=False),
+          tuple(s for s in FLYING_STATES if s not in (State.GO_SAFE, State.LAND_SAFE)),
+          drawn=False),
 )
 
 
@@ -162,14 +161,14 @@ def dot() -> str:
 #: Where each state is drawn in the SVG (column, row); a state missing here goes to an extra
 #: row at the bottom, so a new state is never silently left out.
 GRID: dict[State, tuple[int, int]] = {
-    S.IDLE: (0, 0), S.TAKE_OFF: (1, 0), S.GO_TO_BRICK: (2, 0), S.ACQUIRE_BRICK: (3, 0),
-    S.ALIGN_BRICK: (4, 0), S.DESCEND_BRICK: (5, 0), S.BLIND_DESCENT_BRICK: (6, 0),
-    S.GRAB: (7, 0), S.RETRY_PICK: (3, 1),
-    S.CLIMB_WITH_BRICK: (7, 2), S.GO_TO_WALL: (6, 2), S.ACQUIRE_SLOT: (5, 2),
-    S.ALIGN_SLOT: (4, 2), S.DESCEND_SLOT: (3, 2), S.BLIND_DESCENT_SLOT: (2, 2),
-    S.RELEASE: (1, 2), S.CLIMB_AFTER_RELEASE: (0, 2), S.RETRY_DROP: (5, 3),
-    S.VERIFY_PLACEMENT: (0, 3), S.RETURN_HOME: (0, 4), S.LAND: (1, 4), S.DONE: (2, 4),
-    S.GO_SAFE: (5, 4), S.LAND_SAFE: (6, 4), S.SHUTDOWN: (7, 4),
+    State.IDLE: (0, 0), State.TAKE_OFF: (1, 0), State.GO_TO_BRICK: (2, 0),
+    State.ACQUIRE_BRICK: (3, 0), State.ALIGN_BRICK: (4, 0), State.DESCEND_BRICK: (5, 0),
+    State.BLIND_DESCENT_BRICK: (6, 0), State.GRAB: (7, 0), State.RETRY_PICK: (3, 1),
+    State.CLIMB_WITH_BRICK: (7, 2), State.GO_TO_WALL: (6, 2), State.ACQUIRE_SLOT: (5, 2),
+    State.ALIGN_SLOT: (4, 2), State.DESCEND_SLOT: (3, 2), State.BLIND_DESCENT_SLOT: (2, 2),
+    State.RELEASE: (1, 2), State.CLIMB_AFTER_RELEASE: (0, 2), State.RETRY_DROP: (5, 3),
+    State.VERIFY_PLACEMENT: (0, 3), State.RETURN_HOME: (0, 4), State.LAND: (1, 4),
+    State.DONE: (2, 4), State.GO_SAFE: (5, 4), State.LAND_SAFE: (6, 4), State.SHUTDOWN: (7, 4),
 }
 
 
@@ -179,7 +178,7 @@ _CW, _RH = 205, 92
 """Column and row pitch, px."""
 _MX, _MY = 20, 40
 """Margins, px."""
-_SAFE = {S.GO_SAFE, S.LAND_SAFE, S.SHUTDOWN}
+_SAFE = {State.GO_SAFE, State.LAND_SAFE, State.SHUTDOWN}
 
 Point = tuple[float, float]
 Frame = tuple[float, float, float, float]
@@ -287,7 +286,7 @@ def _svg_edges(frames: dict[str, Frame], centre: dict[State, Point]) -> list[str
         if src == "ANY_FLYING":
             continue
         d = State(dst)
-        if d is S.GO_SAFE and trig != "reached" and src not in frames:
+        if d is State.GO_SAFE and trig != "reached" and src not in frames:
             continue  # summarised by the note
         start = _svg_anchor(src, centre[d], frames, centre)
         end = _svg_anchor(d.value, start, frames, centre)
