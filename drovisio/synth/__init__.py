@@ -5,9 +5,9 @@ undistorting its pixel position through the camera's lens model (OpenCV's Brown 
 models, or the Kannala–Brandt fisheye: samples more than 90° off a fisheye's axis see the
 background), and is intersected with the scene's planar polygons (ground, mesh triangles,
 printed codes, dots, chessboards). Geometry is therefore exact under distortion: a 3D point
-seen in the image is where ``Camera.project`` puts it. Anti-aliasing is a box filter over ``ss × ss`` samples per
-pixel, placed symmetrically about the pixel centre (pixel (0, 0) is the centre of the top-left
-pixel). Image effects (blur, motion blur, lighting, noise, JPEG) are applied afterwards.
+seen in the image is where ``Camera.project`` puts it. Anti-aliasing is a box filter over
+``ss × ss`` samples per pixel, placed symmetrically about the pixel centre (pixel (0, 0) is
+the centre of the top-left pixel). Image effects (blur, motion blur, lighting, noise, JPEG) are applied afterwards.
 
 Frames: world z up, ground at z = 0, metres; camera frame is OpenCV's (x right, y down,
 z forward); transforms are 4×4 ``a_from_b`` matrices (``p_a = a_from_b @ p_b``).

@@ -1,7 +1,7 @@
 """One tick's working state and the actions every state handler shares.
 
-A :class:`Tick` lives for one call of :func:`~drovisio.mission.machine.step`: it holds the
-readings, the memory as it is being updated and the events of the tick. :func:`enter` takes a
+A :class:`StepContext` lives for one call of :func:`~drovisio.mission.machine.step`: it holds
+the readings, the memory as it is being updated and the events of the tick. :func:`enter` takes a
 transition from the table and runs the target state's entry action (:data:`ENTRY_ACTIONS`);
 :func:`fail` counts a failure of the phase and takes ``fail`` or ``fail_final``.
 """
@@ -19,11 +19,11 @@ from drovisio.mission.machine.signals import Event, Readings, Setpoint
 from drovisio.mission.machine.states import PICK_STATES, State, next_state
 from drovisio.mission.scenario import Altitudes, Scenario, Thresholds
 
-__all__ = ["Tick", "enter", "fail", "reset_failures", "hold", "settled", "go_to", "contact_z",
-           "camera_height", "ENTRY_ACTIONS"]
+__all__ = ["StepContext", "enter", "fail", "reset_failures", "hold", "settled", "go_to",
+           "contact_z", "camera_height", "ENTRY_ACTIONS"]
 
 
-class Tick:
+class StepContext:
     """Per-tick working state of :func:`~drovisio.mission.machine.step` (never outlives the
     call).
 
@@ -88,39 +88,39 @@ class Tick:
 
 
 # ------------------------------------------------------------------------- entry actions
-def _start_attempt(c: Tick) -> None:
+def _start_attempt(c: StepContext) -> None:
     c.update(attempt_t=c.now, align_t=None, samples=(), seen_frames=0, disagree=0,
              yaw_error=None, xy_error=None)
 
 
-def _start_climb(c: Tick) -> None:
+def _start_climb(c: StepContext) -> None:
     c.update(attempt_t=c.now, samples=(), seen_frames=0, yaw_error=None, xy_error=None)
 
 
-def _start_looking(c: Tick) -> None:
+def _start_looking(c: StepContext) -> None:
     c.update(samples=(), seen_frames=0, disagree=0, last_seen_t=c.now)
 
 
-def _start_aligning(c: Tick) -> None:
+def _start_aligning(c: StepContext) -> None:
     if c.mem.align_t is None:
         c.update(align_t=c.now)
 
 
-def _picker(command: str) -> Callable[[Tick], None]:
-    def act(c: Tick) -> None:
+def _picker(command: str) -> Callable[[StepContext], None]:
+    def act(c: StepContext) -> None:
         c.update(picker=command, picker_t=c.now)
     return act
 
 
-def _shut_down(c: Tick) -> None:
+def _shut_down(c: StepContext) -> None:
     c.event("shutdown", reason=c.mem.abort_reason)
 
 
-def _done(c: Tick) -> None:
+def _done(c: StepContext) -> None:
     c.event("done", placed=len(c.mem.placed))
 
 
-ENTRY_ACTIONS: dict[State, Callable[[Tick], None]] = {
+ENTRY_ACTIONS: dict[State, Callable[[StepContext], None]] = {
     State.GO_TO_BRICK: _start_attempt,
     State.GO_TO_WALL: _start_attempt,
     State.CLIMB_WITH_BRICK: _start_climb,
@@ -140,7 +140,7 @@ ENTRY_ACTIONS: dict[State, Callable[[Tick], None]] = {
 :func:`enter`)."""
 
 
-def enter(c: Tick, trigger: str, **detail: Any) -> None:
+def enter(c: StepContext, trigger: str, **detail: Any) -> None:
     """Take the table's transition from the current state on ``trigger``."""
     src = c.mem.state
     dst = next_state(src, trigger)
@@ -156,7 +156,7 @@ def enter(c: Tick, trigger: str, **detail: Any) -> None:
         action(c)
 
 
-def fail(c: Tick, reason: str) -> None:
+def fail(c: StepContext, reason: str) -> None:
     """A failure of the current phase: retry it, or the safe zone after ``retries``."""
     phase = "pick" if c.mem.state in PICK_STATES else "drop"
     n = c.mem.failures_of(phase) + 1
@@ -173,14 +173,14 @@ def fail(c: Tick, reason: str) -> None:
         c.event("retry", phase=phase, brick=brick, attempt=n + 1)
 
 
-def reset_failures(c: Tick, phase: str) -> None:
+def reset_failures(c: StepContext, phase: str) -> None:
     f = dict(c.mem.failures)
     f[phase] = 0
     c.update(failures=tuple(f.items()))
 
 
 # ------------------------------------------------------------------------- motion
-def hold(c: Tick, z: float | None = None, yaw: float | None = None) -> Setpoint:
+def hold(c: StepContext, z: float | None = None, yaw: float | None = None) -> Setpoint:
     """Stay where the last setpoint was (or where the body is), at height ``z`` if given."""
     sp = c.mem.setpoint
     base = sp.position if sp is not None else tuple(c.position)
@@ -188,7 +188,7 @@ def hold(c: Tick, z: float | None = None, yaw: float | None = None) -> Setpoint:
     return Setpoint((base[0], base[1], base[2] if z is None else z), keep_yaw)
 
 
-def settled(c: Tick, cond: bool, seconds: float = 0.5) -> bool:
+def settled(c: StepContext, cond: bool, seconds: float = 0.5) -> bool:
     """True once ``cond`` has held for ``seconds``."""
     if not cond:
         c.update(ok_since=None)
@@ -200,7 +200,7 @@ def settled(c: Tick, cond: bool, seconds: float = 0.5) -> bool:
     return c.now - ok_since >= seconds - 1e-9
 
 
-def go_to(c: Tick, goal_xy: Sequence[float] | np.ndarray, goal_z: float,
+def go_to(c: StepContext, goal_xy: Sequence[float] | np.ndarray, goal_z: float,
           yaw: float | None = None) -> tuple[Setpoint, bool]:
     """Transit at the cruise altitude, then to the goal; returns (setpoint, reached)."""
     cruise = c.alt.cruise_m
@@ -225,6 +225,6 @@ def contact_z(scn: Scenario, top: float) -> float:
     return top + scn.drone.picker_depth_m
 
 
-def camera_height(c: Tick, top: float) -> float:
+def camera_height(c: StepContext, top: float) -> float:
     """The camera's height above a top face at height ``top`` (m)."""
     return float(c.position[2] - c.scn.drone.camera.mount.offset_m[2] - top)

@@ -17,7 +17,7 @@ import numpy as np
 
 from drovisio.mission.frames import nearest_mod_pi, wrap_half
 from drovisio.mission.machine.context import (
-    Tick,
+    StepContext,
     camera_height,
     contact_z,
     enter,
@@ -42,10 +42,10 @@ from drovisio.mission.scenario import Pose4
 
 __all__ = ["HANDLERS", "handle"]
 
-Handler = Callable[[Tick], "Setpoint | None"]
+Handler = Callable[[StepContext], "Setpoint | None"]
 
 
-def _in_flight_lost(c: Tick, drop: bool) -> bool:
+def _in_flight_lost(c: StepContext, drop: bool) -> bool:
     """The checks of every phase in flight: the held brick is gone (drop phase), or the total
     station is. True when they took a transition."""
     if drop and not c.readings.holding:
@@ -58,18 +58,18 @@ def _in_flight_lost(c: Tick, drop: bool) -> bool:
     return False
 
 
-def _top(c: Tick, brick: str, drop: bool) -> float:
+def _top(c: StepContext, brick: str, drop: bool) -> float:
     """Height of the target's top face: the slot's (drop) or the brick's on the ground."""
     return c.scn.slot_pose(brick).z if drop else c.scn.pick_pose(brick).z
 
 
 # ------------------------------------------------------------------------- take-off, transit
-def _idle(c: Tick) -> Setpoint | None:
+def _idle(c: StepContext) -> Setpoint | None:
     enter(c, "start")
     return None
 
 
-def _take_off(c: Tick) -> Setpoint | None:
+def _take_off(c: StepContext) -> Setpoint | None:
     th, alt = c.th, c.alt
     if c.ts_age > th.ts_grace_s and c.now - c.mem.entered_t > th.ts_wait_s:
         enter(c, "ts_lost", reason="no total station at take-off")
@@ -83,7 +83,7 @@ def _take_off(c: Tick) -> Setpoint | None:
     return sp
 
 
-def _go_to_target(c: Tick, drop: bool) -> Setpoint | None:
+def _go_to_target(c: StepContext, drop: bool) -> Setpoint | None:
     """GO_TO_BRICK / GO_TO_WALL: above the pick pose or the slot, at the approach height."""
     if _in_flight_lost(c, drop):
         return None
@@ -99,7 +99,7 @@ def _go_to_target(c: Tick, drop: bool) -> Setpoint | None:
     return sp
 
 
-def _climb_with_brick(c: Tick) -> Setpoint | None:
+def _climb_with_brick(c: StepContext) -> Setpoint | None:
     if _in_flight_lost(c, drop=True):
         return None
     cruise = c.alt.cruise_m
@@ -122,7 +122,7 @@ class _Approach:
     vision_needed: bool
 
 
-def _approach(c: Tick, drop: bool) -> _Approach | None:
+def _approach(c: StepContext, drop: bool) -> _Approach | None:
     """The checks and the target update of ACQUIRE / ALIGN / DESCEND (pick or drop); None
     when they took a transition."""
     th, scn = c.th, c.scn
@@ -141,7 +141,7 @@ def _approach(c: Tick, drop: bool) -> _Approach | None:
     return _Approach(brick, drop, _top(c, brick, drop), vision_needed)
 
 
-def _acquire(c: Tick, drop: bool) -> Setpoint | None:
+def _acquire(c: StepContext, drop: bool) -> Setpoint | None:
     """ACQUIRE_BRICK / ACQUIRE_SLOT: hover at the approach height until the target is seen."""
     a = _approach(c, drop)
     if a is None:
@@ -174,7 +174,7 @@ class _Aim:
                 "xy_error_m": round(self.xy_err, 3)}
 
 
-def _aim(c: Tick, a: _Approach) -> _Aim | None:
+def _aim(c: StepContext, a: _Approach) -> _Aim | None:
     """The goal from the target's estimate and the errors to it (recorded in the memory);
     None when there is no estimate (a failure)."""
     if not c.mem.samples:
@@ -189,7 +189,7 @@ def _aim(c: Tick, a: _Approach) -> _Aim | None:
     return _Aim(goal_xy, body_yaw, xy_err, yaw_err, cur_z)
 
 
-def _align(c: Tick, drop: bool) -> Setpoint | None:
+def _align(c: StepContext, drop: bool) -> Setpoint | None:
     """ALIGN_BRICK / ALIGN_SLOT: move over the target and turn to it, at the same height."""
     a = _approach(c, drop)
     aim = _aim(c, a) if a is not None else None
@@ -211,7 +211,7 @@ def _align(c: Tick, drop: bool) -> Setpoint | None:
     return Setpoint((float(aim.goal_xy[0]), float(aim.goal_xy[1]), aim.cur_z), aim.body_yaw)
 
 
-def _descend(c: Tick, drop: bool) -> Setpoint | None:
+def _descend(c: StepContext, drop: bool) -> Setpoint | None:
     """DESCEND_BRICK / DESCEND_SLOT: down while vision keeps the alignment, then blind."""
     a = _approach(c, drop)
     aim = _aim(c, a) if a is not None else None
@@ -231,7 +231,7 @@ def _descend(c: Tick, drop: bool) -> Setpoint | None:
     return Setpoint((float(aim.goal_xy[0]), float(aim.goal_xy[1]), z), aim.body_yaw)
 
 
-def _on_target(c: Tick, sp: Setpoint, drop: bool) -> tuple[bool, float, float]:
+def _on_target(c: StepContext, sp: Setpoint, drop: bool) -> tuple[bool, float, float]:
     """Whether the total station puts the body on the target and the heading on its setpoint
     (a gust may have pushed the drone off): (on target, xy error m, yaw error rad)."""
     th = c.th
@@ -246,7 +246,7 @@ def _on_target(c: Tick, sp: Setpoint, drop: bool) -> tuple[bool, float, float]:
     return on_target, xy_err, yaw_err
 
 
-def _blind(c: Tick, drop: bool) -> Setpoint | None:
+def _blind(c: StepContext, drop: bool) -> Setpoint | None:
     """BLIND_DESCENT_BRICK / BLIND_DESCENT_SLOT: straight down on the total station to the
     contact."""
     th = c.th
@@ -271,7 +271,7 @@ def _blind(c: Tick, drop: bool) -> Setpoint | None:
 
 
 # ------------------------------------------------------------------------- picker
-def _grab(c: Tick) -> Setpoint | None:
+def _grab(c: StepContext) -> Setpoint | None:
     sp = hold(c)
     if c.now - c.mem.picker_t < c.th.grab_time_s:
         return sp
@@ -288,7 +288,7 @@ def _grab(c: Tick) -> Setpoint | None:
     return None
 
 
-def _release(c: Tick) -> Setpoint | None:
+def _release(c: StepContext) -> Setpoint | None:
     sp = hold(c)
     if c.now - c.mem.picker_t < c.th.grab_time_s:
         return sp
@@ -302,7 +302,7 @@ def _release(c: Tick) -> Setpoint | None:
 
 
 # ------------------------------------------------------------------------- retries, verify
-def _retry(c: Tick, drop: bool) -> Setpoint | None:
+def _retry(c: StepContext, drop: bool) -> Setpoint | None:
     """RETRY_PICK / RETRY_DROP: climb straight up (to the approach height at least) and
     wait for the total station; a brick come loose meanwhile changes nothing here."""
     th = c.th
@@ -319,7 +319,7 @@ def _retry(c: Tick, drop: bool) -> Setpoint | None:
     return sp
 
 
-def _climb_after_release(c: Tick) -> Setpoint | None:
+def _climb_after_release(c: StepContext) -> Setpoint | None:
     th = c.th
     if c.ts_age > th.ts_wait_s:
         enter(c, "ts_lost", reason="no total station after the release")
@@ -332,7 +332,7 @@ def _climb_after_release(c: Tick) -> Setpoint | None:
     return sp
 
 
-def _judge_placement(c: Tick, brick: str, slot: Pose4) -> None:
+def _judge_placement(c: StepContext, brick: str, slot: Pose4) -> None:
     """The placed brick against its plan: next brick, home, or the safe zone."""
     est = mean_pose(c.mem.samples)
     err = math.dist((est.x, est.y), (slot.x, slot.y))
@@ -354,7 +354,7 @@ def _judge_placement(c: Tick, brick: str, slot: Pose4) -> None:
                                         f"{yerr:.1f}° off its plan")
 
 
-def _verify_placement(c: Tick) -> Setpoint | None:
+def _verify_placement(c: StepContext) -> Setpoint | None:
     """VERIFY_PLACEMENT: hover above the placed brick and measure it against its plan."""
     th = c.th
     sp = hold(c)
@@ -379,7 +379,7 @@ def _verify_placement(c: Tick) -> Setpoint | None:
 
 
 # ------------------------------------------------------------------------- home, safe zone
-def _return_home(c: Tick) -> Setpoint | None:
+def _return_home(c: StepContext) -> Setpoint | None:
     if c.ts_age > c.th.ts_wait_s:
         enter(c, "ts_lost", reason="no total station on the way home")
         return None
@@ -390,7 +390,7 @@ def _return_home(c: Tick) -> Setpoint | None:
     return sp
 
 
-def _land(c: Tick) -> Setpoint | None:
+def _land(c: StepContext) -> Setpoint | None:
     """LAND / LAND_SAFE: straight down at 0.4 m/s onto home or the safe zone."""
     scn = c.scn
     xy = scn.site.home if c.mem.state is State.LAND else scn.site.safe_zone.center
@@ -408,7 +408,7 @@ def _land(c: Tick) -> Setpoint | None:
     return Setpoint((float(xy[0]), float(xy[1]), z), sp0.yaw if sp0 else c.yaw)
 
 
-def _go_safe(c: Tick) -> Setpoint | None:
+def _go_safe(c: StepContext) -> Setpoint | None:
     """GO_SAFE: climb where it is (inside the site), then over the safe zone at cruise."""
     sz = c.scn.site.safe_zone.center
     cruise = c.alt.cruise_m
@@ -426,7 +426,7 @@ def _go_safe(c: Tick) -> Setpoint | None:
     return Setpoint((sz[0], sz[1], cruise), yaw)
 
 
-def _stopped(c: Tick) -> Setpoint | None:
+def _stopped(c: StepContext) -> Setpoint | None:
     return None
 
 
@@ -459,7 +459,7 @@ HANDLERS: dict[State, Handler] = {
 assert set(HANDLERS) == set(State), "a state without a handler"
 
 
-def handle(c: Tick) -> Setpoint | None:
+def handle(c: StepContext) -> Setpoint | None:
     """Run the current state's handler once; None means 'state changed, run again'."""
     if c.mem.state in ATTEMPT_STATES and c.now - c.mem.attempt_t > c.th.attempt_timeout_s:
         fail(c, "attempt timeout")

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from drovisio.mission.frames import nearest_mod_pi, site_from_body, wrap_half, yaw_of
-from drovisio.mission.machine.context import Tick, enter
+from drovisio.mission.machine.context import StepContext, enter
 from drovisio.mission.machine.signals import Sighting
 from drovisio.mission.machine.states import PICK_STATES
 from drovisio.mission.scenario import Pose4
@@ -53,7 +53,7 @@ def site_pose_of(s: Sighting, position: np.ndarray, yaw: float) -> Pose4:
                  float(site_from_brick[2, 3]), yaw_of(site_from_brick))
 
 
-def target_sightings(c: Tick, brick: str, expected_xy: Sequence[float] | np.ndarray
+def target_sightings(c: StepContext, brick: str, expected_xy: Sequence[float] | np.ndarray
                      ) -> list[Pose4]:
     """Site poses of ``brick`` in this frame (by id, or the one nearest where expected)."""
     if not c.readings.vision:
@@ -77,7 +77,7 @@ def target_sightings(c: Tick, brick: str, expected_xy: Sequence[float] | np.ndar
     return poses
 
 
-def _known_positions(c: Tick) -> dict[tuple[str, int | None], Pose4]:
+def _known_positions(c: StepContext) -> dict[tuple[str, int | None], Pose4]:
     """Bricks with codes whose site position the machine knows: the as-built wall, and the
     bricks still lying at their (surveyed) pick poses."""
     scn = c.scn
@@ -94,7 +94,7 @@ def _known_positions(c: Tick) -> dict[tuple[str, int | None], Pose4]:
     return out
 
 
-def monitor_disagreement(c: Tick) -> bool:
+def monitor_disagreement(c: StepContext) -> bool:
     """Compare the total station with vision on every frame (thesis 8.4.3); True when the
     disagreement sent the machine to the safe zone.
 
@@ -125,7 +125,7 @@ def monitor_disagreement(c: Tick) -> bool:
     return False
 
 
-def _pick_sample(c: Tick, brick: str) -> Sample | None:
+def _pick_sample(c: StepContext, brick: str) -> Sample | None:
     """This frame's estimate of the brick to pick, or None if the frame does not show it."""
     nominal = c.scn.pick_pose(brick)
     expected = mean_pose(c.mem.samples).xy if c.mem.samples else nominal.xy
@@ -136,7 +136,7 @@ def _pick_sample(c: Tick, brick: str) -> Sample | None:
     return (pose.x, pose.y, nominal.z, pose.yaw)
 
 
-def _slot_sample(c: Tick, brick: str, refs: list[str]) -> Sample | None:
+def _slot_sample(c: StepContext, brick: str, refs: list[str]) -> Sample | None:
     """This frame's estimate of the slot from the placed bricks ``refs`` around it, or None
     if the frame shows none of them."""
     scn = c.scn
@@ -168,7 +168,7 @@ def _slot_sample(c: Tick, brick: str, refs: list[str]) -> Sample | None:
     return (float(np.mean(xs)), float(np.mean(ys)), slot.z, nearest_mod_pi(yaw, slot.yaw))
 
 
-def update_target(c: Tick, brick: str, drop: bool) -> bool | None:
+def update_target(c: StepContext, brick: str, drop: bool) -> bool | None:
     """Fold this frame's sightings into the target estimate.
 
     Returns True if the target was seen in this frame, False if a frame came without it,
@@ -191,7 +191,7 @@ def update_target(c: Tick, brick: str, drop: bool) -> bool | None:
     return True
 
 
-def body_goal(c: Tick, target: Pose4, drop: bool) -> tuple[np.ndarray, float]:
+def body_goal(c: StepContext, target: Pose4, drop: bool) -> tuple[np.ndarray, float]:
     """Where the body must be (xy, (2,)) and its heading so the picker / held brick meets
     ``target``."""
     if drop and c.mem.held is not None:
@@ -203,6 +203,7 @@ def body_goal(c: Tick, target: Pose4, drop: bool) -> tuple[np.ndarray, float]:
     return xy, body_yaw
 
 
-def errors(c: Tick, xy: Sequence[float] | np.ndarray, body_yaw: float) -> tuple[float, float]:
+def errors(c: StepContext, xy: Sequence[float] | np.ndarray, body_yaw: float
+           ) -> tuple[float, float]:
     """The body's horizontal distance to ``xy`` (m) and heading error to ``body_yaw`` (rad)."""
     return float(np.hypot(*(np.asarray(xy) - c.position[:2]))), wrap_half(body_yaw - c.yaw)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from drovisio.mission.machine.context import Tick, enter
+from drovisio.mission.machine.context import StepContext, enter
 from drovisio.mission.machine.handlers import handle
 from drovisio.mission.machine.memory import Memory, MissionPlan, current_brick
 from drovisio.mission.machine.signals import Output, Readings, Setpoint
@@ -15,7 +15,7 @@ from drovisio.mission.scenario import Scenario
 __all__ = ["step", "Machine"]
 
 
-def _run_handlers(c: Tick) -> Setpoint | None:
+def _run_handlers(c: StepContext) -> Setpoint | None:
     """Run handlers until the state stays (a tick may run through a few immediate
     transitions)."""
     sp: Setpoint | None = None
@@ -27,7 +27,7 @@ def _run_handlers(c: Tick) -> Setpoint | None:
     raise RuntimeError("the machine did not settle within one tick")  # pragma: no cover
 
 
-def _geofenced(c: Tick, sp: Setpoint | None) -> Setpoint | None:
+def _geofenced(c: StepContext, sp: Setpoint | None) -> Setpoint | None:
     """Never output a setpoint outside the site: go to the safe zone instead."""
     plan = c.plan
     if sp is None or plan.inside(sp.position):
@@ -43,7 +43,7 @@ def _geofenced(c: Tick, sp: Setpoint | None) -> Setpoint | None:
     return sp
 
 
-def _telemetry(c: Tick) -> dict[str, Any]:
+def _telemetry(c: StepContext) -> dict[str, Any]:
     mem = c.mem
     return {
         "brick": current_brick(c.plan, mem),
@@ -67,7 +67,7 @@ def step(plan: MissionPlan, mem: Memory, readings: Readings) -> tuple[Memory, Ou
     Returns:
         The new memory and the tick's output.
     """
-    c = Tick(plan, mem, readings)
+    c = StepContext(plan, mem, readings)
     sp = _geofenced(c, _run_handlers(c))
     if sp is not None:
         c.update(setpoint=sp)

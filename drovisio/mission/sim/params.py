@@ -16,6 +16,9 @@ __all__ = ["SimParams", "Tick", "Trace"]
 
 @dataclass
 class SimParams:
+    """How the simulated world behaves (SI units: s, m, m/s; angles in degrees; rates in Hz;
+    see :mod:`drovisio.mission.sim` for each part)."""
+
     dt: float = 0.05
     seed: int = 0
     max_time_s: float = 1800.0
@@ -52,6 +55,9 @@ class SimParams:
 
 @dataclass
 class Tick:
+    """One simulated tick: the truth (position (x, y, z), site frame, m; yaw, rad; the
+    bricks), what the sensors gave (``ts``, ``vision``) and what the machine output."""
+
     t: float
     state: str
     position: tuple[float, float, float]
@@ -69,6 +75,8 @@ class Tick:
 
 @dataclass
 class Trace:
+    """A simulated run: every tick, the outcome, the placements and landings (truth)."""
+
     scenario: Scenario
     params: SimParams
     ticks: list[Tick]
@@ -87,8 +95,9 @@ class Trace:
     the descent ended), and with precision landing ``initialised`` (the filter was
     initialised at some tick of this descent), ``init_failures`` and ``measurements`` (since
     the brick was first looked for), ``last_seen_camera_height_m`` (camera above the brick's
-    top at the last LANDING_TARGET sent), ``blind_height_m`` (where the brick leaves the picture, this lens
-    and mount), ``estimate_error_m`` (the estimate flown to, against the truth)."""
+    top at the last LANDING_TARGET sent), ``blind_height_m`` (where the brick leaves the
+    picture, this lens and mount), ``estimate_error_m`` (the estimate flown to, against the
+    truth)."""
 
     @property
     def completed(self) -> bool:
