@@ -21,6 +21,7 @@ from drovisio.synth import (
     Prop,
     RenderResult,
     Scene,
+    brick_mesh_for,
     camera_over,
     render,
     rot_z,
@@ -73,9 +74,10 @@ def _u(rng: np.random.Generator, rng_pair) -> float:
 
 
 def _props(rng: np.random.Generator, n: int, radius: float) -> list[Prop]:
-    import trimesh
+    import trimesh  # heavy: loaded only when a scene has props
 
     out = []
+    bgr: tuple[float, float, float]
     for _ in range(n):
         kind = rng.integers(0, 3)
         x, y = rng.uniform(-radius, radius, 2)
@@ -92,7 +94,8 @@ def _props(rng: np.random.Generator, n: int, radius: float) -> list[Prop]:
         else:  # a box of some colour
             mesh = trimesh.creation.box(extents=rng.uniform(0.05, 0.2, 3))
             mesh.apply_translation([0, 0, mesh.extents[2] / 2])
-            bgr = tuple(float(c) for c in rng.uniform(20, 235, 3))
+            b, g, r = (float(c) for c in rng.uniform(20, 235, 3))
+            bgr = (b, g, r)
         out.append(Prop(mesh=mesh, world_from_object=transform(rot_z(yaw), [x, y, 0.0]),
                         bgr=bgr))
     return out
@@ -142,10 +145,10 @@ def random_scene(seed: int, spec: SceneSpec, camera: Camera | None = None
             instance = int(rng.choice(free))
             used[layout.name].add(instance)
         body_h = _body_height(layout)
+        body = rng.uniform(140, 190) * np.array([0.98, 1.0, 1.02])
         bricks.append(BrickInstance(layout=layout, instance=instance,
                                     world_from_brick=transform(rot_z(yaw), [x, y, body_h]),
-                                    body_bgr=tuple(float(c) for c in rng.uniform(140, 190) *
-                                                   np.array([0.98, 1.0, 1.02]))))
+                                    body_bgr=(float(body[0]), float(body[1]), float(body[2]))))
     props = _props(rng, spec.props, radius * 1.6)
     if spec.stack_prob > 0:
         props += _stacked(rng, bricks, spec.stack_prob)
@@ -163,14 +166,12 @@ def random_scene(seed: int, spec: SceneSpec, camera: Camera | None = None
 
 def _body_height(layout) -> float:
     """Height of the brick's top face (the layout origin) above its lowest point."""
-    from drovisio.synth import brick_mesh_for
-
     return float(-brick_mesh_for(layout).bounds[0][2])
 
 
 def _stacked(rng: np.random.Generator, bricks: list[BrickInstance], prob: float) -> list[Prop]:
     """Plain bricks laid across part of some bricks' tops, as in a wall's next course."""
-    import trimesh
+    import trimesh  # heavy: loaded only when bricks are stacked
 
     out = []
     for b in bricks:

@@ -20,7 +20,9 @@ tests and the CLI check the very same thing):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from drovisio.mission.faults import CHECK_FAULTS, FaultCase
 from drovisio.mission.machine import SAFE_STATES, State
@@ -57,18 +59,21 @@ def _rule_retries(tr: Trace) -> RuleResult:
                                                           f"phase (limit {n})")
 
 
-def _rule_safe_zone(tr: Trace) -> RuleResult:
-    scn = tr.scenario
-    n = scn.thresholds.retries
-    trigger_t = None
-    why = ""
+def _safe_zone_trigger(tr: Trace) -> tuple[float, str] | None:
+    """The first event that must send the drone to the safe zone: (time, kind)."""
+    n = tr.scenario.thresholds.retries
     for tk in tr.ticks:
         for e in tk.events:
-            if trigger_t is None and ((e["kind"] == "phase_failed" and e["failure"] >= n)
-                                      or e["kind"] == "disagreement"):
-                trigger_t, why = tk.t, e["kind"]
-    if trigger_t is None:
+            if (e["kind"] == "phase_failed" and e["failure"] >= n) or e["kind"] == "disagreement":
+                return tk.t, e["kind"]
+    return None
+
+
+def _rule_safe_zone(tr: Trace) -> RuleResult:
+    trigger = _safe_zone_trigger(tr)
+    if trigger is None:
         return RuleResult("safe_zone", True, "not triggered")
+    trigger_t, why = trigger
     after = [tk for tk in tr.ticks if tk.t > trigger_t]
     wrong = sorted({tk.state for tk in after if tk.state not in {s.value for s in SAFE_STATES}})
     if wrong:
@@ -76,6 +81,12 @@ def _rule_safe_zone(tr: Trace) -> RuleResult:
     if tr.final_state != State.SHUTDOWN.value:
         return RuleResult("safe_zone", False, f"after {why}: ended in {tr.final_state}, not "
                                               "SHUTDOWN (time out?)")
+    return _shut_down_in_safe_zone(tr, why)
+
+
+def _shut_down_in_safe_zone(tr: Trace, why: str) -> RuleResult:
+    """Where the run that went to the safe zone shut down."""
+    scn = tr.scenario
     last = tr.ticks[-1]
     sz = scn.site.safe_zone
     d = math.dist(last.position[:2], sz.center)
@@ -95,7 +106,8 @@ def _rule_yaw_descent(tr: Trace) -> RuleResult:
     worst = 0.0
     for tk in tr.ticks:
         z = tk.setpoint["position"][2] if tk.setpoint else None
-        if tk.state in vision_descent and z is not None and prev_z is not None and z < prev_z - 1e-9:
+        descending = z is not None and prev_z is not None and z < prev_z - 1e-9
+        if tk.state in vision_descent and descending:
             ye = tk.telemetry.get("yaw_error")
             if ye is None:
                 return RuleResult("yaw_descent", False, f"t={tk.t}: descending with no yaw "
@@ -141,10 +153,19 @@ def check_rules(tr: Trace) -> list[RuleResult]:
             _rule_placement(tr)]
 
 
-def narrate(tr: Trace) -> str:
-    """What the machine did, in a line: failures per phase, realignments, the abort reason,
-    then the outcome."""
-    n = tr.scenario.thresholds.retries
+_PHRASES: dict[str, Callable[[dict[str, Any]], str]] = {
+    "misaligned": lambda e: f"stopped descent and realigned ({e['brick']})",
+    "disagreement": lambda e: f"TS and vision disagree by {e['distance_m']:.2f} m",
+    "placement_out_of_tolerance": lambda e: f"{e['brick']} found off its plan",
+    "geofence": lambda e: "geofence guard",
+    "safe_zone": lambda e: "→ safe zone",
+}
+"""How the narrative tells an event (phase failures are gathered per phase and brick)."""
+
+
+def _narrative_parts(tr: Trace) -> tuple[list[str], dict[tuple[str, str], list[str]]]:
+    """The events told, in order (a placeholder ``@fail:PHASE:BRICK`` where a phase of a
+    brick first failed), and each such phase's failure reasons."""
     parts: list[str] = []
     fails: dict[tuple[str, str], list[str]] = {}
     for e in tr.events():
@@ -155,16 +176,16 @@ def narrate(tr: Trace) -> str:
                 fails[key] = []
                 parts.append(f"@fail:{e['phase']}:{e['brick']}")
             fails[key].append(e["reason"])
-        elif k == "misaligned":
-            parts.append(f"stopped descent and realigned ({e['brick']})")
-        elif k == "disagreement":
-            parts.append(f"TS and vision disagree by {e['distance_m']:.2f} m")
-        elif k == "placement_out_of_tolerance":
-            parts.append(f"{e['brick']} found off its plan")
-        elif k == "geofence":
-            parts.append("geofence guard")
-        elif k == "safe_zone":
-            parts.append("→ safe zone")
+        elif k in _PHRASES:
+            parts.append(_PHRASES[k](e))
+    return parts, fails
+
+
+def narrate(tr: Trace) -> str:
+    """What the machine did, in a line: failures per phase, realignments, the abort reason,
+    then the outcome."""
+    n = tr.scenario.thresholds.retries
+    parts, fails = _narrative_parts(tr)
     out: list[str] = []
     for p in parts:
         if p.startswith("@fail:"):

@@ -27,8 +27,6 @@ from drovisio.mission.machine import (
 
 __all__ = ["mermaid", "dot", "svg", "grouped_edges", "GROUPS"]
 
-S = State
-
 
 @dataclass(frozen=True)
 class Group:
@@ -41,14 +39,15 @@ class Group:
 
 GROUPS: tuple[Group, ...] = (
     Group("PICK_PHASE", "pick phase", PICK_STATES),
-    Group("PICK_VISION", "vision-guided", (S.ACQUIRE_BRICK, S.ALIGN_BRICK, S.DESCEND_BRICK),
-          parent="PICK_PHASE"),
+    Group("PICK_VISION", "vision-guided",
+          (State.ACQUIRE_BRICK, State.ALIGN_BRICK, State.DESCEND_BRICK), parent="PICK_PHASE"),
     Group("DROP_PHASE", "drop phase", DROP_STATES),
     Group("CARRYING", "carrying the brick", DROP_STATES[:-1], parent="DROP_PHASE"),
-    Group("DROP_VISION", "vision-guided", (S.ACQUIRE_SLOT, S.ALIGN_SLOT, S.DESCEND_SLOT),
-          parent="CARRYING"),
+    Group("DROP_VISION", "vision-guided",
+          (State.ACQUIRE_SLOT, State.ALIGN_SLOT, State.DESCEND_SLOT), parent="CARRYING"),
     Group("ANY_FLYING", "any flying state except the safe ones",
-          tuple(s for s in FLYING_STATES if s not in (S.GO_SAFE, S.LAND_SAFE)), drawn=False),
+          tuple(s for s in FLYING_STATES if s not in (State.GO_SAFE, State.LAND_SAFE)),
+          drawn=False),
 )
 
 
@@ -162,45 +161,66 @@ def dot() -> str:
 #: Where each state is drawn in the SVG (column, row); a state missing here goes to an extra
 #: row at the bottom, so a new state is never silently left out.
 GRID: dict[State, tuple[int, int]] = {
-    S.IDLE: (0, 0), S.TAKE_OFF: (1, 0), S.GO_TO_BRICK: (2, 0), S.ACQUIRE_BRICK: (3, 0),
-    S.ALIGN_BRICK: (4, 0), S.DESCEND_BRICK: (5, 0), S.BLIND_DESCENT_BRICK: (6, 0),
-    S.GRAB: (7, 0), S.RETRY_PICK: (3, 1),
-    S.CLIMB_WITH_BRICK: (7, 2), S.GO_TO_WALL: (6, 2), S.ACQUIRE_SLOT: (5, 2),
-    S.ALIGN_SLOT: (4, 2), S.DESCEND_SLOT: (3, 2), S.BLIND_DESCENT_SLOT: (2, 2),
-    S.RELEASE: (1, 2), S.CLIMB_AFTER_RELEASE: (0, 2), S.RETRY_DROP: (5, 3),
-    S.VERIFY_PLACEMENT: (0, 3), S.RETURN_HOME: (0, 4), S.LAND: (1, 4), S.DONE: (2, 4),
-    S.GO_SAFE: (5, 4), S.LAND_SAFE: (6, 4), S.SHUTDOWN: (7, 4),
+    State.IDLE: (0, 0), State.TAKE_OFF: (1, 0), State.GO_TO_BRICK: (2, 0),
+    State.ACQUIRE_BRICK: (3, 0), State.ALIGN_BRICK: (4, 0), State.DESCEND_BRICK: (5, 0),
+    State.BLIND_DESCENT_BRICK: (6, 0), State.GRAB: (7, 0), State.RETRY_PICK: (3, 1),
+    State.CLIMB_WITH_BRICK: (7, 2), State.GO_TO_WALL: (6, 2), State.ACQUIRE_SLOT: (5, 2),
+    State.ALIGN_SLOT: (4, 2), State.DESCEND_SLOT: (3, 2), State.BLIND_DESCENT_SLOT: (2, 2),
+    State.RELEASE: (1, 2), State.CLIMB_AFTER_RELEASE: (0, 2), State.RETRY_DROP: (5, 3),
+    State.VERIFY_PLACEMENT: (0, 3), State.RETURN_HOME: (0, 4), State.LAND: (1, 4),
+    State.DONE: (2, 4), State.GO_SAFE: (5, 4), State.LAND_SAFE: (6, 4), State.SHUTDOWN: (7, 4),
 }
 
 
-def svg() -> str:
-    """A self-contained SVG of the machine: pick phase (blue) left to right, drop phase
-    (green) right to left, the safe path in red. Edges come from the table; an edge from a
-    phase leaves the phase's frame. The Mermaid/DOT texts are the exact drawings."""
-    bw, bh, cw, rh, mx, my = 140, 28, 205, 92, 20, 40
+_BW, _BH = 140, 28
+"""A state's box, px."""
+_CW, _RH = 205, 92
+"""Column and row pitch, px."""
+_MX, _MY = 20, 40
+"""Margins, px."""
+_SAFE = {State.GO_SAFE, State.LAND_SAFE, State.SHUTDOWN}
+
+Point = tuple[float, float]
+Frame = tuple[float, float, float, float]
+
+
+def _svg_centres() -> tuple[dict[State, Point], int]:
+    """Each state's box centre (px) and the number of rows."""
     grid = dict(GRID)
     extra = [s for s in State if s not in grid]
     for i, s in enumerate(extra):
         grid[s] = (i, 5)
     rows = max(r for _, r in grid.values()) + 1
-    width = mx * 2 + cw * 8
-    height = my + rows * rh + 40
-    centre = {s: (mx + c * cw + bw / 2, my + r * rh + bh / 2) for s, (c, r) in grid.items()}
+    centre = {s: (_MX + c * _CW + _BW / 2, _MY + r * _RH + _BH / 2)
+              for s, (c, r) in grid.items()}
+    return centre, rows
+
+
+def _svg_frames(centre: dict[State, Point]) -> dict[str, Frame]:
+    """The frame (x0, y0, x1, y1) around each drawn top-level group's states."""
     frames = {}
     for g in GROUPS:
         if g.drawn and g.parent is None:
             xs = [centre[m][0] for m in g.members]
             ys = [centre[m][1] for m in g.members]
-            frames[g.key] = (min(xs) - bw / 2 - 8, min(ys) - bh / 2 - 16,
-                             max(xs) + bw / 2 + 8, max(ys) + bh / 2 + 8)
-    safe = {S.GO_SAFE, S.LAND_SAFE, S.SHUTDOWN}
-    el = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-          f'viewBox="0 0 {width} {height}" font-family="Helvetica,Arial,sans-serif" '
-          'font-size="10">',
-          '<defs>' + "".join(
-              f'<marker id="{k}" viewBox="0 0 10 10" refX="10" refY="5" markerWidth="7" '
-              f'markerHeight="7" orient="auto-start-reverse"><path d="M0,0L10,5L0,10z" '
-              f'fill="{c}"/></marker>' for k, c in (("a", "#555"), ("r", "#c33"))) + '</defs>']
+            frames[g.key] = (min(xs) - _BW / 2 - 8, min(ys) - _BH / 2 - 16,
+                             max(xs) + _BW / 2 + 8, max(ys) + _BH / 2 + 8)
+    return frames
+
+
+def _svg_head(width: int, height: int) -> list[str]:
+    return [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+            f'viewBox="0 0 {width} {height}" font-family="Helvetica,Arial,sans-serif" '
+            'font-size="10">',
+            '<defs>' + "".join(
+                f'<marker id="{k}" viewBox="0 0 10 10" refX="10" refY="5" markerWidth="7" '
+                f'markerHeight="7" orient="auto-start-reverse"><path d="M0,0L10,5L0,10z" '
+                f'fill="{c}"/></marker>' for k, c in (("a", "#555"), ("r", "#c33")))
+            + '</defs>']
+
+
+def _svg_group_frames(frames: dict[str, Frame]) -> list[str]:
+    el = []
     for g in GROUPS:
         if g.key in frames:
             x0, y0, x1, y1 = frames[g.key]
@@ -208,58 +228,100 @@ def svg() -> str:
                       f'height="{y1 - y0:.0f}" rx="10" fill="none" stroke="#999" '
                       'stroke-dasharray="4 3"/>')
             el.append(f'<text x="{x0 + 6:.0f}" y="{y0 + 11:.0f}" fill="#777">{g.label}</text>')
+    return el
 
-    def anchor(src: str, toward) -> tuple[float, float]:
-        if src in frames:
-            x0, y0, x1, y1 = frames[src]
-            return (min(max(toward[0], x0 + 20), x1 - 20), y1 if toward[1] > y1 else y0)
-        x, y = centre[State(src)]
-        dx, dy = toward[0] - x, toward[1] - y
-        if abs(dy) * bw > abs(dx) * bh:
-            return (x + dx * (bh / 2) / abs(dy), y + math.copysign(bh / 2, dy))
-        return (x + math.copysign(bw / 2, dx), y + dy * (bw / 2) / max(abs(dx), 1e-9))
 
-    pairs = {(a, b) for a, _, b, _ in grouped_edges()}
-    labels_at: list[tuple[float, float]] = []
-    for src, trig, dst, guard in grouped_edges():
+def _svg_anchor(src: str, toward: Point, frames: dict[str, Frame],
+                centre: dict[State, Point]) -> Point:
+    """Where an edge leaves ``src`` (a group's frame or a state's box) toward a point."""
+    if src in frames:
+        x0, y0, x1, y1 = frames[src]
+        return (min(max(toward[0], x0 + 20), x1 - 20), y1 if toward[1] > y1 else y0)
+    x, y = centre[State(src)]
+    dx, dy = toward[0] - x, toward[1] - y
+    if abs(dy) * _BW > abs(dx) * _BH:
+        return (x + dx * (_BH / 2) / abs(dy), y + math.copysign(_BH / 2, dy))
+    return (x + math.copysign(_BW / 2, dx), y + dy * (_BW / 2) / max(abs(dx), 1e-9))
+
+
+def _svg_bend(src: str, dst: str, start: Point, end: Point,
+              pairs: set[tuple[str, str]]) -> float:
+    """How far an edge bows out (px): apart from its reverse, around states in between."""
+    (sx, sy), (ex, ey) = start, end
+    if (dst, src) in pairs:
+        return 14.0
+    if abs(sx - ex) > 2.5 * _CW or (abs(sy - ey) > 1.5 * _RH and abs(sx - ex) < 1):
+        return 40.0
+    return 0.0
+
+
+def _svg_edge(src: str, trig: str, d: State, guard: str, start: Point, end: Point,
+              bend: float, labels_at: list[Point]) -> list[str]:
+    """One edge: a quadratic curve and its label (moved down off the labels drawn)."""
+    (sx, sy), (ex, ey) = start, end
+    nxm, nym = (sx + ex) / 2, (sy + ey) / 2
+    L = math.hypot(ex - sx, ey - sy) or 1.0
+    cx, cy = nxm - (ey - sy) / L * bend, nym + (ex - sx) / L * bend
+    col, mk = ("#c33", "r") if (d in _SAFE) else ("#555", "a")
+    lx, ly = (sx + 2 * cx + ex) / 4, (sy + 2 * cy + ey) / 4
+    while any(abs(lx - a) < 40 and abs(ly - b) < 9 for a, b in labels_at):
+        ly += 10
+    labels_at.append((lx, ly))
+    horizontal = abs(ex - sx) > 3 * abs(ey - sy)
+    anchor_txt = ' text-anchor="middle"' if horizontal else ""
+    return [f'<path d="M{sx:.0f},{sy:.0f} Q{cx:.0f},{cy:.0f} {ex:.0f},{ey:.0f}" '
+            f'fill="none" stroke="{col}" marker-end="url(#{mk})"/>',
+            f'<text x="{lx + (0 if horizontal else 3):.0f}" y="{ly - 4:.0f}" '
+            f'fill="{col}"{anchor_txt}>{html.escape(_label(trig, guard))}</text>']
+
+
+def _svg_edges(frames: dict[str, Frame], centre: dict[State, Point]) -> list[str]:
+    """The table's edges; the many edges to GO_SAFE from single states are left to the
+    note."""
+    el: list[str] = []
+    edges = grouped_edges()
+    pairs = {(a, b) for a, _, b, _ in edges}
+    labels_at: list[Point] = []
+    for src, trig, dst, guard in edges:
         if src == "ANY_FLYING":
             continue
         d = State(dst)
-        to_safe = d is S.GO_SAFE and trig != "reached"
-        if to_safe and src not in frames:
+        if d is State.GO_SAFE and trig != "reached" and src not in frames:
             continue  # summarised by the note
-        tx, ty = centre[d]
-        sx, sy = anchor(src, (tx, ty))
-        ex, ey = anchor(d.value, (sx, sy))
-        bend = 0.0
-        if (dst, src) in pairs:
-            bend = 14.0
-        elif abs(sx - ex) > 2.5 * cw or (abs(sy - ey) > 1.5 * rh and abs(sx - ex) < 1):
-            bend = 40.0
-        nxm, nym = (sx + ex) / 2, (sy + ey) / 2
-        L = math.hypot(ex - sx, ey - sy) or 1.0
-        cx, cy = nxm - (ey - sy) / L * bend, nym + (ex - sx) / L * bend
-        col, mk = ("#c33", "r") if (d in safe) else ("#555", "a")
-        el.append(f'<path d="M{sx:.0f},{sy:.0f} Q{cx:.0f},{cy:.0f} {ex:.0f},{ey:.0f}" '
-                  f'fill="none" stroke="{col}" marker-end="url(#{mk})"/>')
-        lx, ly = (sx + 2 * cx + ex) / 4, (sy + 2 * cy + ey) / 4
-        while any(abs(lx - a) < 40 and abs(ly - b) < 9 for a, b in labels_at):
-            ly += 10
-        labels_at.append((lx, ly))
-        horizontal = abs(ex - sx) > 3 * abs(ey - sy)
-        anchor_txt = ' text-anchor="middle"' if horizontal else ""
-        el.append(f'<text x="{lx + (0 if horizontal else 3):.0f}" y="{ly - 4:.0f}" '
-                  f'fill="{col}"{anchor_txt}>{html.escape(_label(trig, guard))}</text>')
+        start = _svg_anchor(src, centre[d], frames, centre)
+        end = _svg_anchor(d.value, start, frames, centre)
+        el += _svg_edge(src, trig, d, guard, start, end,
+                        _svg_bend(src, dst, start, end, pairs), labels_at)
+    return el
+
+
+def _svg_states(centre: dict[State, Point]) -> list[str]:
+    el = []
     for s, (x, y) in centre.items():
-        fill = "#fde2e2" if s in safe else ("#e2f0fd" if s in PICK_STATES else
-                                             "#e6f7e2" if s in DROP_STATES else "#f2f2f2")
-        el.append(f'<rect x="{x - bw / 2:.0f}" y="{y - bh / 2:.0f}" width="{bw}" height="{bh}" '
-                  f'rx="8" fill="{fill}" stroke="#333"/>')
+        fill = "#fde2e2" if s in _SAFE else ("#e2f0fd" if s in PICK_STATES else
+                                              "#e6f7e2" if s in DROP_STATES else "#f2f2f2")
+        el.append(f'<rect x="{x - _BW / 2:.0f}" y="{y - _BH / 2:.0f}" width="{_BW}" '
+                  f'height="{_BH}" rx="8" fill="{fill}" stroke="#333"/>')
         el.append(f'<text x="{x:.0f}" y="{y + 4:.0f}" text-anchor="middle">{s.value}</text>')
-    note = ("Also to GO_SAFE (red): total-station/vision disagreement (vision-guided states, "
-            "verify), brick lost in flight, placement off its plan or unverified, no total "
-            "station (take-off, retries, climb, return), and from any flying state the "
-            "geofence guard.")
-    el.append(f'<text x="{mx}" y="{height - 14}" fill="#c33">{html.escape(note)}</text>')
+    return el
+
+
+_SVG_NOTE = ("Also to GO_SAFE (red): total-station/vision disagreement (vision-guided states, "
+             "verify), brick lost in flight, placement off its plan or unverified, no total "
+             "station (take-off, retries, climb, return), and from any flying state the "
+             "geofence guard.")
+
+
+def svg() -> str:
+    """A self-contained SVG of the machine: pick phase (blue) left to right, drop phase
+    (green) right to left, the safe path in red. Edges come from the table; an edge from a
+    phase leaves the phase's frame. The Mermaid/DOT texts are the exact drawings."""
+    centre, rows = _svg_centres()
+    width = _MX * 2 + _CW * 8
+    height = _MY + rows * _RH + 40
+    frames = _svg_frames(centre)
+    el = (_svg_head(width, height) + _svg_group_frames(frames) + _svg_edges(frames, centre)
+          + _svg_states(centre))
+    el.append(f'<text x="{_MX}" y="{height - 14}" fill="#c33">{html.escape(_SVG_NOTE)}</text>')
     el.append("</svg>")
     return "\n".join(el) + "\n"

@@ -49,7 +49,7 @@ def rot2(yaw: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def site_from_body(position: Sequence[float], yaw: float) -> np.ndarray:
+def site_from_body(position: Sequence[float] | np.ndarray, yaw: float) -> np.ndarray:
     """4×4 ``site_from_body`` of a level drone (FRD body) at ``position`` with heading ``yaw``."""
     c, s = math.cos(yaw), math.sin(yaw)
     T = np.eye(4)
@@ -58,7 +58,7 @@ def site_from_body(position: Sequence[float], yaw: float) -> np.ndarray:
     return T
 
 
-def site_from_brick(position: Sequence[float], yaw: float) -> np.ndarray:
+def site_from_brick(position: Sequence[float] | np.ndarray, yaw: float) -> np.ndarray:
     """4×4 pose of a level brick whose top-face centre is at ``position``."""
     c, s = math.cos(yaw), math.sin(yaw)
     T = np.eye(4)

@@ -47,12 +47,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text
 from drovisio.geometry import quat_wxyz
 from drovisio.mission.frames import site_from_body
 from drovisio.mission.machine import TRANSITIONS, State
+from drovisio.mission.scenario import Scenario
 from drovisio.mission.sim import Trace, body_from_camera_for, camera_for
 from drovisio.textfile import parse_json, read_inside, read_text
 
@@ -61,27 +63,25 @@ __all__ = ["SCHEMA_ID", "write_recording", "load_recording"]
 SCHEMA_ID = "drovisio/mission-recording@1"
 
 
-def _r(v, nd=4):
+def _r(v: Any, nd: int = 4) -> list[float]:
     return [round(float(x), nd) for x in v]
 
 
-def _pose(position, yaw: float, body: bool = False) -> dict:
+def _pose(position: Any, yaw: float, body: bool = False) -> dict[str, Any]:
     if body:
         R = site_from_body(position, yaw)[:3, :3]
     else:
         c, s = math.cos(yaw), math.sin(yaw)
         R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    return {"position": _r(position), "yaw": round(float(yaw), 5), "quat_wxyz": [round(q, 6) for q in quat_wxyz(R)]}
+    return {"position": _r(position), "yaw": round(float(yaw), 5),
+            "quat_wxyz": [round(q, 6) for q in quat_wxyz(R)]}
 
 
-def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
-                    extra: dict[str, Any] | None = None) -> Path:
-    """Write ``manifest.json``, ``ticks.jsonl`` and ``scenario.yaml`` into ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    scn = trace.scenario
+def _tick_lines(trace: Trace, every: int) -> list[str]:
+    """One JSON line every ``every`` ticks, on every transition and at the end; a line
+    carries the events since the line before."""
     lines = []
-    pending: list[dict] = []
+    pending: list[dict[str, Any]] = []
     n = len(trace.ticks)
     for i, tk in enumerate(trace.ticks):
         pending.extend(tk.events)
@@ -96,16 +96,17 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
             "bricks": {b: _r(p[:3]) + [round(p[3], 5)] for b, p in tk.bricks.items()},
         }, separators=(",", ":")))
         pending = []
-    # every file beside, checked, renamed: a full disk keeps an older run whole
-    atomic_write_text(out / "ticks.jsonl", "\n".join(lines) + "\n")
-    if scn.source is not None and Path(scn.source).is_file():
-        atomic_write_text(out / "scenario.yaml", read_text(scn.source, "scenario"))
-    else:
-        import yaml
+    return lines
 
-        atomic_write_text(out / "scenario.yaml", yaml.safe_dump(scn.model_dump(by_alias=True),
-                                                                sort_keys=False))
-    cam = camera_for(scn)
+
+def _scenario_text(scn: Scenario) -> str:
+    """The scenario file as written, else the scenario dumped."""
+    if scn.source is not None and Path(scn.source).is_file():
+        return read_text(scn.source, "scenario")
+    return yaml.safe_dump(scn.model_dump(by_alias=True), sort_keys=False)
+
+
+def _layouts(scn: Scenario) -> dict[str, dict[str, Any]]:
     layouts = {}
     for name in scn.layouts:
         lay = scn.layout(name)
@@ -113,8 +114,14 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
         layouts[name] = {"dimensions": _r(lay.dimensions_m),
                          "mesh": (f"marker_layouts/{lay.mesh}" if lay.mesh else None),
                          "mesh_exists": bool(mesh and mesh.exists())}
+    return layouts
+
+
+def _manifest(trace: Trace, every: int, n_lines: int) -> dict[str, Any]:
+    scn = trace.scenario
+    cam = camera_for(scn)
     site = scn.site
-    manifest = {
+    return {
         "schema": SCHEMA_ID,
         "scenario": scn.name,
         "scenario_file": "scenario.yaml",
@@ -124,7 +131,7 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
         "quaternion_order": "wxyz",
         "dt": trace.params.dt,
         "record_every": every,
-        "ticks": len(lines),
+        "ticks": n_lines,
         "duration_s": round(trace.ticks[-1].t, 3) if trace.ticks else 0.0,
         "outcome": trace.final_state,
         "vision": trace.params.vision,
@@ -133,7 +140,7 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
         "site": {"bounds": site.bounds.model_dump(), "home": site.home,
                  "safe_zone": site.safe_zone.model_dump(),
                  "pick_area": site.pick_area.model_dump()},
-        "layouts": layouts,
+        "layouts": _layouts(scn),
         "bricks": [{"id": b.id, "layout": b.layout, "instance": b.instance,
                     "plan": _pose(scn.slot_pose(b.id).xyz, scn.slot_pose(b.id).yaw),
                     "pick": _pose(scn.pick_pose(b.id).xyz, scn.pick_pose(b.id).yaw)}
@@ -146,8 +153,19 @@ def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
                          "target": t.target.value} for t in TRANSITIONS],
         "placements": trace.placements,
         "faults": [f.describe() for f in trace.faults],
-        **(extra or {}),
     }
+
+
+def write_recording(trace: Trace, out_dir: str | Path, every: int = 2,
+                    extra: dict[str, Any] | None = None) -> Path:
+    """Write ``manifest.json``, ``ticks.jsonl`` and ``scenario.yaml`` into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = _tick_lines(trace, every)
+    # every file beside, checked, renamed: a full disk keeps an older run whole
+    atomic_write_text(out / "ticks.jsonl", "\n".join(lines) + "\n")
+    atomic_write_text(out / "scenario.yaml", _scenario_text(trace.scenario))
+    manifest = {**_manifest(trace, every, len(lines)), **(extra or {})}
     atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1))
     return out
 

@@ -26,356 +26,58 @@ Use::
     scn = load_scenario("drovisio/mission/scenarios/wall-2-courses.yaml")
     scn.order                    # build order, brick ids
     scn.slot_pose("b6")          # (x, y, z_top, yaw) planned in the site frame
+
+The schema's fields and the poses they plan are in :mod:`drovisio.mission.scenario_model`, the
+rules beyond the schema in :mod:`drovisio.mission.scenario_rules`; this module reads and
+validates (and re-exports the schema's names).
 """
 
 from __future__ import annotations
 
-import math
 import os
-from dataclasses import dataclass
-from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Any
 
-import numpy as np
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    PrivateAttr,
-    ValidationError,
-    model_validator,
-)
+from pydantic import ValidationError
 
 from drovisio.errors import InputError, one_line
-from drovisio.mission.frames import rot2, wrap_half
+from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layouts_dir
+from drovisio.mission.frames import wrap_half
+from drovisio.mission.scenario_model import (
+    SCHEMA_ID,
+    Altitudes,
+    Area,
+    Autopilot,
+    Bounds,
+    Brick,
+    CameraSpec,
+    Drone,
+    Mount,
+    PickPose,
+    PlanEntry,
+    Pose4,
+    ScenarioError,
+    ScenarioModel,
+    Sensors,
+    Site,
+    Thresholds,
+    Tolerance,
+    Wall,
+    Zone,
+)
+from drovisio.mission.scenario_rules import semantic_issues
 from drovisio.resources import scenarios_dir
 from drovisio.textfile import parse_yaml, read_text
 
 __all__ = ["SCHEMA_ID", "Scenario", "ScenarioError", "Pose4", "load_scenario", "parse_scenario",
-           "shipped_scenarios_dir", "shipped_scenario"]
+           "shipped_scenarios_dir", "shipped_scenario", "Altitudes", "Area", "Autopilot",
+           "Bounds", "Brick", "CameraSpec", "Drone", "Mount", "PickPose", "PlanEntry", "Sensors",
+           "Site", "Thresholds", "Tolerance", "Wall", "Zone"]
 
-SCHEMA_ID = "drovisio/mission-scenario@1"
 
-Vec2 = Annotated[list[float], Field(min_length=2, max_length=2)]
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-PosFloat = Annotated[float, Field(gt=0)]
-NonNeg = Annotated[float, Field(ge=0)]
-
-
-class ScenarioError(InputError):
-    """A scenario that cannot be flown; the message names the file, the field and the fix."""
-
-
-@dataclass(frozen=True)
-class Pose4:
-    """A level pose in the site frame: position of the brick's top-face centre (or the drone's
-    body origin) and yaw (radians, from east, counter-clockwise)."""
-
-    x: float
-    y: float
-    z: float
-    yaw: float
-
-    @property
-    def xy(self) -> np.ndarray:
-        return np.array([self.x, self.y])
-
-    @property
-    def xyz(self) -> np.ndarray:
-        return np.array([self.x, self.y, self.z])
-
-
-class _M(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class Bounds(_M):
-    min: Vec3 = Field(description="lowest corner of the geofence (x, y, z), site frame, m")
-    max: Vec3 = Field(description="highest corner of the geofence (x, y, z), site frame, m")
-
-    @model_validator(mode="after")
-    def _order(self) -> Bounds:
-        for i, axis in enumerate("xyz"):
-            if not self.min[i] < self.max[i]:
-                raise ValueError(f"min.{axis} ({self.min[i]}) must be below max.{axis} "
-                                 f"({self.max[i]})")
-        return self
-
-    def contains(self, p, margin: float = 0.0) -> bool:
-        p = np.asarray(p, float)
-        n = len(p)
-        return bool(np.all(p >= np.asarray(self.min[:n]) + margin - 1e-9)
-                    and np.all(p <= np.asarray(self.max[:n]) - margin + 1e-9))
-
-
-class Zone(_M):
-    center: Vec2 = Field(description="centre (x, y), site frame, m")
-    radius: PosFloat = Field(description="radius, m")
-
-
-class Area(_M):
-    center: Vec2
-    size: Vec2 = Field(description="extent along x and y, m")
-
-
-class Site(_M):
-    frame: str = Field("x east, y north, z up, metres; origin at the site benchmark",
-                       description="free text: how the site frame was set out")
-    bounds: Bounds
-    home: Vec2 = Field(description="take-off and landing pad (x, y)")
-    safe_zone: Zone
-    pick_area: Area
-
-
-class PickPose(_M):
-    position: Vec2 = Field(description="where the brick lies (x, y), site frame")
-    yaw_deg: float = 0.0
-
-
-class Brick(_M):
-    id: str = Field(min_length=1)
-    layout: str
-    instance: int | None = Field(None, ge=0, description="instance k (code ids); null for dots")
-    pick: PickPose
-
-
-class PlanEntry(_M):
-    brick: str
-    course: int = Field(ge=1)
-    slot: int | None = Field(None, ge=0, description="course 1: slot index along the wall")
-    rests_on: list[str] | None = Field(None, description="upper courses: the two bricks below")
-
-    @model_validator(mode="after")
-    def _one_of(self) -> PlanEntry:
-        if self.course == 1 and (self.slot is None or self.rests_on is not None):
-            raise ValueError("a course-1 brick needs 'slot' (its index along the wall) and no "
-                             "'rests_on'")
-        if self.course > 1 and (self.rests_on is None or self.slot is not None):
-            raise ValueError(f"a course-{self.course} brick needs 'rests_on: [A, B]' (the two "
-                             "bricks it straddles) and no 'slot'")
-        if self.rests_on is not None and len(self.rests_on) != 2:
-            raise ValueError(f"'rests_on' must name exactly two bricks (running bond), got "
-                             f"{len(self.rests_on)}")
-        return self
-
-
-class Wall(_M):
-    origin: Vec2 = Field(description="(x, y) of course 1 slot 0's top-face centre")
-    direction_deg: float = Field(0.0, description="direction of the wall (slot 0 → 1), degrees "
-                                                  "from east, counter-clockwise")
-    brick_pitch_m: PosFloat = Field(0.30, description="slot spacing along the wall")
-    course_height_m: PosFloat = Field(0.10, description="height of one course (stacking pitch)")
-    plan: list[PlanEntry] = Field(min_length=1)
-    order: list[str] | None = Field(None, description="build order (default: plan order)")
-
-
-class Thresholds(_M):
-    align_yaw_tolerance_deg: PosFloat = Field(
-        2.0, description="never descend onto a target while |yaw error| exceeds this")
-    align_position_tolerance_m: PosFloat = Field(
-        0.02, description="aligned when the horizontal error is below this")
-    contact_position_tolerance_m: PosFloat = Field(
-        0.01, description="grab or release only when the total station puts the body within "
-                          "this of the target")
-    contact_yaw_tolerance_deg: PosFloat = Field(
-        0.5, description="grab or release only when the heading is this close to its setpoint")
-    filter_frames: int = Field(8, ge=1, description="vision frames averaged into a target's "
-                                                    "estimate")
-    descent_position_tolerance_m: PosFloat = Field(
-        0.05, description="stop descending and realign when the horizontal error exceeds this")
-    disagreement_m: PosFloat = Field(
-        0.15, description="total station vs vision position: beyond this the drone goes to the "
-                          "safe zone")
-    disagreement_frames: int = Field(3, ge=1, description="consecutive frames that must disagree")
-    retries: int = Field(3, ge=1, le=10, description="failures of a phase that send the drone to "
-                                                     "the safe zone (thesis: 3)")
-    match_radius_m: PosFloat = Field(0.25, description="a brick without id is the one seen within "
-                                                       "this of where it is expected")
-    settle_frames: int = Field(3, ge=1, description="vision frames a condition must hold")
-    ts_grace_s: NonNeg = Field(0.5, description="total-station gap ridden through")
-    ts_wait_s: PosFloat = Field(10.0, description="longest wait for the total station in a retry")
-    vision_timeout_s: PosFloat = Field(0.8, description="no sighting for this long = vision lost")
-    acquire_timeout_s: PosFloat = Field(5.0)
-    align_timeout_s: PosFloat = Field(20.0)
-    verify_timeout_s: PosFloat = Field(5.0)
-    contact_timeout_s: PosFloat = Field(15.0, description="blind descent: longest wait for a "
-                                                          "steady contact on target")
-    grab_time_s: PosFloat = Field(0.6, description="picker close/open time before reading it")
-    attempt_timeout_s: PosFloat = Field(90.0, description="longest time for one attempt of a "
-                                                          "phase")
-
-
-class Altitudes(_M):
-    cruise_m: PosFloat = Field(1.6, description="transit height (thesis: above 1 m)")
-    approach_m: PosFloat = Field(1.2, description="body above the target's top face while "
-                                                  "acquiring and aligning (thesis: 1–2 m)")
-    blind_below_m: PosFloat = Field(0.30, description="camera height above the target's top at "
-                                                      "which the last part of the descent is blind")
-    descent_speed_mps: PosFloat = Field(0.25)
-    blind_speed_mps: PosFloat = Field(0.12)
-
-
-class Tolerance(_M):
-    position_m: PosFloat = 0.05
-    yaw_deg: PosFloat = 3.0
-
-
-class Mount(_M):
-    offset_m: Vec3 = Field([0.08, 0.0, 0.05], description="camera centre in the FRD body frame")
-    tilt_deg: float = Field(0.0, description="forward tilt from straight down")
-
-
-class CameraSpec(_M):
-    model: Literal["drone-webcam"] | None = "drone-webcam"
-    file: str | None = Field(None, description="camera file instead of the built-in model")
-    mount: Mount = Mount()
-
-
-class Drone(_M):
-    picker_depth_m: PosFloat = Field(0.15, description="body origin to the held brick's top face")
-    gear_height_m: PosFloat = Field(0.20, description="body origin above the ground, landed")
-    camera: CameraSpec = CameraSpec()
-
-
-class Autopilot(_M):
-    """What feeds the autopilot's precision landing, and whether the simulator models it."""
-
-    precision_landing: bool = Field(
-        False, description="the pick descents are flown by ArduPilot's precision landing fed by "
-                           "the vision (lag buffer, 2 s initialisation, 2 s timeout, last "
-                           "estimate once the brick leaves the picture); off: the autopilot "
-                           "flies the mission's setpoints")
-    rate_hz: float | None = Field(None, gt=0, le=120, description="frames the pipeline processes "
-                                                                  "a second (default: 10)")
-    detect_prob: float | None = Field(None, gt=0, le=1, description="chance a frame showing the "
-                                                                    "brick detects it (default: "
-                                                                    "0.97)")
-    latency_ms: float = Field(50.0, ge=0, le=1000, description="capture to LANDING_TARGET at "
-                                                                "the autopilot")
-    plnd_lag_ms: float | None = Field(None, ge=0, le=1000, description="PLND_LAG (default: the "
-                                                                       "latency)")
-    wind_mps: float = Field(0.0, ge=0, le=20, description="steady wind (its gusts move the "
-                                                          "drone; the steady part is held by "
-                                                          "the autopilot)")
-
-
-class Sensors(_M):
-    total_station: bool = True
-    vision: bool = True
-    picker: bool = True
-    slot_selection: Literal["auto", "by_id", "by_position"] = Field(
-        "auto", description="how the bricks below are recognised: by code id, or by position "
-                            "(dots have no ids; the thesis counted bricks along the wall)")
-
-
-class Scenario(_M):
-    schema_: Literal["drovisio/mission-scenario@1"] = Field(alias="schema")
-    name: str = Field(min_length=1)
-    description: str = ""
-    site: Site
-    layouts: list[str] = Field(min_length=1, description="shipped layout names or .json paths")
-    bricks: list[Brick] = Field(min_length=1)
-    wall: Wall
-    thresholds: Thresholds = Thresholds()
-    altitudes: Altitudes = Altitudes()
-    placement_tolerance: Tolerance = Tolerance()
-    drone: Drone = Drone()
-    sensors: Sensors = Sensors()
-    autopilot: Autopilot = Autopilot()
-
-    _source: Path | None = PrivateAttr(None)
-    _layouts: dict[str, Any] = PrivateAttr(default_factory=dict)
-
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-    # ------------------------------------------------------------------ derived quantities
-    @property
-    def source(self) -> Path | None:
-        return self._source
-
-    @cached_property
-    def brick_by_id(self) -> dict[str, Brick]:
-        return {b.id: b for b in self.bricks}
-
-    @cached_property
-    def plan_by_id(self) -> dict[str, PlanEntry]:
-        return {e.brick: e for e in self.wall.plan}
-
-    @property
-    def order(self) -> list[str]:
-        return list(self.wall.order) if self.wall.order else [e.brick for e in self.wall.plan]
-
-    @property
-    def wall_yaw(self) -> float:
-        return math.radians(self.wall.direction_deg)
-
-    def layout(self, name: str):
-        """The loaded :class:`~drovisio.layout.MarkerLayout` called ``name``."""
-        return self._layouts[name]
-
-    def layout_of(self, brick_id: str):
-        return self._layouts[self.brick_by_id[brick_id].layout]
-
-    def has_ids(self, brick_id: str) -> bool:
-        lay = self.layout_of(brick_id)
-        mode = self.sensors.slot_selection
-        if mode == "by_position":
-            return False
-        return bool(lay.has_codes) and self.brick_by_id[brick_id].instance is not None
-
-    def pick_pose(self, brick_id: str) -> Pose4:
-        b = self.brick_by_id[brick_id]
-        return Pose4(b.pick.position[0], b.pick.position[1], self.wall.course_height_m,
-                     math.radians(b.pick.yaw_deg))
-
-    def slot_pose(self, brick_id: str) -> Pose4:
-        """Planned pose of a brick in the wall (top-face centre, yaw), site frame."""
-        return self._slot_poses[brick_id]
-
-    @cached_property
-    def _slot_poses(self) -> dict[str, Pose4]:
-        out: dict[str, Pose4] = {}
-        w = self.wall
-        d = np.array([math.cos(self.wall_yaw), math.sin(self.wall_yaw)])
-        for e in sorted(w.plan, key=lambda e: e.course):
-            if e.course == 1:
-                xy = np.asarray(w.origin) + e.slot * w.brick_pitch_m * d
-                out[e.brick] = Pose4(float(xy[0]), float(xy[1]), w.course_height_m,
-                                     self.wall_yaw)
-            else:
-                a, b = out[e.rests_on[0]], out[e.rests_on[1]]
-                out[e.brick] = Pose4((a.x + b.x) / 2, (a.y + b.y) / 2,
-                                     e.course * w.course_height_m, self.wall_yaw)
-        return out
-
-    def supports(self, brick_id: str) -> list[str]:
-        """Bricks the brick rests on (none for course 1)."""
-        e = self.plan_by_id[brick_id]
-        return list(e.rests_on or [])
-
-    def references(self, brick_id: str) -> list[str]:
-        """Placed bricks vision uses to find the slot: the two below, or course 1's neighbours
-        placed before it."""
-        e = self.plan_by_id[brick_id]
-        if e.rests_on:
-            return list(e.rests_on)
-        order = self.order
-        before = set(order[:order.index(brick_id)])
-        return [o.brick for o in self.wall.plan
-                if o.course == 1 and o.brick in before and abs(o.slot - e.slot) == 1]
-
-    def wall_top_m(self) -> float:
-        return max(e.course for e in self.wall.plan) * self.wall.course_height_m
-
-    def brick_height_m(self, brick_id: str) -> float:
-        return float(self.layout_of(brick_id).dimensions_m[2])
-
-    def ref_from_slot(self, ref_id: str, brick_id: str) -> Pose4:
-        """Planned pose of ``brick_id``'s slot in the frame of ``ref_id`` (planned)."""
-        r, s = self.slot_pose(ref_id), self.slot_pose(brick_id)
-        dxy = rot2(-r.yaw) @ (s.xy - r.xy)
-        return Pose4(float(dxy[0]), float(dxy[1]), s.z - r.z, s.yaw - r.yaw)
+class Scenario(ScenarioModel):
+    """A validated mission scenario (see the module docstring; fields and planned poses in
+    :class:`~drovisio.mission.scenario_model.ScenarioModel`)."""
 
     def subset(self, keep: list[str]) -> Scenario:
         """The same scenario building only the bricks ``keep`` (validated again: the bricks a
@@ -390,157 +92,8 @@ class Scenario(_M):
 
     # ------------------------------------------------------------------ semantic checks
     def _semantic_issues(self) -> list[tuple[str, str]]:
-        issues: list[tuple[str, str]] = []
-        add = issues.append
-        site, th, alt = self.site, self.thresholds, self.altitudes
-        ids = [b.id for b in self.bricks]
-        for i, b in enumerate(self.bricks):
-            if ids.count(b.id) > 1 and ids.index(b.id) != i:
-                add((f"bricks[{i}].id", f"duplicate brick id {b.id!r}"))
-            if b.layout not in self.layouts:
-                add((f"bricks[{i}].layout", f"{b.layout!r} is not in 'layouts' "
-                                            f"({', '.join(self.layouts)})"))
-                continue
-            lay = self._layouts.get(b.layout)
-            if lay is None:
-                continue
-            if lay.has_codes:
-                if b.instance is None:
-                    add((f"bricks[{i}].instance", f"layout {b.layout!r} has codes: give the "
-                                                  "brick's instance number"))
-                elif lay.instances is not None and b.instance >= lay.instances:
-                    add((f"bricks[{i}].instance", f"{b.instance} is out of range: layout "
-                                                  f"{b.layout!r} has instances 0..{lay.instances - 1}"))
-            elif b.instance is not None:
-                add((f"bricks[{i}].instance", f"layout {b.layout!r} has no codes: instance "
-                                              "must be null"))
-            p = b.pick.position
-            a = site.pick_area
-            if not (abs(p[0] - a.center[0]) <= a.size[0] / 2 + 1e-9
-                    and abs(p[1] - a.center[1]) <= a.size[1] / 2 + 1e-9):
-                add((f"bricks[{i}].pick.position", f"{p} is outside site.pick_area"))
-            for j in range(i):
-                q = self.bricks[j].pick.position
-                if math.dist(p, q) < self.wall.brick_pitch_m * 1.5:
-                    add((f"bricks[{i}].pick.position",
-                         f"{p} is within {self.wall.brick_pitch_m * 1.5:.2f} m of brick "
-                         f"{self.bricks[j].id!r}: bricks to pick must lie apart"))
-        seen_codes: dict[tuple[str, int], str] = {}
-        for i, b in enumerate(self.bricks):
-            if b.instance is not None:
-                key = (b.layout, b.instance)
-                if key in seen_codes:
-                    add((f"bricks[{i}].instance", f"brick {b.id!r} has the same codes as "
-                                                  f"{seen_codes[key]!r} ({b.layout} #{b.instance})"))
-                seen_codes[key] = b.id
-        plan_ids = [e.brick for e in self.wall.plan]
-        slots: dict[int, str] = {}
-        pairs: dict[frozenset, str] = {}
-        for i, e in enumerate(self.wall.plan):
-            where = f"wall.plan[{i}]"
-            if e.brick not in self.brick_by_id:
-                add((f"{where}.brick", f"{e.brick!r} is not in 'bricks'"))
-            if plan_ids.count(e.brick) > 1 and plan_ids.index(e.brick) != i:
-                add((f"{where}.brick", f"brick {e.brick!r} is planned twice"))
-            if e.course == 1:
-                if e.slot in slots:
-                    add((f"{where}.slot", f"slot {e.slot} already holds {slots[e.slot]!r}"))
-                slots[e.slot] = e.brick
-        if issues:
-            return issues
-        for i, e in enumerate(self.wall.plan):
-            if e.course == 1:
-                continue
-            where = f"wall.plan[{i}].rests_on"
-            below = []
-            for o in e.rests_on:
-                oe = self.plan_by_id.get(o)
-                if oe is None:
-                    add((where, f"{o!r} is not planned in the wall"))
-                elif oe.course != e.course - 1:
-                    add((where, f"{o!r} is in course {oe.course}; a course-{e.course} brick "
-                                f"rests on course {e.course - 1}"))
-                else:
-                    below.append(o)
-            if len(below) == 2 and below[0] == below[1]:
-                add((where, "the two bricks below must differ"))
-            if issues:
-                continue
-            key = frozenset(e.rests_on)
-            if key in pairs:
-                add((where, f"the pair {e.rests_on} already carries {pairs[key]!r}"))
-            pairs[key] = e.brick
-        if issues:
-            return issues
-        for i, e in enumerate(self.wall.plan):
-            if e.course > 1:
-                a, b = (self.slot_pose(o) for o in e.rests_on)
-                gap = math.dist((a.x, a.y), (b.x, b.y))
-                if abs(gap - self.wall.brick_pitch_m) > 1e-6 or abs(a.z - b.z) > 1e-9:
-                    add((f"wall.plan[{i}].rests_on", f"{e.rests_on} are not neighbours (centres "
-                                               f"{gap:.3f} m apart, pitch "
-                                               f"{self.wall.brick_pitch_m} m)"))
-        order = self.order
-        if sorted(order) != sorted(plan_ids):
-            add(("wall.order", "must list every planned brick exactly once"))
-        else:
-            for k, bid in enumerate(order):
-                for o in self.supports(bid):
-                    if o not in order[:k]:
-                        add(("wall.order", f"{bid!r} is built before {o!r}, which it rests on"))
-        unplanned = [b for b in ids if b not in plan_ids]
-        if unplanned:
-            add(("bricks", f"bricks not in the wall plan: {', '.join(unplanned)}"))
-        if issues:
-            return issues
-        # geometry against the site
-        b = site.bounds
-        for name, xy in [("site.home", site.home), ("site.safe_zone.center", site.safe_zone.center),
-                         ("site.pick_area.center", site.pick_area.center)]:
-            if not b.contains(xy, margin=0.3):
-                add((name, f"{xy} is not inside site.bounds with a 0.3 m margin"))
-        sz = site.safe_zone
-        if not (b.contains(np.asarray(sz.center) - sz.radius) and
-                b.contains(np.asarray(sz.center) + sz.radius)):
-            add(("site.safe_zone", "the safe zone must lie inside site.bounds"))
-        for bid in order:
-            s = self.slot_pose(bid)
-            if not b.contains((s.x, s.y), margin=0.3):
-                add(("wall", f"{bid!r}'s slot ({s.x:.2f}, {s.y:.2f}) is not inside site.bounds "
-                             "with a 0.3 m margin"))
-            for what, xy in [("site.safe_zone", sz.center)]:
-                if math.dist((s.x, s.y), xy) < sz.radius + 0.5:
-                    add((what, f"the safe zone is within 0.5 m of the wall (brick {bid!r})"))
-        hang = self.drone.picker_depth_m + max(
-            float(self._layouts[n].dimensions_m[2]) for n in self.layouts if n in self._layouts)
-        if alt.cruise_m < 1.0:
-            add(("altitudes.cruise_m", "the thesis climbs above 1 m between phases"))
-        if alt.cruise_m < self.wall_top_m() + hang + 0.3:
-            add(("altitudes.cruise_m", f"{alt.cruise_m} m does not clear the wall "
-                                       f"({self.wall_top_m():.2f} m) with a held brick "
-                                       f"({hang:.2f} m below the body) and 0.3 m to spare"))
-        if alt.cruise_m > b.max[2] - 0.2:
-            add(("altitudes.cruise_m", f"{alt.cruise_m} m is above the geofence ceiling minus "
-                                       "0.2 m"))
-        if self.wall_top_m() + alt.approach_m > alt.cruise_m + 1e-9:
-            add(("altitudes.approach_m", "approach height above the wall top must not exceed the "
-                                         "cruise altitude"))
-        if alt.blind_below_m >= alt.approach_m - self.drone.camera.mount.offset_m[2]:
-            add(("altitudes.blind_below_m", "must be below the camera's approach height"))
-        if th.align_yaw_tolerance_deg > self.placement_tolerance.yaw_deg:
-            add(("thresholds.align_yaw_tolerance_deg", "must not exceed "
-                                                       "placement_tolerance.yaw_deg"))
-        if th.align_position_tolerance_m > th.descent_position_tolerance_m:
-            add(("thresholds.align_position_tolerance_m", "must not exceed "
-                                                          "descent_position_tolerance_m"))
-        if th.disagreement_m <= th.match_radius_m * 0.2:
-            add(("thresholds.disagreement_m", "too small to tolerate a brick's pick error"))
-        if not self.sensors.total_station:
-            add(("sensors.total_station", "this strategy needs the total station (the site "
-                                          "frame); a mission without it is not supported"))
-        if not self.sensors.vision:
-            add(("sensors.vision", "the alignment phases need vision"))
-        return issues
+        """The rules beyond the schema (:mod:`drovisio.mission.scenario_rules`)."""
+        return semantic_issues(self)
 
 
 def _format_loc(loc: tuple) -> str:
@@ -563,13 +116,6 @@ def shipped_scenario(name: str = "wall-2-courses") -> Path:
 
 
 def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, Any]:
-    from drovisio.layout import (
-        LayoutError,
-        check_layout_set,
-        load_layout,
-        shipped_layouts_dir,
-    )
-
     out: dict[str, Any] = {}
     problems = []
     for i, n in enumerate(names):
@@ -599,42 +145,58 @@ def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, An
     return out
 
 
-def parse_scenario(data: dict | str | bytes, source: str | os.PathLike[str] = "<scenario>"
-                   ) -> Scenario:
-    """Validate a scenario given as a dict or YAML/JSON text.
+def _parsed(data: dict[str, Any] | str | bytes, src: str) -> Any:
+    """The scenario's data: YAML/JSON text parsed, a dict as it is."""
+    if not isinstance(data, (str, bytes)):
+        return data
+    try:
+        text = data.decode("utf-8") if isinstance(data, bytes) else data
+        return parse_yaml(text, src)
+    except UnicodeDecodeError as e:
+        raise ScenarioError(f"{src}: not UTF-8 text (byte {e.start})") from None
+    except InputError as e:
+        raise ScenarioError(str(e)) from None
 
-    Raises:
-        ScenarioError: listing every problem as ``FILE: FIELD: message``.
-    """
-    src = os.fspath(source)
-    if isinstance(data, (str, bytes)):
-        try:
-            text = data.decode("utf-8") if isinstance(data, bytes) else data
-            data = parse_yaml(text, src)
-        except UnicodeDecodeError as e:
-            raise ScenarioError(f"{src}: not UTF-8 text (byte {e.start})") from None
-        except InputError as e:
-            raise ScenarioError(str(e)) from None
+
+def _check_shape(data: Any, src: str) -> None:
+    """One mapping of this schema, and no YAML ``on`` read as a boolean key in the plan."""
     if not isinstance(data, dict):
         raise ScenarioError(f"{src}: a scenario file must hold one mapping, not "
                             f"{type(data).__name__}")
     if data.get("schema") != SCHEMA_ID:
         raise ScenarioError(f"{src}: schema: expected {SCHEMA_ID!r}, got {data.get('schema')!r}")
     plan = data.get("wall", {}).get("plan") if isinstance(data.get("wall"), dict) else None
-    for i, e in enumerate(plan if isinstance(plan, list) else []):
-        if isinstance(e, dict) and True in e:
+    for i, entry in enumerate(plan if isinstance(plan, list) else []):
+        if isinstance(entry, dict) and True in entry:
             raise ScenarioError(f"{src}: wall.plan[{i}]: a key reads as true: YAML takes a bare "
                                 "'on' for a boolean; the field is 'rests_on'")
+
+
+def _schema_error(e: ValidationError, src: str) -> ScenarioError:
+    """The schema's first problem in one line (and how many more there are)."""
+    lines = [f"{src}: {_format_loc(err['loc'])}: {err['msg']}"
+             + (f" (got {one_line(repr(err['input']), 60)})" if err["type"] not in
+                ("missing",) and not isinstance(err.get("input"), (dict, list)) else "")
+             for err in e.errors()[:20]]
+    more = len(e.errors()) - 1
+    return ScenarioError(lines[0] + (f" (and {more} more problem{'s' if more > 1 else ''}"
+                                     " in this file)" if more else ""))
+
+
+def parse_scenario(data: dict[str, Any] | str | bytes,
+                   source: str | os.PathLike[str] = "<scenario>") -> Scenario:
+    """Validate a scenario given as a dict or YAML/JSON text.
+
+    Raises:
+        ScenarioError: listing every problem as ``FILE: FIELD: message``.
+    """
+    src = os.fspath(source)
+    data = _parsed(data, src)
+    _check_shape(data, src)
     try:
         scn = Scenario.model_validate(data)
     except ValidationError as e:
-        lines = [f"{src}: {_format_loc(err['loc'])}: {err['msg']}"
-                 + (f" (got {one_line(repr(err['input']), 60)})" if err["type"] not in
-                    ("missing",) and not isinstance(err.get("input"), (dict, list)) else "")
-                 for err in e.errors()[:20]]
-        more = len(e.errors()) - 1
-        raise ScenarioError(lines[0] + (f" (and {more} more problem{'s' if more > 1 else ''}"
-                                        " in this file)" if more else "")) from None
+        raise _schema_error(e, src) from None
     base = Path(src).parent if not src.startswith("<") else None
     scn._source = Path(src) if base is not None else None
     scn._layouts = _load_layouts(scn.layouts, base, src)

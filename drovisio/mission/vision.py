@@ -20,13 +20,18 @@ from __future__ import annotations
 
 import importlib
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 
 from drovisio.camera import Camera
+from drovisio.detect.result import BrickPose
+from drovisio.layout import MarkerLayout
+from drovisio.synth import BrickInstance, Effects, Ground, Scene, render
 
 __all__ = ["Seen", "WorldBrick", "DetectorModelParams", "DetectorModel", "RenderVision",
            "find_detector", "opencv_aruco_baseline"]
@@ -34,6 +39,9 @@ __all__ = ["Seen", "WorldBrick", "DetectorModelParams", "DetectorModel", "Render
 
 @dataclass(frozen=True)
 class Seen:
+    """A brick the vision reports: its pose ``camera_from_brick`` (4, 4), OpenCV camera frame,
+    metres."""
+
     layout: str
     instance: int | None
     camera_from_brick: np.ndarray
@@ -45,13 +53,17 @@ class WorldBrick:
     """A brick where it truly is (site frame)."""
 
     id: str
-    layout: object  # MarkerLayout
+    layout: MarkerLayout
     instance: int | None
     world_from_brick: np.ndarray
 
 
 @dataclass
 class DetectorModelParams:
+    """What :class:`DetectorModel` sees and how well: frame rate (Hz), distances (m), the
+    largest angle between a marker's normal and the line of sight, the image margin (px), the
+    chance to miss a brick in view, and the pose noise."""
+
     rate_hz: float = 10.0
     min_distance_m: float = 0.15
     max_distance_m: float = 3.0
@@ -73,17 +85,20 @@ def _footprint_covers(other: WorldBrick, pts_world: np.ndarray) -> np.ndarray:
     return (np.abs(q[:, 0]) <= dims[0] / 2) & (np.abs(q[:, 1]) <= dims[1] / 2) & (q[:, 2] < -0.005)
 
 
-_MARKERS: dict[tuple[str, int], tuple[list[np.ndarray], list[np.ndarray], bool]] = {}
+Markers = tuple[list[np.ndarray], list[np.ndarray], bool]
+"""A layout's point groups (brick frame, m), their normals, and whether every group is
+needed."""
+_MARKERS: dict[tuple[str, int], Markers] = {}
 
 
-def _markers(layout) -> tuple[list[np.ndarray], list[np.ndarray], bool]:
+def _markers(layout: MarkerLayout) -> Markers:
     key = (layout.name, id(layout))
     if key not in _MARKERS:
         _MARKERS[key] = _markers_of(layout)
     return _MARKERS[key]
 
 
-def _markers_of(layout) -> tuple[list[np.ndarray], list[np.ndarray], bool]:
+def _markers_of(layout: MarkerLayout) -> Markers:
     """Point groups of a layout (one group per code, or one group of all dots), their
     normals, and whether every group is needed (dots) or one suffices (codes)."""
     groups, normals = [], []
@@ -106,13 +121,31 @@ class DetectorModel:
         self.camera = camera
         self.params = params or DetectorModelParams()
 
-    def observe(self, world_from_camera: np.ndarray, bricks: Sequence[WorldBrick],
-                rng: np.random.Generator) -> list[Seen]:
+    def _in_view(self, pts: np.ndarray, n: np.ndarray, cfb: np.ndarray) -> bool:
+        """Whether a marker group (points ``pts`` (k, 3), normal ``n``, brick frame) is in
+        the picture: in range, facing the camera, inside the image's margin."""
         p = self.params
         cam = self.camera
+        cos_max = math.cos(math.radians(p.max_view_angle_deg))
+        pc = pts @ cfb[:3, :3].T + cfb[:3, 3]
+        centre = pc.mean(axis=0)
+        d = float(np.linalg.norm(centre))
+        if np.any(pc[:, 2] < p.min_distance_m) or d > p.max_distance_m:
+            return False
+        n_c = cfb[:3, :3] @ n
+        if float(-n_c @ centre) / d < cos_max:
+            return False
+        px = cam.project(pc)
+        m = p.margin_px
+        return bool(np.all(px[:, 0] >= m) and np.all(px[:, 0] <= cam.width - 1 - m)
+                    and np.all(px[:, 1] >= m) and np.all(px[:, 1] <= cam.height - 1 - m))
+
+    def observe(self, world_from_camera: np.ndarray, bricks: Sequence[WorldBrick],
+                rng: np.random.Generator) -> list[Seen]:
+        """The bricks a detector would report from the camera at ``world_from_camera``."""
+        p = self.params
         cfw = np.linalg.inv(world_from_camera)
         out: list[Seen] = []
-        cos_max = math.cos(math.radians(p.max_view_angle_deg))
         for b in bricks:
             cfb = cfw @ b.world_from_brick
             if cfb[2, 3] <= 0:
@@ -120,18 +153,7 @@ class DetectorModel:
             groups, normals, need_all = _markers(b.layout)
             visible = 0
             for pts, n in zip(groups, normals):
-                pc = pts @ cfb[:3, :3].T + cfb[:3, 3]
-                centre = pc.mean(axis=0)
-                d = float(np.linalg.norm(centre))
-                if np.any(pc[:, 2] < p.min_distance_m) or d > p.max_distance_m:
-                    continue
-                n_c = cfb[:3, :3] @ n
-                if float(-n_c @ centre) / d < cos_max:
-                    continue
-                px = cam.project(pc)
-                m = p.margin_px
-                if not (np.all(px[:, 0] >= m) and np.all(px[:, 0] <= cam.width - 1 - m)
-                        and np.all(px[:, 1] >= m) and np.all(px[:, 1] <= cam.height - 1 - m)):
+                if not self._in_view(pts, n, cfb):
                     continue
                 pw = pts @ b.world_from_brick[:3, :3].T + b.world_from_brick[:3, 3]
                 if any(np.any(_footprint_covers(o, pw)) for o in bricks if o is not b):
@@ -159,65 +181,84 @@ class DetectorModel:
 
 
 # ======================================================================= real detectors
-Detector = Callable[[np.ndarray, Camera, list, np.ndarray | None], list]
+Detector = Callable[[np.ndarray, Camera, list[Any], "np.ndarray | None"], list[Any]]
+"""``(image, camera, layouts, gravity) -> list[BrickPose]``."""
+
+_Found = dict[tuple[str, int], list[tuple[int, np.ndarray]]]
+"""(layout name, instance) → the codes seen of it: (slot, (4, 2) corners, px)."""
 
 
-def opencv_aruco_baseline(image: np.ndarray, camera: Camera, layouts: list,
-                          gravity: np.ndarray | None = None) -> list:
+def _codes_by_dictionary(layouts: list[Any]) -> dict[str, list[Any]]:
+    by_dict: dict[str, list[Any]] = {}
+    for lay in layouts:
+        for d in lay.dictionaries():
+            by_dict.setdefault(d, []).append(lay)
+    return by_dict
+
+
+def _find_codes(gray: np.ndarray, dname: str, lays: list[Any]) -> _Found:
+    """The codes of dictionary ``dname`` in the image, refined, grouped by brick."""
+    det = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dname)),
+        cv2.aruco.DetectorParameters())
+    corners, ids, _ = det.detectMarkers(gray)
+    found: _Found = {}
+    if ids is None:
+        return found
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.01)
+    for c, i in zip(corners, ids.ravel()):
+        c = cv2.cornerSubPix(gray, c.reshape(-1, 1, 2).astype(np.float32), (4, 4), (-1, -1),
+                             crit).reshape(4, 2)
+        for lay in lays:
+            ks = lay.instance_slot(int(i))
+            if ks is not None:
+                found.setdefault((lay.name, ks[0]), []).append((ks[1], c))
+    return found
+
+
+def _solve_brick(camera: Camera, lay: Any, k: int, items: list[tuple[int, np.ndarray]],
+                 gravity: np.ndarray | None) -> BrickPose | None:
+    """IPPE on the brick's codes (the solution whose z axis points up), then refined."""
+    obj = np.concatenate([lay.code_corners_m()[s] for s, _ in items]).astype(np.float64)
+    img = np.concatenate([c for _, c in items]).astype(np.float64)
+    # PnP in undistorted normalised coordinates: right for every lens model
+    xn = camera.normalize(img)
+    if not np.all(np.isfinite(xn)):
+        return None
+    n, rv, tv, _ = cv2.solvePnPGeneric(obj, xn, _EYE3, None, flags=cv2.SOLVEPNP_IPPE)
+    best = None
+    for r, t in zip(rv, tv):
+        R = cv2.Rodrigues(r)[0]
+        up = -np.asarray(gravity, float) if gravity is not None else np.array([0, 0, -1.0])
+        score = float(R[:, 2] @ up)
+        if best is None or score > best[0]:
+            best = (score, r, t)
+    if best is None:
+        return None
+    _, r, t = best
+    r, t = cv2.solvePnPRefineLM(obj, xn, _EYE3, None, r.copy(), t.copy())
+    proj, _ = camera.project_points(obj, r, t)
+    rmse = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
+    return BrickPose(lay.name, k, "aruco", r.ravel(), t.ravel(), rmse,
+                     markers=[lay.marker_id(k, s) for s, _ in items])
+
+
+def opencv_aruco_baseline(image: np.ndarray, camera: Camera, layouts: list[Any],
+                          gravity: np.ndarray | None = None) -> list[BrickPose]:
     """A plain OpenCV detector (``cv2.aruco.ArucoDetector`` + IPPE/iterative PnP per brick),
     used only when :mod:`drovisio.detect.aruco` is not available. Returns ``BrickPose``.
 
     ``gravity`` (unit vector, down, camera frame) picks among IPPE's two poses the one whose
     brick z axis points up.
     """
-    from drovisio.detect.result import BrickPose
-
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
     out = []
-    by_dict: dict[str, list] = {}
-    for lay in layouts:
-        for d in lay.dictionaries():
-            by_dict.setdefault(d, []).append(lay)
-    for dname, lays in by_dict.items():
-        det = cv2.aruco.ArucoDetector(
-            cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dname)),
-            cv2.aruco.DetectorParameters())
-        corners, ids, _ = det.detectMarkers(gray)
-        if ids is None:
-            continue
-        crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 0.01)
-        found: dict[tuple[str, int], list[tuple[int, np.ndarray]]] = {}
-        for c, i in zip(corners, ids.ravel()):
-            c = cv2.cornerSubPix(gray, c.reshape(-1, 1, 2).astype(np.float32), (4, 4), (-1, -1),
-                                 crit).reshape(4, 2)
-            for lay in lays:
-                ks = lay.instance_slot(int(i))
-                if ks is not None:
-                    found.setdefault((lay.name, ks[0]), []).append((ks[1], c))
-        for (name, k), items in found.items():
+    for dname, lays in _codes_by_dictionary(layouts).items():
+        for (name, k), items in _find_codes(gray, dname, lays).items():
             lay = next(x for x in lays if x.name == name)
-            obj = np.concatenate([lay.code_corners_m()[s] for s, _ in items]).astype(np.float64)
-            img = np.concatenate([c for _, c in items]).astype(np.float64)
-            # PnP in undistorted normalised coordinates: right for every lens model
-            xn = camera.normalize(img)
-            if not np.all(np.isfinite(xn)):
-                continue
-            n, rv, tv, _ = cv2.solvePnPGeneric(obj, xn, _EYE3, None, flags=cv2.SOLVEPNP_IPPE)
-            best = None
-            for r, t in zip(rv, tv):
-                R = cv2.Rodrigues(r)[0]
-                up = -np.asarray(gravity, float) if gravity is not None else np.array([0, 0, -1.0])
-                score = float(R[:, 2] @ up)
-                if best is None or score > best[0]:
-                    best = (score, r, t)
-            if best is None:
-                continue
-            _, r, t = best
-            r, t = cv2.solvePnPRefineLM(obj, xn, _EYE3, None, r.copy(), t.copy())
-            proj, _ = camera.project_points(obj, r, t)
-            rmse = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
-            out.append(BrickPose(name, k, "aruco", r.ravel(), t.ravel(), rmse,
-                                 markers=[lay.marker_id(k, s) for s, _ in items]))
+            pose = _solve_brick(camera, lay, k, items, gravity)
+            if pose is not None:
+                out.append(pose)
     return out
 
 
@@ -252,8 +293,9 @@ def find_detector(kind: str) -> tuple[Detector, str]:
     raise RuntimeError(f"no detector for {kind}: {module_name} has none of {names}")
 
 
-def _adapt(f: Callable) -> Detector:
-    def run(image, camera, layouts, gravity=None):
+def _adapt(f: Callable[..., Any]) -> Detector:
+    def run(image: np.ndarray, camera: Camera, layouts: list[Any],
+            gravity: np.ndarray | None = None) -> list[Any]:
         try:
             res = f(image, camera, layouts, gravity=gravity)
         except TypeError:
@@ -280,25 +322,25 @@ class RenderVision:
         kinds = set()
         for lay in self.layouts:
             kinds.add("aruco" if lay.has_codes else "dots")
-        self.detectors = []
+        self.detectors: list[tuple[str, Detector, str]] = []
         for k in sorted(kinds):
             det = self._stateful(k)
             self.detectors.append((k, *(det or find_detector(k))))
 
-    def _stateful(self, kind: str):
+    def _stateful(self, kind: str) -> tuple[Detector, str] | None:
         """The codes' detector object built once (its set-up is not redone every frame)."""
         if kind != "aruco":
             return None
-        try:
+        try:  # deferred: the compiled detector is only needed when rendering
             from drovisio.detect.aruco import ArucoBrickDetector
         except ImportError:
             return None
         obj = ArucoBrickDetector(self.camera, [x for x in self.layouts if x.has_codes])
 
-        def run(image, camera, layouts, gravity=None):
-            return obj.detect(image, gravity)
+        def run(image: np.ndarray, camera: Camera, layouts: list[Any],
+                gravity: np.ndarray | None = None) -> list[Any]:
+            return list(obj.detect(image, gravity))
         return run, "drovisio.detect.aruco.ArucoBrickDetector"
-
 
     @property
     def detector_names(self) -> list[str]:
@@ -306,10 +348,7 @@ class RenderVision:
 
     def observe(self, world_from_camera: np.ndarray, bricks: Sequence[WorldBrick],
                 rng: np.random.Generator) -> list[Seen]:
-        import time
-
-        from drovisio.synth import BrickInstance, Effects, Ground, Scene, render
-
+        """Render the view from ``world_from_camera`` and run the detectors on it."""
         t0 = time.perf_counter()
         cfw = np.linalg.inv(world_from_camera)
         scene = Scene(self.camera, cfw, ground=Ground(self.ground, self.seed),
