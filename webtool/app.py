@@ -88,13 +88,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if settings.camera is None:
         # the calibration chosen on the calibration page ("Use this calibration") lasts
         # across restarts; a --camera given to `drovisio serve` takes precedence
-        from webtool.calibration_service import camera_in_use
+        from webtool.calibration import camera_in_use
 
         settings.camera = camera_in_use(settings)
     if settings.mount is None:
         # likewise the mount saved on the mount page (on the sample session too: what the
         # user saved is what the live view uses)
-        from webtool.mount_service import mount_in_use
+        from webtool.mount import mount_in_use
 
         settings.mount = mount_in_use(settings)
     app = FastAPI(

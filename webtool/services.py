@@ -1,12 +1,12 @@
 """The web tool's services: one per area, made on first use, closed when the app stops.
 
 =============  ======================================================================
-calibration    :class:`webtool.calibration_service.CalibrationService`
-designer       :class:`webtool.designer_service.DesignerService`
-live           :class:`webtool.live_service.LiveService`
-mount          :class:`webtool.mount_service.MountService`
-study          :class:`webtool.study_service.StudyService`
-replay         :class:`webtool.replay_service.ReplayService`
+calibration    :class:`webtool.calibration.service.CalibrationService`
+designer       :class:`webtool.designer.service.DesignerService`
+live           :class:`webtool.live.service.LiveService`
+mount          :class:`webtool.mount.service.MountService`
+study          :class:`webtool.study.service.StudyService`
+replay         :class:`webtool.replay.service.ReplayService`
 =============  ======================================================================
 
 Routers ask for them with :func:`service` (``Annotated[..., Depends(service("live"))]``); a
@@ -32,12 +32,12 @@ __all__ = ["SERVICES", "close_services", "lifespan", "service"]
 
 #: name → "module:factory" (the factory takes the app's Settings)
 SERVICES: dict[str, str] = {
-    "calibration": "webtool.calibration_service:CalibrationService",
-    "designer": "webtool.designer_service:DesignerService",
-    "live": "webtool.live_service:LiveService",
-    "mount": "webtool.mount_service:MountService",
-    "study": "webtool.study_service:StudyService",
-    "replay": "webtool.replay_service:ReplayService",
+    "calibration": "webtool.calibration.service:CalibrationService",
+    "designer": "webtool.designer.service:DesignerService",
+    "live": "webtool.live.service:LiveService",
+    "mount": "webtool.mount.service:MountService",
+    "study": "webtool.study.service:StudyService",
+    "replay": "webtool.replay.service:ReplayService",
 }
 _lock = threading.Lock()
 log = logging.getLogger("webtool")

@@ -10,7 +10,7 @@ viewer's "up" is set to −z. Nodes:
   label; the target brick is drawn in yellow, predicted (unmeasured) ones half transparent;
 * ``/trails/<track>`` — the brick's last positions (body frame) as line segments.
 
-The server is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port, reached through
+The server is a :class:`webtool.viewer.scene.ViserScene` (127.0.0.1, own port, reached through
 the app at ``/live/3d/``). :class:`LiveScene` is started lazily, updated at most ``max_hz``
 times a second from the pipeline's outputs (in its own thread, so the pipeline never waits
 for it) and stopped with the app. Quaternions are viser's (w, x, y, z).
@@ -27,7 +27,7 @@ import numpy as np
 
 from drovisio.geometry import quat_wxyz
 from drovisio.mount import Mount, down_camera_mount
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
 __all__ = ["LiveScene"]
 

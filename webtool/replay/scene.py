@@ -4,7 +4,7 @@ The scene is in the site frame (x east, y north, z up, metres): a ground grid, t
 ghost outlines, the drone (FRD body axes, a flat box and the camera frustum at
 ``body_from_camera``) at its recorded pose, its setpoint (a small orange ball), and each brick
 as its layout's mesh at its recorded top-face pose (placed bricks turn green). Served through
-the app at ``/replay/3d/`` (:mod:`webtool.viser_base`). Quaternions are viser's (w, x, y, z).
+the app at ``/replay/3d/`` (:mod:`webtool.viewer.scene`). Quaternions are viser's (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 
 from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
 from drovisio.resources import layouts_dir
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
 __all__ = ["ReplayScene"]
 

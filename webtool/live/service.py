@@ -346,7 +346,7 @@ class LiveService:
         """The 3D scene, started on first use."""
         with self._lock:
             if self.scene is None and self.want_scene and not self._closed.is_set():
-                from webtool.live_scene import LiveScene
+                from webtool.live.scene import LiveScene
 
                 self.scene = LiveScene(self.mount, self.camera, self.layouts).start()
             return self.scene

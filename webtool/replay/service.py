@@ -3,7 +3,7 @@
 :class:`ReplayService` lists the recordings in ``Settings.replay_dir`` (each a folder with a
 ``manifest.json``), loads one and plays it on a server-side thread: the playback clock ``t``
 advances ``speed`` times real time, at ~15 Hz, and every step updates the replay's own viser
-scene (:class:`webtool.replay_scene.ReplayScene`, served through the app at ``/replay/3d/``).
+scene (:class:`webtool.replay.scene.ReplayScene`, served through the app at ``/replay/3d/``).
 Only recordings inside the recordings folder can be loaded.
 """
 
@@ -21,7 +21,7 @@ from drovisio.errors import one_line
 from drovisio.mission.record import load_manifest, load_recording
 from drovisio.textfile import path_text_problem
 from webtool.errors import ServiceError
-from webtool.replay_scene import ReplayScene
+from webtool.replay.scene import ReplayScene
 
 __all__ = ["Playback", "ReplayService"]
 

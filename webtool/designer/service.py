@@ -3,7 +3,7 @@
 :class:`DesignerService` owns the :class:`drovisio.designer.model.DesignDocument`, a lock, the
 change notifications the page long-polls (without holding a worker thread: see
 :meth:`DesignerService.wait_for_change_async`), and, once the page asks for it, the 3D view
-(:class:`webtool.designer_scene.DesignerScene`). Both the JSON endpoint ``POST
+(:class:`webtool.designer.scene.DesignerScene`). Both the JSON endpoint ``POST
 /api/designer/click`` and the 3D view's click handler call :meth:`DesignerService.click`.
 """
 
@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -36,9 +36,7 @@ from drovisio.layout import (
     shipped_layouts_dir,
 )
 from drovisio.resources import user_data_dir
-
-if TYPE_CHECKING:
-    from webtool.designer_scene import DesignerScene
+from webtool.designer.scene import DesignerScene
 
 __all__ = ["MODE_LABELS", "DesignerService"]
 
@@ -346,8 +344,6 @@ class DesignerService:
 
     def viewer(self) -> DesignerScene:
         """The 3D viewer, started on first use."""
-        from webtool.designer_scene import DesignerScene
-
         with self._viewer_lock:
             if self._closed:
                 raise DesignError("the designer is shutting down")

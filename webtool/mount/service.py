@@ -225,7 +225,7 @@ class MountService:
     def start_scene(self):
         with self._lock:
             if self.scene is None:
-                from webtool.mount_scene import MountScene
+                from webtool.mount.scene import MountScene
 
                 self.scene = MountScene(self.camera()).start()
                 st = self.state()

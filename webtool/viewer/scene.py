@@ -3,7 +3,7 @@ that only the tool's own proxy may talk to them.
 
 viser runs its own HTTP/WebSocket server on its own port; the tool starts each on 127.0.0.1
 and serves it to browsers through the app (``/live/3d``, ``/designer/3d``, ``/replay/3d``,
-:mod:`webtool.viser_proxy`), where the access middleware checks Host, Origin and token. The
+:mod:`webtool.viewer.proxy`), where the access middleware checks Host, Origin and token. The
 port itself must not be a back door: any web page can open a WebSocket to 127.0.0.1 on any
 port. So a viser server started here refuses every HTTP request or WebSocket that carries an
 ``Origin`` header — which every browser sends and the tool's proxy does not. viser has no

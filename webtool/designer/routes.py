@@ -1,0 +1,494 @@
+"""JSON API of the marker designer page, under ``/api/designer`` (the page and the tests share it).
+
+=======  ==============================  ======================================================
+GET      /state[?after=V]                everything the page shows; with ``after``, waits up to
+                                         4 s for a version other than V (long poll; holds no
+                                         worker thread)
+GET      /viewer                         start the 3D viewer and give its URL,
+                                         ``/designer/3d/`` (served through this app)
+POST     /mesh?filename=F&units=U        upload a mesh: the request body is the file (STL, OBJ,
+                                         PLY, GLB/GLTF, OFF); refused by size before reading
+POST     /open   {example}               ``mesh:drick.stl`` or ``layout:NAME.json``
+POST     /units  {units}                 mm, cm or m
+POST     /frame  {action, angle_deg?}    origin_top_centre, align_x, turn, flip, reset
+POST     /mode   {mode}                  what a click does: code, dot, select, origin
+POST     /click  {origin, direction}     a click ray from the 3D view (world = brick frame);
+                                         the viser click handler calls the same code
+POST     /select {index}                 select a marker (null: none)
+POST     /markers/{i}  {...}             size_mm, color, slot, rotate_deg, nudge_mm [r, u],
+                                         centre
+DELETE   /markers/{i}                    delete a marker
+POST     /defaults {...}                 code_size_mm, dot_diameter_mm, dot_color, grid_mm,
+                                         snap_mm (for the next markers)
+POST     /layout {...}                   name, description, first_id (null = automatic),
+                                         ids_per_instance, instances, symmetry, family
+POST     /fix    {action}                perform a fix offered by a check
+POST     /undo, /redo
+POST     /save   {overwrite}             write NAME.json and meshes/NAME.stl into the layouts
+                                         folder (never silently over an existing file)
+GET      /export/layout.json             the layout file (validated)
+GET      /export/mesh.stl                the mesh in the brick frame, metres
+GET      /export/brick.glb               the mesh with the markers on it
+GET      /export/sheet.pdf               the print sheet, true scale (all pages)
+GET      /export/sheet.svg?page=N        one page of the print sheet, true scale
+POST     /verify                         try the layout on a simulated photo (drovisio.synth):
+                                         the detectors' errors and the photo (JPEG data URL)
+=======  ==============================  ======================================================
+
+Outside ``/api/designer`` (``viewer_router``): ``GET /designer/3d/`` is viser's client and
+``WebSocket /designer/3d`` its socket, relayed to the viewer; the socket needs full access
+(the 3D view edits the design), a view-only link gets it closed.
+
+Bodies are pydantic models: finite numbers within stated bounds, no unknown fields. Mutating
+calls answer the new state. Errors (one handler, :mod:`webtool.errors`) answer
+``{"detail": "..."}``: 409 nothing loaded yet, 413 upload too big, 422 bad input or an
+impossible edit, 503 the 3D view could not start.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Depends, Query, Request, WebSocket
+from fastapi import Path as PathParam
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import Response
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from drovisio.designer.model import DesignError
+from webtool.designer.service import MODE_LABELS, DesignerService
+from webtool.errors import ServiceError
+from webtool.responses import JSONResponse
+from webtool.services import get_service, service
+
+router = APIRouter(prefix="/api/designer", tags=["designer"])
+viewer_router = APIRouter(prefix="/designer/3d", tags=["designer"])
+
+NO_STORE = {"Cache-Control": "no-store"}
+LONG_POLL_S = 4.0
+Designer = Annotated[DesignerService, Depends(service("designer"))]
+MM = 1000.0
+
+
+class Body(BaseModel):
+    """Every body: no unknown fields, finite numbers only."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+Size = Annotated[float, Field(gt=0, le=5000)]          # millimetres
+Angle = Annotated[float, Field(ge=-3600, le=3600)]      # degrees
+Coord = Annotated[float, Field(ge=-1e6, le=1e6)]
+Whole = Annotated[int, Field(ge=0, le=1_000_000)]
+
+
+class OpenBody(Body):
+    example: Annotated[str, Field(min_length=1, max_length=300)]
+
+
+class UnitsBody(Body):
+    units: Literal["mm", "cm", "m"]
+
+
+class FrameBody(Body):
+    action: Literal["origin_top_centre", "align_x", "turn", "flip", "reset"]
+    angle_deg: Angle = 90.0
+
+
+class ModeBody(Body):
+    mode: Literal["code", "dot", "select", "origin"]
+
+
+class ClickBody(Body):
+    origin: tuple[Coord, Coord, Coord]
+    direction: tuple[Coord, Coord, Coord]
+
+    @field_validator("direction")
+    @classmethod
+    def _not_zero(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if math.hypot(*v) < 1e-12:
+            raise ValueError("a click direction must not be zero")
+        return v
+
+
+class SelectBody(Body):
+    index: Whole | None = None
+
+
+class MarkerBody(Body):
+    size_mm: Size | None = None
+    color: Annotated[str, Field(min_length=1, max_length=40)] | None = None
+    slot: Annotated[int, Field(ge=0, le=10_000)] | None = None
+    rotate_deg: Angle | None = None
+    nudge_mm: tuple[Annotated[float, Field(ge=-5000, le=5000)],
+                    Annotated[float, Field(ge=-5000, le=5000)]] | None = None
+    centre: bool = False
+
+
+class DefaultsBody(Body):
+    code_size_mm: Size | None = None
+    dot_diameter_mm: Size | None = None
+    dot_color: Annotated[str, Field(min_length=1, max_length=40)] | None = None
+    grid_mm: Annotated[float, Field(ge=0, le=5000)] | None = None
+    snap_mm: Annotated[float, Field(ge=0, le=5000)] | None = None
+
+
+AutoInt = Whole | Literal["auto", ""] | None
+
+
+class LayoutBody(Body):
+    name: Annotated[str, Field(max_length=100)] | None = None
+    description: Annotated[str, Field(max_length=2000)] | None = None
+    first_id: AutoInt = None
+    ids_per_instance: AutoInt = None
+    instances: AutoInt = None
+    symmetry: Literal["none", "rot180_z"] | None = None
+    family: Annotated[str, Field(max_length=40)] | None = None
+
+
+class FixAction(Body):
+    op: Annotated[str, Field(min_length=1, max_length=40)]
+    marker: Whole | None = None
+    markers: Annotated[list[Whole], Field(min_length=1, max_length=200)] | None = None
+    color: Annotated[str, Field(max_length=40)] | None = None
+    size: Annotated[float, Field(gt=0, le=5)] | None = None
+    value: Annotated[str, Field(max_length=40)] | Whole | None = None
+    units: Literal["mm", "cm", "m"] | None = None
+
+
+class FixBody(Body):
+    action: FixAction
+
+
+class SaveBody(Body):
+    overwrite: bool = False
+
+
+# ------------------------------------------------------------------------------ helpers
+
+
+def _state(designer: DesignerService, extra: dict | None = None) -> JSONResponse:
+    data = designer.state()
+    if extra:
+        data.update(extra)
+    return JSONResponse(data, headers=NO_STORE)
+
+
+def _need_mesh(designer: DesignerService) -> None:
+    if not designer.doc.has_mesh:
+        raise ServiceError("No 3D model loaded yet: upload one or open an example first.", 409)
+
+
+def _do(designer: DesignerService, fn, message: str | None = None,
+        need_mesh: bool = True) -> JSONResponse:
+    if need_mesh:
+        _need_mesh(designer)
+    designer.edit(fn, message)
+    return _state(designer)
+
+
+# ------------------------------------------------------------------------------ state
+
+
+@router.get("/state")
+async def state(designer: Designer,
+                after: Annotated[int | None, Query(ge=0)] = None) -> JSONResponse:
+    if after is not None:
+        await designer.wait_for_change_async(after, LONG_POLL_S)
+    return _state(designer)
+
+
+@router.get("/viewer")
+def viewer(designer: Designer) -> JSONResponse:
+    try:
+        v = designer.viewer()
+    except (DesignError, OSError) as e:
+        raise ServiceError(f"The 3D view could not start ({e}). Reload the page.", 503) \
+            from None
+    return JSONResponse({"url": "/designer/3d/", "port": v.port}, headers=NO_STORE)
+
+
+# ------------------------------------------------------------------------------ 3D proxy
+
+
+@viewer_router.get("/{path:path}")
+async def viewer_client(request: Request, path: str = "") -> Response:
+    from webtool.viewer.proxy import client_response
+
+    return await client_response(request, path)
+
+
+@viewer_router.websocket("")
+async def viewer_socket(ws: WebSocket) -> None:
+    from webtool.access import access_level
+    from webtool.viewer.proxy import proxy_socket
+
+    if access_level(ws) != "full":
+        await ws.close(code=1008)      # view-only links cannot edit the design
+        return
+    designer: DesignerService = get_service(ws.app, "designer")
+    try:
+        v = await run_in_threadpool(designer.viewer)
+    except (DesignError, OSError):
+        await ws.close(code=1011)
+        return
+    await proxy_socket(ws, v.port)
+
+
+# ------------------------------------------------------------------------------ mesh
+
+
+def _too_big(size: int, limit: int, claimed: bool) -> ServiceError:
+    mb = size / (1024 * 1024)
+    what = f"is {mb:.0f} MB" if claimed else f"is more than {limit / (1024 * 1024):.0f} MB"
+    return ServiceError(f"This file {what}; the limit is {limit / (1024 * 1024):.0f} MB. "
+                        "Simplify the model in your CAD program (fewer triangles, e.g. "
+                        "'decimate' or a coarser STL export) and upload it again.", 413)
+
+
+@router.post("/mesh")
+async def upload_mesh(request: Request, designer: Designer,
+                      filename: Annotated[str, Query(min_length=1, max_length=255)],
+                      units: Literal["auto", "mm", "cm", "m"] = "auto") -> JSONResponse:
+    """Upload a mesh as the raw request body. The size is checked from Content-Length before
+    anything is read, and again while streaming (for uploads without a length)."""
+    limit = designer.max_upload_bytes
+    claimed = request.headers.get("content-length")
+    if claimed is not None:
+        try:
+            n = int(claimed)
+        except ValueError:
+            raise ServiceError("Bad Content-Length header.", 400) from None
+        if n > limit:
+            raise _too_big(n, limit, True)
+    buf = bytearray()
+    async for chunk in request.stream():
+        buf += chunk
+        if len(buf) > limit:
+            raise _too_big(len(buf), limit, False)
+    await run_in_threadpool(designer.load_mesh, bytes(buf), filename, units)
+    return _state(designer)
+
+
+@router.post("/open")
+def open_example(designer: Designer, body: OpenBody) -> JSONResponse:
+    designer.open_example(body.example)
+    return _state(designer)
+
+
+@router.post("/units")
+def set_units(designer: Designer, body: UnitsBody) -> JSONResponse:
+    names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
+    return _do(designer, lambda d: d.set_units(body.units),
+               f"The model's numbers are now read as {names[body.units]}.")
+
+
+@router.post("/frame")
+def set_frame(designer: Designer, body: FrameBody) -> JSONResponse:
+    def run(d):
+        if body.action == "origin_top_centre":
+            d.origin_to_top_centre()
+        elif body.action == "align_x":
+            if not d.align_x_with_longest_edge():
+                raise DesignError("the model has no straight horizontal edge to align x with")
+        elif body.action == "turn":
+            d.turn_frame(body.angle_deg)
+        elif body.action == "flip":
+            d.flip_frame()
+        else:
+            d.reset_frame()
+
+    messages = {"origin_top_centre": "Origin moved to the centre of the top of the model.",
+                "align_x": "x now runs along the longest horizontal edge.",
+                "turn": f"Axes turned by {body.angle_deg:g}° about z.",
+                "flip": "Axes turned upside down.", "reset": "Axes back to the file's own."}
+    return _do(designer, run, messages[body.action])
+
+
+@router.post("/mode")
+def set_mode(designer: Designer, body: ModeBody) -> JSONResponse:
+    return _do(designer, lambda d: d.set_mode(body.mode),
+               f"A click on the model now does: {MODE_LABELS[body.mode]}.", need_mesh=False)
+
+
+@router.post("/click")
+def click(designer: Designer, body: ClickBody) -> JSONResponse:
+    res = designer.click(list(body.origin), list(body.direction))
+    return _state(designer, {"click": {"action": res.action, "message": res.message,
+                                       "marker": res.marker}})
+
+
+@router.post("/select")
+def select(designer: Designer, body: SelectBody) -> JSONResponse:
+    return _do(designer, lambda d: d.select(body.index))
+
+
+@router.post("/markers/{index}")
+def edit_marker(designer: Designer, index: Annotated[int, PathParam(ge=0, le=1_000_000)],
+                body: MarkerBody) -> JSONResponse:
+    def run(d):
+        d.select(index)
+        if body.size_mm is not None or body.color is not None or body.slot is not None:
+            d.set_marker(index, size=None if body.size_mm is None else body.size_mm / MM,
+                         color=body.color, slot=body.slot)
+        if body.rotate_deg:
+            d.rotate_marker(index, body.rotate_deg)
+        if body.nudge_mm:
+            d.nudge_marker(index, body.nudge_mm[0] / MM, body.nudge_mm[1] / MM)
+        if body.centre:
+            d.centre_marker(index)
+
+    return _do(designer, run)
+
+
+@router.delete("/markers/{index}")
+def delete_marker(designer: Designer, index: Annotated[int, PathParam(ge=0, le=1_000_000)]
+                  ) -> JSONResponse:
+    return _do(designer, lambda d: d.delete_marker(index), "Marker deleted.")
+
+
+@router.post("/defaults")
+def set_defaults(designer: Designer, body: DefaultsBody) -> JSONResponse:
+    def mm(v: float | None) -> float | None:
+        return None if v is None else v / MM
+
+    kw = dict(code_size=mm(body.code_size_mm), dot_diameter=mm(body.dot_diameter_mm),
+              dot_color=body.dot_color, grid=mm(body.grid_mm), snap_radius=mm(body.snap_mm))
+    return _do(designer, lambda d: d.set_defaults(**kw), need_mesh=False)
+
+
+@router.post("/layout")
+def set_layout(designer: Designer, body: LayoutBody) -> JSONResponse:
+    given = body.model_fields_set
+
+    def num(key: str) -> Any:
+        if key not in given:
+            return "keep"
+        v = getattr(body, key)
+        return None if v in (None, "", "auto") else int(v)
+
+    def run(d):
+        inst = num("instances")
+        d.set_layout_fields(name=body.name, description=body.description,
+                            first_id=num("first_id"), ids_per_instance=num("ids_per_instance"),
+                            instances=None if inst in ("keep", None) else inst,
+                            symmetry=body.symmetry, code_family=body.family)
+
+    return _do(designer, run)
+
+
+@router.post("/fix")
+def fix(designer: Designer, body: FixBody) -> JSONResponse:
+    _need_mesh(designer)
+    designer.apply_fix(body.action.model_dump(exclude_unset=True))
+    return _state(designer)
+
+
+@router.post("/undo")
+def undo(designer: Designer) -> JSONResponse:
+    return _do(designer, lambda d: d.undo() or None, "Undone.", need_mesh=False)
+
+
+@router.post("/redo")
+def redo(designer: Designer) -> JSONResponse:
+    return _do(designer, lambda d: d.redo() or None, "Redone.", need_mesh=False)
+
+
+@router.post("/save")
+def save(designer: Designer, body: SaveBody | None = None) -> JSONResponse:
+    _need_mesh(designer)
+    saved = designer.save(overwrite=bool(body and body.overwrite))
+    return _state(designer, {"saved": {"layout": str(saved.layout_path),
+                                       "mesh": str(saved.mesh_path)}})
+
+
+# ------------------------------------------------------------------------------ export
+
+
+def _export(designer: DesignerService, fn):
+    _need_mesh(designer)
+    with designer.lock:
+        doc = designer.doc.copy()
+    return fn(doc)
+
+
+def _download(data: bytes | str, media: str, filename: str) -> Response:
+    return Response(data, media_type=media, headers={
+        **NO_STORE, "Content-Disposition": f'attachment; filename="{filename}"'})
+
+
+def _valid(designer: DesignerService, doc) -> None:
+    from drovisio.designer.checks import blocking, check_design
+
+    errors = blocking(check_design(doc, designer.camera))
+    if errors:
+        raise DesignError("Fix these problems first: " + " ".join(f.message for f in errors))
+
+
+@router.get("/export/layout.json")
+def export_layout(designer: Designer) -> Response:
+    from drovisio.designer.export import build_layout
+
+    def run(doc):
+        _valid(designer, doc)
+        return build_layout(doc).to_json()
+
+    return _download(_export(designer, run), "application/json", f"{designer.doc.name}.json")
+
+
+@router.get("/export/mesh.stl")
+def export_mesh(designer: Designer) -> Response:
+    from drovisio.designer.export import mesh_stl_bytes
+
+    return _download(_export(designer, mesh_stl_bytes), "model/stl", f"{designer.doc.name}.stl")
+
+
+@router.get("/export/brick.glb")
+def export_glb(designer: Designer) -> Response:
+    from drovisio.designer.export import export_glb as glb
+
+    return _download(_export(designer, glb), "model/gltf-binary", f"{designer.doc.name}.glb")
+
+
+@router.get("/export/sheet.pdf")
+def export_pdf(designer: Designer) -> Response:
+    from drovisio.designer.export import print_sheet_pdf
+
+    return _download(_export(designer, print_sheet_pdf), "application/pdf",
+                     f"{designer.doc.name}-print-sheet.pdf")
+
+
+@router.get("/export/sheet.svg")
+def export_svg(designer: Designer, page: Annotated[int, Query(ge=1, le=1000)] = 1) -> Response:
+    from drovisio.designer.export import print_sheet_svg
+
+    return _download(_export(designer, lambda d: print_sheet_svg(d, page)), "image/svg+xml",
+                     f"{designer.doc.name}-print-sheet-{page}.svg")
+
+
+@router.post("/verify")
+def verify(designer: Designer) -> JSONResponse:
+    """Render one brick of the current design and detect it (see
+    :func:`drovisio.designer.verify.verify_layout`)."""
+    import base64
+    import tempfile
+    from pathlib import Path
+
+    import cv2
+
+    from drovisio.designer.export import save_design
+    from drovisio.designer.verify import verify_layout
+    from drovisio.layout import load_layout
+
+    def run(doc):
+        _valid(designer, doc)
+        with tempfile.TemporaryDirectory(prefix="drovisio-verify-") as tmp:
+            saved = save_design(doc, Path(tmp))
+            results, image = verify_layout(load_layout(saved.layout_path),
+                                           camera=designer.camera)
+        ok, jpg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        return {"results": [r.to_json() for r in results],
+                "image": "data:image/jpeg;base64," + base64.b64encode(jpg.tobytes()).decode()}
+
+    return JSONResponse(_export(designer, run), headers=NO_STORE)

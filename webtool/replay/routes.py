@@ -1,0 +1,110 @@
+"""Replay of simulated mission recordings (:mod:`webtool.replay.service`), on the live page.
+
+=========  ========================  ==========================================================
+GET        /api/replay/runs          the recordings in ``Settings.replay_dir`` (404 without one)
+POST       /api/replay/load          ``{"name": FOLDER}`` or ``{"path": DIR}`` (inside
+                                     replay_dir; any other folder is refused)
+POST       /api/replay/play          start (or restart at the end) the playback
+POST       /api/replay/pause         stop the clock
+POST       /api/replay/seek          ``{"t": seconds}``
+POST       /api/replay/speed         ``{"x": factor}`` (0.05 to 64)
+GET        /api/replay/state         t, duration, playing, speed, state of the machine, drone
+                                     pose and setpoint, events so far (count and the last
+                                     ones in plain words), placed bricks
+GET        /api/replay/scene         ``{"url": "/replay/3d/"}`` (starts the replay's viser)
+GET        /replay/3d/               the viser client of the replay scene, through this app
+WebSocket  /replay/3d                …and its WebSocket, proxied to the viser server
+=========  ========================  ==========================================================
+
+Every POST is a write: the access middleware refuses it to viewer tokens and other sites.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated
+
+from fastapi import APIRouter, Depends
+from pydantic import BaseModel, ConfigDict, Field
+
+from webtool.errors import ServiceError
+from webtool.replay.service import ReplayService
+from webtool.responses import JSONResponse
+from webtool.services import get_service, service
+from webtool.viewer.proxy import viewer_router as viewer_router_for
+
+router = APIRouter(prefix="/api/replay", tags=["replay"])
+async def _scene(conn):
+    return await asyncio.to_thread(get_service(conn.app, "replay").start_scene)
+
+
+# the viser client and its WebSocket, through this app (same client files as /live/3d/)
+viewer_router = viewer_router_for("/replay/3d", "replay", _scene)
+NO_STORE = {"Cache-Control": "no-store"}
+Replay = Annotated[ReplayService, Depends(service("replay"))]
+
+
+class Body(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class LoadBody(Body):
+    name: Annotated[str, Field(min_length=1, max_length=255)] | None = None
+    path: Annotated[str, Field(min_length=1, max_length=4096)] | None = None
+
+
+class SeekBody(Body):
+    t: Annotated[float, Field(ge=0)]      # seconds; past the end means the end
+
+
+class SpeedBody(Body):
+    x: Annotated[float, Field(ge=0.05, le=64)]
+
+
+async def _call(fn, *args) -> JSONResponse:
+    return JSONResponse(await asyncio.to_thread(fn, *args), headers=NO_STORE)
+
+
+@router.get("/runs")
+async def runs(svc: Replay) -> JSONResponse:
+    items = await asyncio.to_thread(svc.runs)
+    return JSONResponse({"folder": str(svc.folder()), "runs": items}, headers=NO_STORE)
+
+
+@router.post("/load")
+async def load(svc: Replay, body: LoadBody) -> JSONResponse:
+    return await _call(svc.load, body.name, body.path)
+
+
+@router.post("/play")
+async def play(svc: Replay) -> JSONResponse:
+    return await _call(svc.play)
+
+
+@router.post("/pause")
+async def pause(svc: Replay) -> JSONResponse:
+    return await _call(svc.pause)
+
+
+@router.post("/seek")
+async def seek(svc: Replay, body: SeekBody) -> JSONResponse:
+    return await _call(svc.seek, body.t)
+
+
+@router.post("/speed")
+async def speed(svc: Replay, body: SpeedBody) -> JSONResponse:
+    return await _call(svc.set_speed, body.x)
+
+
+@router.get("/state")
+async def state(svc: Replay) -> JSONResponse:
+    return await _call(svc.state)
+
+
+@router.get("/scene")
+async def scene(svc: Replay) -> JSONResponse:
+    sc = await asyncio.to_thread(svc.start_scene)
+    if sc is None or sc.port is None:
+        raise ServiceError("the 3D view is not available", 503)
+    return JSONResponse({"url": "/replay/3d/", "port": sc.port, "clients": sc.clients(),
+                         "updates": sc.updates}, headers=NO_STORE)
