@@ -302,42 +302,11 @@ class DesignerService:
             }
             if not doc.has_mesh:
                 return out
-            dims = doc.dimensions()
-            B = doc.brick_from_mesh
-            out["mesh"] = {
-                "name": doc.mesh_name, "units": doc.units, "units_guessed": doc.units_guessed,
-                "size_mm": [round(float(d) * 1000, 1) for d in dims],
-                "triangles": int(len(doc.mesh.faces)), "flat_faces": len(doc.faces),
-                "brick_from_mesh": [[round(float(v), 9) for v in row] for row in B],
-                "frame_is_file_frame": bool(np.allclose(B, np.eye(4))),
-                "source_layout": str(doc.source_layout) if doc.source_layout else None,
-            }
-            block = doc.id_block()
-            out["ids"] = {
-                "first_id": doc.effective_first_id() if doc.codes() else doc.first_id,
-                "first_id_auto": doc.first_id is None,
-                "ids_per_instance": doc.effective_ids_per_instance(),
-                "ipi_auto": doc.ids_per_instance is None,
-                "instances": doc.instances, "family": doc.code_family,
-                "dictionary": doc.dictionary(),
-                "block": [block.start, block.stop - 1] if block else None,
-            }
+            out["mesh"] = _mesh_json(doc)
+            out["ids"] = _ids_json(doc)
             out["layout"] = {"name": doc.name, "description": doc.description or "",
                              "symmetry": doc.symmetry}
-            first = doc.effective_first_id() if doc.codes() else 0
-            for i, m in enumerate(doc.brick_markers()):
-                item: dict[str, Any] = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
-                        "size_mm": round(m.size * 1000, 3),
-                        "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
-                        "normal": [round(v, 4) + 0.0 for v in m.normal],
-                        "on_face": doc.markers[i].face is not None}
-                if m.kind == "aruco" and m.slot is not None:
-                    item["slot"] = m.slot
-                    item["id"] = first + m.slot
-                elif m.color is not None:
-                    item["color"] = m.color
-                    item["rgb"] = list(doc.palette()[m.color].display_rgb())
-                out["markers"].append(item)
+            out["markers"] = _markers_json(doc)
             return out
 
     # ---------------------------------------------------------------- viewer
@@ -364,3 +333,52 @@ class DesignerService:
             self.changed.notify_all()
         if v is not None:
             v.close()
+
+
+def _mesh_json(doc: DesignDocument) -> dict[str, Any]:
+    """The loaded mesh: name, units, size (mm), triangles, flat faces, brick_from_mesh (4×4)."""
+    dims = doc.dimensions()
+    B = doc.brick_from_mesh
+    return {
+        "name": doc.mesh_name, "units": doc.units, "units_guessed": doc.units_guessed,
+        "size_mm": [round(float(d) * 1000, 1) for d in dims],
+        "triangles": int(len(doc.mesh.faces)), "flat_faces": len(doc.faces),
+        "brick_from_mesh": [[round(float(v), 9) for v in row] for row in B],
+        "frame_is_file_frame": bool(np.allclose(B, np.eye(4))),
+        "source_layout": str(doc.source_layout) if doc.source_layout else None,
+    }
+
+
+def _ids_json(doc: DesignDocument) -> dict[str, Any]:
+    """The code ids: first id, ids per instance, instances, family, dictionary, id block."""
+    block = doc.id_block()
+    return {
+        "first_id": doc.effective_first_id() if doc.codes() else doc.first_id,
+        "first_id_auto": doc.first_id is None,
+        "ids_per_instance": doc.effective_ids_per_instance(),
+        "ipi_auto": doc.ids_per_instance is None,
+        "instances": doc.instances, "family": doc.code_family,
+        "dictionary": doc.dictionary(),
+        "block": [block.start, block.stop - 1] if block else None,
+    }
+
+
+def _markers_json(doc: DesignDocument) -> list[dict[str, Any]]:
+    """Every marker in the brick frame: kind, label, size and centre (mm), normal; a code's
+    slot and id, a dot's colour."""
+    first = doc.effective_first_id() if doc.codes() else 0
+    out = []
+    for i, m in enumerate(doc.brick_markers()):
+        item: dict[str, Any] = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
+                                "size_mm": round(m.size * 1000, 3),
+                                "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
+                                "normal": [round(v, 4) + 0.0 for v in m.normal],
+                                "on_face": doc.markers[i].face is not None}
+        if m.kind == "aruco" and m.slot is not None:
+            item["slot"] = m.slot
+            item["id"] = first + m.slot
+        elif m.color is not None:
+            item["color"] = m.color
+            item["rgb"] = list(doc.palette()[m.color].display_rgb())
+        out.append(item)
+    return out
