@@ -34,18 +34,15 @@ from __future__ import annotations
 import json
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, File, Path, Query, Request, UploadFile
+from fastapi import APIRouter, File, Path, Query, Request, UploadFile
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 
-from webtool.calibration.service import CalibrationService
-from webtool.responses import JSONResponse
-from webtool.services import service
+from webtool.deps import CalibrationDep
+from webtool.responses import NO_STORE, JSONResponse
 
 router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 
-NO_STORE = {"Cache-Control": "no-store"}
-Calibration = Annotated[CalibrationService, Depends(service("calibration"))]
 ViewId = Annotated[int, Path(ge=0, le=1_000_000)]
 
 
@@ -71,12 +68,12 @@ class SessionBody(Body):
 
 
 @router.get("/state")
-def state(svc: Calibration) -> JSONResponse:
+def state(svc: CalibrationDep) -> JSONResponse:
     return JSONResponse(svc.state(), headers=NO_STORE)
 
 
 @router.get("/frame.jpg")
-def frame(svc: Calibration, after: Annotated[int, Query(ge=-1)] = -1) -> Response:
+def frame(svc: CalibrationDep, after: Annotated[int, Query(ge=-1)] = -1) -> Response:
     data, seq = svc.latest_frame(after, wait=1.0)
     if data is None:
         return JSONResponse({"detail": svc.camera_message or "no picture from the camera yet"},
@@ -85,50 +82,50 @@ def frame(svc: Calibration, after: Annotated[int, Query(ge=-1)] = -1) -> Respons
 
 
 @router.post("/auto")
-def auto(svc: Calibration, body: AutoBody) -> dict:
+def auto(svc: CalibrationDep, body: AutoBody) -> dict:
     svc.set_auto(body.on)
     return {"auto_capture": svc.auto_capture}
 
 
 @router.post("/capture")
-def capture(svc: Calibration) -> dict:
+def capture(svc: CalibrationDep) -> dict:
     return svc.capture()
 
 
 @router.get("/views/{view_id}/thumb.jpg")
-def thumb(svc: Calibration, view_id: ViewId) -> Response:
+def thumb(svc: CalibrationDep, view_id: ViewId) -> Response:
     return Response(svc.thumbnail(view_id), media_type="image/jpeg",
                     headers={"Cache-Control": "max-age=3600"})
 
 
 @router.delete("/views/{view_id}")
-def delete_view(svc: Calibration, view_id: ViewId) -> dict:
+def delete_view(svc: CalibrationDep, view_id: ViewId) -> dict:
     svc.delete_view(view_id)
     return {"deleted": view_id, "views": len(svc.session.views)}
 
 
 @router.post("/upload")
-def upload(svc: Calibration, files: Annotated[list[UploadFile], File()]) -> dict:
+def upload(svc: CalibrationDep, files: Annotated[list[UploadFile], File()]) -> dict:
     return svc.upload([(f.filename or "", f.file) for f in files])
 
 
 @router.post("/square")
-def square(svc: Calibration, body: SquareBody) -> dict:
+def square(svc: CalibrationDep, body: SquareBody) -> dict:
     return svc.set_square(body.square_m)
 
 
 @router.post("/lens")
-def lens(svc: Calibration, body: LensBody) -> dict:
+def lens(svc: CalibrationDep, body: LensBody) -> dict:
     return svc.set_lens_model(body.model)
 
 
 @router.post("/solve", status_code=202)
-def solve(svc: Calibration) -> dict:
+def solve(svc: CalibrationDep) -> dict:
     return svc.request_solve()
 
 
 @router.get("/result")
-def result(svc: Calibration, download: bool = False) -> Response:
+def result(svc: CalibrationDep, download: bool = False) -> Response:
     headers = dict(NO_STORE)
     if download:
         headers["Content-Disposition"] = (f'attachment; filename="calibration-report-'
@@ -138,12 +135,12 @@ def result(svc: Calibration, download: bool = False) -> Response:
 
 
 @router.get("/uncertainty.png")
-def uncertainty(svc: Calibration) -> Response:
+def uncertainty(svc: CalibrationDep) -> Response:
     return Response(svc.uncertainty_png(), media_type="image/png", headers=NO_STORE)
 
 
 @router.get("/camera-file")
-def camera_file(svc: Calibration,
+def camera_file(svc: CalibrationDep,
                 format: Literal["opencv", "ros", "json"] = "opencv") -> Response:  # noqa: A002
     data, name = svc.camera_file(format)
     media = "application/json" if format == "json" else "application/x-yaml"
@@ -152,7 +149,7 @@ def camera_file(svc: Calibration,
 
 
 @router.get("/board.pdf")
-def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
+def board_pdf(svc: CalibrationDep, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
     from drovisio.calibration.printout import board_pdf_bytes, print_square_mm
 
     board = svc.session.board
@@ -165,7 +162,7 @@ def board_pdf(svc: Calibration, paper: Literal["A4", "A3", "Letter"] = "A4") -> 
 
 
 @router.post("/use")
-def use(svc: Calibration, request: Request) -> dict:
+def use(svc: CalibrationDep, request: Request) -> dict:
     out = svc.use_result()
     # the live view uses the chosen calibration at once (if it was made already)
     live = getattr(request.app.state, "live", None)
@@ -175,7 +172,7 @@ def use(svc: Calibration, request: Request) -> dict:
 
 
 @router.post("/session")
-def new_session(svc: Calibration, body: SessionBody | None = None) -> dict:
+def new_session(svc: CalibrationDep, body: SessionBody | None = None) -> dict:
     body = body or SessionBody()
     svc.new_session(body.board, body.square_m)
     return {"session": svc.session_id, "folder": str(svc.folder),

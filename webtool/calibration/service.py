@@ -80,7 +80,7 @@ from webtool.calibration.upload import (
     upload_label,
     wrong_size,
 )
-from webtool.errors import ServiceError
+from webtool.errors import BadInput, Conflict, DiskFull, NotFound
 
 __all__ = [
     "SESSION_SCHEMA",
@@ -445,7 +445,7 @@ class CalibrationService:
         n = len(sess.views)
         need = sess.config.solve.min_views
         if n < need:
-            raise ServiceError(f"Keep going: a solve needs at least {need} views and you have "
+            raise Conflict(f"Keep going: a solve needs at least {need} views and you have "
                                f"{n}. Show the board at the place shown in yellow.")
         with self._lock:
             self.show_result = True
@@ -492,7 +492,7 @@ class CalibrationService:
             return self._thumbs[key]
         v = next((v for v in self.session.views if v.id == view_id), None)
         if v is None:
-            raise ServiceError(f"view #{view_id} is not in this session", 404)
+            raise NotFound(f"view #{view_id} is not in this session")
         try:
             img: np.ndarray | None = read_image(self.images_dir / store.safe_name(v.name))[0]
         except ImageError:
@@ -507,7 +507,7 @@ class CalibrationService:
             sess = self.session
             v = next((v for v in sess.views if v.id == view_id), None)
             if v is None or not sess.remove_view(view_id):
-                raise ServiceError(f"view #{view_id} is not in this session", 404)
+                raise NotFound(f"view #{view_id} is not in this session")
             store.move_to_deleted(self.folder, v.name)
             with self._lock:
                 self._gen += 1
@@ -548,8 +548,8 @@ class CalibrationService:
         with self._frame_cond:
             frame, at = self._latest_raw, self._latest_raw_at
         if frame is None or self._camera.state != "ok" or time.monotonic() - at > 3.0:
-            raise ServiceError("No picture from the camera right now, so nothing to capture. "
-                               + (self._camera.message or ""), 409)
+            raise Conflict("No picture from the camera right now, so nothing to capture. "
+                           + (self._camera.message or ""))
         with self._keep_lock:
             sess = self.session
             name = f"capture-{self._capture_counter:04d}.png"
@@ -557,15 +557,15 @@ class CalibrationService:
             dup = sess.duplicate_of(fr.detection) \
                 if fr.usable and fr.detection is not None else None
             if dup is not None:
-                raise ServiceError(f"This view is already kept (view #{dup}): move the board "
-                                   "first.", 409)
+                raise Conflict(f"This view is already kept (view #{dup}): move the board "
+                               "first.")
             fr = sess.keep(fr) if fr.usable else fr
             if not fr.kept:
-                raise ServiceError(frame_feedback(fr, False)["message"] + (
-                    f" ({'; '.join(fr.reasons)})" if fr.reasons else ""), 422)
+                raise BadInput(frame_feedback(fr, False)["message"] + (
+                    f" ({'; '.join(fr.reasons)})" if fr.reasons else ""))
             self._capture_counter += 1
             if not self._persist_view(sess, fr, png(frame)):
-                raise ServiceError(self._feedback["message"], 507)
+                raise DiskFull(self._feedback["message"])
         self._feedback = {**frame_feedback(fr, False), "_at": time.monotonic()}
         return {"view_id": fr.view_id, "message": f"Captured view #{fr.view_id}."}
 
@@ -618,7 +618,7 @@ class CalibrationService:
         if fr.usable and fr.detection is not None:
             with self._keep_lock:
                 if sess is not self.session:
-                    raise ServiceError("A new session was started during the upload.")
+                    raise Conflict("A new session was started during the upload.")
                 dup = sess.duplicate_of(fr.detection)
                 if dup is not None:
                     msg = f"already in this session (the same picture as view #{dup})"
@@ -643,7 +643,7 @@ class CalibrationService:
             b = parse_board(board or self.session.board.spec(),
                             square_m if square_m is not None else self.session.board.square)
         except BoardSpecError as e:
-            raise ServiceError(str(e), 422) from None
+            raise BadInput(str(e)) from None
         self._new_session(b)
 
     # ---------------------------------------------------------------------------- result
@@ -651,8 +651,8 @@ class CalibrationService:
         sess = self.session
         res = sess.result
         if res is None:
-            raise ServiceError(sess.last_error and f"The solve failed: {sess.last_error}"
-                               or "Not solved yet.", 404)
+            raise NotFound(sess.last_error and f"The solve failed: {sess.last_error}"
+                           or "Not solved yet.")
         key = (self.session_id, self._gen, self._result_seq, id(res))
         with self._lock:
             if self._report_cache is not None and self._report_cache[0] == key:
@@ -668,7 +668,7 @@ class CalibrationService:
     def uncertainty_png(self) -> bytes:
         res = self.session.result
         if res is None:
-            raise ServiceError("Not solved yet.", 404)
+            raise NotFound("Not solved yet.")
         key = (self.session_id, self._result_seq, id(res))
         with self._lock:
             if self._png_cache is not None and self._png_cache[0] == key:
@@ -684,10 +684,10 @@ class CalibrationService:
     def camera_file(self, fmt: str = "opencv") -> tuple[bytes, str]:
         res = self.session.result
         if res is None:
-            raise ServiceError("Not solved yet: there is no camera file to download.", 404)
+            raise NotFound("Not solved yet: there is no camera file to download.")
         ext = _CAMERA_SUFFIX.get(fmt)
         if ext is None:
-            raise ServiceError(f"unknown format {fmt!r}: use opencv, ros or json", 422)
+            raise BadInput(f"unknown format {fmt!r}: use opencv, ros or json")
         kind: CameraFormat = "opencv" if fmt == "opencv" else "ros" if fmt == "ros" else "json"
         with tempfile.TemporaryDirectory() as d:
             p = save_camera(res.camera, Path(d) / f"camera{ext}", fmt=kind)
@@ -698,7 +698,7 @@ class CalibrationService:
         """Make the last result the server's current camera (``settings.camera``)."""
         res = self.session.result
         if res is None:
-            raise ServiceError("Not solved yet: solve first, then use the calibration.", 409)
+            raise Conflict("Not solved yet: solve first, then use the calibration.")
         path = self.folder / "camera.yaml"
         save_camera(res.camera, path)
         save_camera(res.camera, self.folder / "camera.ros.yaml", fmt="ros")

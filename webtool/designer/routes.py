@@ -50,24 +50,23 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Query, Request, WebSocket
+from fastapi import APIRouter, Query, Request, WebSocket
 from fastapi import Path as PathParam
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from drovisio.designer.model import DesignError
+from webtool.deps import DesignerDep
 from webtool.designer.service import MODE_LABELS, DesignerService
-from webtool.errors import ServiceError
-from webtool.responses import JSONResponse
-from webtool.services import get_service, service
+from webtool.errors import Conflict, ServiceError, TooBig, Unavailable
+from webtool.responses import NO_STORE, JSONResponse
+from webtool.services import DESIGNER, get_service
 
 router = APIRouter(prefix="/api/designer", tags=["designer"])
 viewer_router = APIRouter(prefix="/designer/3d", tags=["designer"])
 
-NO_STORE = {"Cache-Control": "no-store"}
 LONG_POLL_S = 4.0
-Designer = Annotated[DesignerService, Depends(service("designer"))]
 MM = 1000.0
 
 
@@ -177,7 +176,7 @@ def _state(designer: DesignerService, extra: dict | None = None) -> JSONResponse
 
 def _need_mesh(designer: DesignerService) -> None:
     if not designer.doc.has_mesh:
-        raise ServiceError("No 3D model loaded yet: upload one or open an example first.", 409)
+        raise Conflict("No 3D model loaded yet: upload one or open an example first.")
 
 
 def _do(designer: DesignerService, fn, message: str | None = None,
@@ -192,7 +191,7 @@ def _do(designer: DesignerService, fn, message: str | None = None,
 
 
 @router.get("/state")
-async def state(designer: Designer,
+async def state(designer: DesignerDep,
                 after: Annotated[int | None, Query(ge=0)] = None) -> JSONResponse:
     if after is not None:
         await designer.wait_for_change_async(after, LONG_POLL_S)
@@ -200,11 +199,11 @@ async def state(designer: Designer,
 
 
 @router.get("/viewer")
-def viewer(designer: Designer) -> JSONResponse:
+def viewer(designer: DesignerDep) -> JSONResponse:
     try:
         v = designer.viewer()
     except (DesignError, OSError) as e:
-        raise ServiceError(f"The 3D view could not start ({e}). Reload the page.", 503) \
+        raise Unavailable(f"The 3D view could not start ({e}). Reload the page.") \
             from None
     return JSONResponse({"url": "/designer/3d/", "port": v.port}, headers=NO_STORE)
 
@@ -227,7 +226,7 @@ async def viewer_socket(ws: WebSocket) -> None:
     if access_level(ws) != "full":
         await ws.close(code=1008)      # view-only links cannot edit the design
         return
-    designer: DesignerService = get_service(ws.app, "designer")
+    designer = get_service(ws.app, DESIGNER)
     try:
         v = await run_in_threadpool(designer.viewer)
     except (DesignError, OSError):
@@ -242,13 +241,13 @@ async def viewer_socket(ws: WebSocket) -> None:
 def _too_big(size: int, limit: int, claimed: bool) -> ServiceError:
     mb = size / (1024 * 1024)
     what = f"is {mb:.0f} MB" if claimed else f"is more than {limit / (1024 * 1024):.0f} MB"
-    return ServiceError(f"This file {what}; the limit is {limit / (1024 * 1024):.0f} MB. "
+    return TooBig(f"This file {what}; the limit is {limit / (1024 * 1024):.0f} MB. "
                         "Simplify the model in your CAD program (fewer triangles, e.g. "
-                        "'decimate' or a coarser STL export) and upload it again.", 413)
+                        "'decimate' or a coarser STL export) and upload it again.")
 
 
 @router.post("/mesh")
-async def upload_mesh(request: Request, designer: Designer,
+async def upload_mesh(request: Request, designer: DesignerDep,
                       filename: Annotated[str, Query(min_length=1, max_length=255)],
                       units: Literal["auto", "mm", "cm", "m"] = "auto") -> JSONResponse:
     """Upload a mesh as the raw request body. The size is checked from Content-Length before
@@ -272,20 +271,20 @@ async def upload_mesh(request: Request, designer: Designer,
 
 
 @router.post("/open")
-def open_example(designer: Designer, body: OpenBody) -> JSONResponse:
+def open_example(designer: DesignerDep, body: OpenBody) -> JSONResponse:
     designer.open_example(body.example)
     return _state(designer)
 
 
 @router.post("/units")
-def set_units(designer: Designer, body: UnitsBody) -> JSONResponse:
+def set_units(designer: DesignerDep, body: UnitsBody) -> JSONResponse:
     names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
     return _do(designer, lambda d: d.set_units(body.units),
                f"The model's numbers are now read as {names[body.units]}.")
 
 
 @router.post("/frame")
-def set_frame(designer: Designer, body: FrameBody) -> JSONResponse:
+def set_frame(designer: DesignerDep, body: FrameBody) -> JSONResponse:
     def run(d):
         if body.action == "origin_top_centre":
             d.origin_to_top_centre()
@@ -307,25 +306,25 @@ def set_frame(designer: Designer, body: FrameBody) -> JSONResponse:
 
 
 @router.post("/mode")
-def set_mode(designer: Designer, body: ModeBody) -> JSONResponse:
+def set_mode(designer: DesignerDep, body: ModeBody) -> JSONResponse:
     return _do(designer, lambda d: d.set_mode(body.mode),
                f"A click on the model now does: {MODE_LABELS[body.mode]}.", need_mesh=False)
 
 
 @router.post("/click")
-def click(designer: Designer, body: ClickBody) -> JSONResponse:
+def click(designer: DesignerDep, body: ClickBody) -> JSONResponse:
     res = designer.click(list(body.origin), list(body.direction))
     return _state(designer, {"click": {"action": res.action, "message": res.message,
                                        "marker": res.marker}})
 
 
 @router.post("/select")
-def select(designer: Designer, body: SelectBody) -> JSONResponse:
+def select(designer: DesignerDep, body: SelectBody) -> JSONResponse:
     return _do(designer, lambda d: d.select(body.index))
 
 
 @router.post("/markers/{index}")
-def edit_marker(designer: Designer, index: Annotated[int, PathParam(ge=0, le=1_000_000)],
+def edit_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=1_000_000)],
                 body: MarkerBody) -> JSONResponse:
     def run(d):
         d.select(index)
@@ -343,13 +342,13 @@ def edit_marker(designer: Designer, index: Annotated[int, PathParam(ge=0, le=1_0
 
 
 @router.delete("/markers/{index}")
-def delete_marker(designer: Designer, index: Annotated[int, PathParam(ge=0, le=1_000_000)]
+def delete_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=1_000_000)]
                   ) -> JSONResponse:
     return _do(designer, lambda d: d.delete_marker(index), "Marker deleted.")
 
 
 @router.post("/defaults")
-def set_defaults(designer: Designer, body: DefaultsBody) -> JSONResponse:
+def set_defaults(designer: DesignerDep, body: DefaultsBody) -> JSONResponse:
     def mm(v: float | None) -> float | None:
         return None if v is None else v / MM
 
@@ -359,7 +358,7 @@ def set_defaults(designer: Designer, body: DefaultsBody) -> JSONResponse:
 
 
 @router.post("/layout")
-def set_layout(designer: Designer, body: LayoutBody) -> JSONResponse:
+def set_layout(designer: DesignerDep, body: LayoutBody) -> JSONResponse:
     given = body.model_fields_set
 
     def num(key: str) -> Any:
@@ -379,24 +378,24 @@ def set_layout(designer: Designer, body: LayoutBody) -> JSONResponse:
 
 
 @router.post("/fix")
-def fix(designer: Designer, body: FixBody) -> JSONResponse:
+def fix(designer: DesignerDep, body: FixBody) -> JSONResponse:
     _need_mesh(designer)
     designer.apply_fix(body.action.model_dump(exclude_unset=True))
     return _state(designer)
 
 
 @router.post("/undo")
-def undo(designer: Designer) -> JSONResponse:
+def undo(designer: DesignerDep) -> JSONResponse:
     return _do(designer, lambda d: d.undo() or None, "Undone.", need_mesh=False)
 
 
 @router.post("/redo")
-def redo(designer: Designer) -> JSONResponse:
+def redo(designer: DesignerDep) -> JSONResponse:
     return _do(designer, lambda d: d.redo() or None, "Redone.", need_mesh=False)
 
 
 @router.post("/save")
-def save(designer: Designer, body: SaveBody | None = None) -> JSONResponse:
+def save(designer: DesignerDep, body: SaveBody | None = None) -> JSONResponse:
     _need_mesh(designer)
     saved = designer.save(overwrite=bool(body and body.overwrite))
     return _state(designer, {"saved": {"layout": str(saved.layout_path),
@@ -427,7 +426,7 @@ def _valid(designer: DesignerService, doc) -> None:
 
 
 @router.get("/export/layout.json")
-def export_layout(designer: Designer) -> Response:
+def export_layout(designer: DesignerDep) -> Response:
     from drovisio.designer.export import build_layout
 
     def run(doc):
@@ -438,21 +437,21 @@ def export_layout(designer: Designer) -> Response:
 
 
 @router.get("/export/mesh.stl")
-def export_mesh(designer: Designer) -> Response:
+def export_mesh(designer: DesignerDep) -> Response:
     from drovisio.designer.export import mesh_stl_bytes
 
     return _download(_export(designer, mesh_stl_bytes), "model/stl", f"{designer.doc.name}.stl")
 
 
 @router.get("/export/brick.glb")
-def export_glb(designer: Designer) -> Response:
+def export_glb(designer: DesignerDep) -> Response:
     from drovisio.designer.export import export_glb as glb
 
     return _download(_export(designer, glb), "model/gltf-binary", f"{designer.doc.name}.glb")
 
 
 @router.get("/export/sheet.pdf")
-def export_pdf(designer: Designer) -> Response:
+def export_pdf(designer: DesignerDep) -> Response:
     from drovisio.designer.export import print_sheet_pdf
 
     return _download(_export(designer, print_sheet_pdf), "application/pdf",
@@ -460,7 +459,7 @@ def export_pdf(designer: Designer) -> Response:
 
 
 @router.get("/export/sheet.svg")
-def export_svg(designer: Designer, page: Annotated[int, Query(ge=1, le=1000)] = 1) -> Response:
+def export_svg(designer: DesignerDep, page: Annotated[int, Query(ge=1, le=1000)] = 1) -> Response:
     from drovisio.designer.export import print_sheet_svg
 
     return _download(_export(designer, lambda d: print_sheet_svg(d, page)), "image/svg+xml",
@@ -468,7 +467,7 @@ def export_svg(designer: Designer, page: Annotated[int, Query(ge=1, le=1000)] = 
 
 
 @router.post("/verify")
-def verify(designer: Designer) -> JSONResponse:
+def verify(designer: DesignerDep) -> JSONResponse:
     """Render one brick of the current design and detect it (see
     :func:`drovisio.designer.verify.verify_layout`)."""
     import base64

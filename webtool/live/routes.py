@@ -26,35 +26,23 @@ import asyncio
 import time
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisconnect
+from fastapi import APIRouter, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.requests import HTTPConnection
 
 from webtool.access import access_level
-from webtool.errors import ServiceError
-from webtool.live.service import LEVELS, LiveService
-from webtool.responses import JSONResponse, json_safe
-from webtool.services import get_service
+from webtool.deps import LiveStarted, started_live
+from webtool.errors import BadInput, Conflict, Forbidden, Unavailable
+from webtool.live.service import LEVELS
+from webtool.responses import NO_STORE, JSONResponse, json_safe
 from webtool.viewer.proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/live", tags=["live"])
-NO_STORE = {"Cache-Control": "no-store"}
-
-
-async def started(conn: HTTPConnection) -> LiveService:
-    """The app's live service, its pipeline running."""
-    svc: LiveService = get_service(conn.app, "live")
-    svc.touch()
-    await asyncio.to_thread(svc.ensure_started)
-    return svc
-
-
-Live = Annotated[LiveService, Depends(started)]
 
 
 async def _scene(conn: HTTPConnection):
-    svc = await started(conn)
+    svc = await started_live(conn)
     return await asyncio.to_thread(svc.start_scene)
 
 
@@ -68,47 +56,47 @@ class TargetBody(BaseModel):
 
 
 @router.get("/status")
-async def status(request: Request, svc: Live) -> JSONResponse:
+async def status(request: Request, svc: LiveStarted) -> JSONResponse:
     st = svc.status()
     st["access"] = access_level(request)
     return JSONResponse(st, headers=NO_STORE)
 
 
 @router.get("/bricks")
-async def bricks(svc: Live) -> JSONResponse:
+async def bricks(svc: LiveStarted) -> JSONResponse:
     return JSONResponse({"seq": svc.seq, "bricks": svc.bricks_json()}, headers=NO_STORE)
 
 
 @router.get("/frame.jpg")
-async def frame(svc: Live, level: Annotated[int, Query(ge=0, lt=len(LEVELS))] = 0) -> Response:
+async def frame(svc: LiveStarted, level: Annotated[int, Query(ge=0, lt=len(LEVELS))] = 0) -> Response:
     if svc.seq == 0:
         await svc.wait_frame(0, timeout=3.0)
     r = await asyncio.to_thread(svc.jpeg, level)
     if r is None:
-        raise ServiceError(svc.error or "no frame yet: the source is starting or lost", 503)
+        raise Unavailable(svc.error or "no frame yet: the source is starting or lost")
     seq, data = r
     return Response(data, media_type="image/jpeg",
                     headers={**NO_STORE, "X-Frame-Seq": str(seq)})
 
 
 @router.post("/target")
-async def target(request: Request, svc: Live, body: TargetBody) -> JSONResponse:
+async def target(request: Request, svc: LiveStarted, body: TargetBody) -> JSONResponse:
     if access_level(request) != "full":  # the middleware already refuses viewer writes
-        raise ServiceError("read-only access", 403)
+        raise Forbidden("read-only access")
     try:
         t = await asyncio.to_thread(svc.set_target, body.spec)
     except (ValueError, TypeError) as e:
-        raise ServiceError(f"bad target: {e}", 422) from None
+        raise BadInput(f"bad target: {e}") from None
     except RuntimeError as e:
-        raise ServiceError(str(e), 409) from None
+        raise Conflict(str(e)) from None
     return JSONResponse({"target": t}, headers=NO_STORE)
 
 
 @router.get("/scene")
-async def scene(svc: Live) -> JSONResponse:
+async def scene(svc: LiveStarted) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:
-        raise ServiceError("the 3D view is not available", 503)
+        raise Unavailable("the 3D view is not available")
     return JSONResponse({"url": "/live/3d/", "port": sc.port}, headers=NO_STORE)
 
 
@@ -119,7 +107,7 @@ async def scene(svc: Live) -> JSONResponse:
 
 @router.websocket("/ws")
 async def live_ws(ws: WebSocket) -> None:
-    svc = await started(ws)
+    svc = await started_live(ws)
     await ws.accept()
     vid, st = svc.add_viewer()
     access = access_level(ws)

@@ -23,27 +23,23 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Request, UploadFile
+from fastapi import APIRouter, File, Request, UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from drovisio.mount import MountAngles
-from webtool.errors import ServiceError
-from webtool.live.service import LiveService
-from webtool.mount.service import MountService
-from webtool.responses import JSONResponse
-from webtool.services import get_service, service
+from webtool.deps import LiveDep, MountDep
+from webtool.errors import Unavailable
+from webtool.responses import NO_STORE, JSONResponse
+from webtool.services import MOUNT, get_service
 from webtool.viewer.proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/mount", tags=["mount"])
 async def _scene(conn):
-    return await asyncio.to_thread(get_service(conn.app, "mount").start_scene)
+    return await asyncio.to_thread(get_service(conn.app, MOUNT).start_scene)
 
 
 viewer_router = viewer_router_for("/mount/3d", "mount", _scene)
 
-NO_STORE = {"Cache-Control": "no-store"}
-Mounts = Annotated[MountService, Depends(service("mount"))]
-Live = Annotated[LiveService, Depends(service("live"))]
 
 
 class Body(BaseModel):
@@ -64,17 +60,17 @@ async def _call(fn, *args) -> JSONResponse:
 
 
 @router.get("")
-async def get_mount(svc: Mounts) -> JSONResponse:
+async def get_mount(svc: MountDep) -> JSONResponse:
     return await _call(svc.state)
 
 
 @router.post("/preview")
-async def preview(svc: Mounts, body: PreviewBody) -> JSONResponse:
+async def preview(svc: MountDep, body: PreviewBody) -> JSONResponse:
     return await _call(svc.preview, body.angles, body.height_m)
 
 
 @router.post("/save")
-async def save(svc: Mounts, request: Request) -> JSONResponse:
+async def save(svc: MountDep, request: Request) -> JSONResponse:
     out = await _call(svc.save)
     await asyncio.to_thread(_live_reconfigure, request)
     return out
@@ -88,21 +84,21 @@ def _live_reconfigure(request: Request) -> None:
 
 
 @router.post("/measure")
-def measure(svc: Mounts, files: Annotated[list[UploadFile], File()],
+def measure(svc: MountDep, files: Annotated[list[UploadFile], File()],
             aligned: bool = False) -> JSONResponse:
     got = svc.measure_pictures([(f.filename or "", f.file) for f in files], aligned)
     return JSONResponse(got, headers=NO_STORE)
 
 
 @router.post("/measure-live")
-def measure_live(svc: Mounts, live: Live, body: LiveBody) -> JSONResponse:
+def measure_live(svc: MountDep, live: LiveDep, body: LiveBody) -> JSONResponse:
     return JSONResponse(svc.measure_live(live, body.aligned), headers=NO_STORE)
 
 
 @router.get("/scene")
-async def scene(svc: Mounts) -> JSONResponse:
+async def scene(svc: MountDep) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:
-        raise ServiceError("the 3D preview is not available", 503)
+        raise Unavailable("the 3D preview is not available")
     return JSONResponse({"url": "/mount/3d/", "port": sc.port, "clients": sc.clients(),
                          "shown": sc.shown}, headers=NO_STORE)

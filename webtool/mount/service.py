@@ -21,7 +21,7 @@ import numpy as np
 from drovisio.errors import InputError
 from drovisio.images import ImageError, decode_image
 from drovisio.mount import Mount, MountAngles, down_camera_mount, ground_footprint, load_mount
-from webtool.errors import ServiceError
+from webtool.errors import Conflict
 
 __all__ = ["MountService", "mount_in_use"]
 
@@ -203,7 +203,7 @@ class MountService:
 
         live.ensure_started()
         if live.error:
-            raise ServiceError(f"the camera could not start: {live.error}", 409)
+            raise Conflict(f"the camera could not start: {live.error}")
         got: list[tuple[str, np.ndarray | str]] = []
         seen = -1
         deadline = time.monotonic() + timeout
@@ -214,8 +214,8 @@ class MountService:
                 got.append((f"live frame {seen}", latest[1]))
             time.sleep(0.05)
         if not got:
-            raise ServiceError("no frame from the camera in "
-                               f"{timeout:g} s: is it connected?", 409)
+            raise Conflict("no frame from the camera in "
+                           f"{timeout:g} s: is it connected?")
         camera = live.camera or self.camera()
         layouts = live.layouts or self._layouts()
         measured = measure_from_images(got, camera, layouts, aligned)

@@ -1,12 +1,10 @@
 """GET /api/health: is the tool up, which version, on which source."""
 
-from typing import Annotated
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Request
 from pydantic import BaseModel
 
-from webtool.deps import get_settings
-from webtool.settings import Settings
+from webtool.deps import CurrentSettings
 
 router = APIRouter(prefix="/api", tags=["health"])
 
@@ -19,7 +17,7 @@ class Health(BaseModel):
 
 
 @router.get("/health", response_model=Health)
-def health(request: Request, settings: Annotated[Settings, Depends(get_settings)]) -> Health:
+def health(request: Request, settings: CurrentSettings) -> Health:
     return Health(
         status="ok",
         version=request.app.version,

@@ -1,14 +1,13 @@
 """The HTML pages: the start page, the parts of the tool, and the field guide (Help)."""
 
 import re
-from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.templating import Jinja2Templates
 
 from drovisio.resources import docs_dir
-from webtool.deps import get_settings, get_templates
+from webtool.deps import CurrentSettings, Templates
 from webtool.settings import Settings
 
 router = APIRouter(tags=["pages"], default_response_class=HTMLResponse)
@@ -24,8 +23,6 @@ PAGES = {
     "/help": ("help.html", "Field guide"),
 }
 
-Templates = Annotated[Jinja2Templates, Depends(get_templates)]
-CurrentSettings = Annotated[Settings, Depends(get_settings)]
 
 
 def _render(request: Request, templates: Jinja2Templates, settings: Settings, path: str):

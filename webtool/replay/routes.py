@@ -24,24 +24,22 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter
 from pydantic import BaseModel, ConfigDict, Field
 
-from webtool.errors import ServiceError
-from webtool.replay.service import ReplayService
-from webtool.responses import JSONResponse
-from webtool.services import get_service, service
+from webtool.deps import ReplayDep
+from webtool.errors import Unavailable
+from webtool.responses import NO_STORE, JSONResponse
+from webtool.services import REPLAY, get_service
 from webtool.viewer.proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/replay", tags=["replay"])
 async def _scene(conn):
-    return await asyncio.to_thread(get_service(conn.app, "replay").start_scene)
+    return await asyncio.to_thread(get_service(conn.app, REPLAY).start_scene)
 
 
 # the viser client and its WebSocket, through this app (same client files as /live/3d/)
 viewer_router = viewer_router_for("/replay/3d", "replay", _scene)
-NO_STORE = {"Cache-Control": "no-store"}
-Replay = Annotated[ReplayService, Depends(service("replay"))]
 
 
 class Body(BaseModel):
@@ -66,45 +64,45 @@ async def _call(fn, *args) -> JSONResponse:
 
 
 @router.get("/runs")
-async def runs(svc: Replay) -> JSONResponse:
+async def runs(svc: ReplayDep) -> JSONResponse:
     items = await asyncio.to_thread(svc.runs)
     return JSONResponse({"folder": str(svc.folder()), "runs": items}, headers=NO_STORE)
 
 
 @router.post("/load")
-async def load(svc: Replay, body: LoadBody) -> JSONResponse:
+async def load(svc: ReplayDep, body: LoadBody) -> JSONResponse:
     return await _call(svc.load, body.name, body.path)
 
 
 @router.post("/play")
-async def play(svc: Replay) -> JSONResponse:
+async def play(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.play)
 
 
 @router.post("/pause")
-async def pause(svc: Replay) -> JSONResponse:
+async def pause(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.pause)
 
 
 @router.post("/seek")
-async def seek(svc: Replay, body: SeekBody) -> JSONResponse:
+async def seek(svc: ReplayDep, body: SeekBody) -> JSONResponse:
     return await _call(svc.seek, body.t)
 
 
 @router.post("/speed")
-async def speed(svc: Replay, body: SpeedBody) -> JSONResponse:
+async def speed(svc: ReplayDep, body: SpeedBody) -> JSONResponse:
     return await _call(svc.set_speed, body.x)
 
 
 @router.get("/state")
-async def state(svc: Replay) -> JSONResponse:
+async def state(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.state)
 
 
 @router.get("/scene")
-async def scene(svc: Replay) -> JSONResponse:
+async def scene(svc: ReplayDep) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:
-        raise ServiceError("the 3D view is not available", 503)
+        raise Unavailable("the 3D view is not available")
     return JSONResponse({"url": "/replay/3d/", "port": sc.port, "clients": sc.clients(),
                          "updates": sc.updates}, headers=NO_STORE)

@@ -12,37 +12,32 @@ GET      /study/reports/{name}/{file}      report.html or one of its figures
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
-from webtool.responses import JSONResponse
-from webtool.services import service
-from webtool.study.service import StudyService
+from webtool.deps import StudyDep
+from webtool.responses import NO_STORE, JSONResponse
 
 router = APIRouter(prefix="/api/study", tags=["study"])
 viewer_router = APIRouter(prefix="/study/reports", tags=["study"])
 
-NO_STORE = {"Cache-Control": "no-store"}
-Study = Annotated[StudyService, Depends(service("study"))]
 
 
 @router.get("/reports")
-def reports(svc: Study) -> JSONResponse:
+def reports(svc: StudyDep) -> JSONResponse:
     return JSONResponse({"folder": str(svc.folder), **svc.listing()}, headers=NO_STORE)
 
 
 @router.post("/start", status_code=202)
-def start(svc: Study) -> JSONResponse:
+def start(svc: StudyDep) -> JSONResponse:
     return JSONResponse(svc.start(), status_code=202, headers=NO_STORE)
 
 
 @router.get("/progress")
-def progress(svc: Study) -> JSONResponse:
+def progress(svc: StudyDep) -> JSONResponse:
     return JSONResponse(svc.progress, headers=NO_STORE)
 
 
 @viewer_router.get("/{name}/{file}")
-def report_file(svc: Study, name: str, file: str) -> FileResponse:
+def report_file(svc: StudyDep, name: str, file: str) -> FileResponse:
     return FileResponse(svc.report_file(name, file), headers=NO_STORE)
