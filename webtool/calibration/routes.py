@@ -36,8 +36,25 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Path, Query, Request, UploadFile
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, Field
 
+from drovisio.calibration.printout import board_pdf_bytes, print_square_mm
+from webtool.calibration.schemas import (
+    AutoBody,
+    AutoCapture,
+    CalibrationReport,
+    CalibrationState,
+    Captured,
+    InUse,
+    LensBody,
+    LensSet,
+    NewSession,
+    SessionBody,
+    SolveRequested,
+    SquareBody,
+    SquareSet,
+    UploadResult,
+    ViewDeleted,
+)
 from webtool.deps import CalibrationDep
 from webtool.responses import NO_STORE, JSONResponse
 
@@ -46,28 +63,7 @@ router = APIRouter(prefix="/api/calibration", tags=["calibration"])
 ViewId = Annotated[int, Path(ge=0, le=1_000_000)]
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class AutoBody(Body):
-    on: bool
-
-
-class LensBody(Body):
-    model: Literal["auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye"]
-
-
-class SquareBody(Body):
-    square_m: Annotated[float, Field(gt=0, le=1)]   # metres, as measured on the print
-
-
-class SessionBody(Body):
-    board: Annotated[str, Field(min_length=1, max_length=80)] | None = None
-    square_m: Annotated[float, Field(gt=0)] | None = None   # metres; the board checks more
-
-
-@router.get("/state")
+@router.get("/state", response_model=CalibrationState)
 def state(svc: CalibrationDep) -> JSONResponse:
     return JSONResponse(svc.state(), headers=NO_STORE)
 
@@ -81,15 +77,15 @@ def frame(svc: CalibrationDep, after: Annotated[int, Query(ge=-1)] = -1) -> Resp
     return Response(data, media_type="image/jpeg", headers={**NO_STORE, "X-Frame-Seq": str(seq)})
 
 
-@router.post("/auto")
-def auto(svc: CalibrationDep, body: AutoBody) -> dict:
+@router.post("/auto", response_model=AutoCapture)
+def auto(svc: CalibrationDep, body: AutoBody) -> JSONResponse:
     svc.set_auto(body.on)
-    return {"auto_capture": svc.auto_capture}
+    return JSONResponse({"auto_capture": svc.auto_capture})
 
 
-@router.post("/capture")
-def capture(svc: CalibrationDep) -> dict:
-    return svc.capture()
+@router.post("/capture", response_model=Captured)
+def capture(svc: CalibrationDep) -> JSONResponse:
+    return JSONResponse(svc.capture())
 
 
 @router.get("/views/{view_id}/thumb.jpg")
@@ -98,33 +94,33 @@ def thumb(svc: CalibrationDep, view_id: ViewId) -> Response:
                     headers={"Cache-Control": "max-age=3600"})
 
 
-@router.delete("/views/{view_id}")
-def delete_view(svc: CalibrationDep, view_id: ViewId) -> dict:
+@router.delete("/views/{view_id}", response_model=ViewDeleted)
+def delete_view(svc: CalibrationDep, view_id: ViewId) -> JSONResponse:
     svc.delete_view(view_id)
-    return {"deleted": view_id, "views": len(svc.session.views)}
+    return JSONResponse({"deleted": view_id, "views": len(svc.session.views)})
 
 
-@router.post("/upload")
-def upload(svc: CalibrationDep, files: Annotated[list[UploadFile], File()]) -> dict:
-    return svc.upload([(f.filename or "", f.file) for f in files])
+@router.post("/upload", response_model=UploadResult)
+def upload(svc: CalibrationDep, files: Annotated[list[UploadFile], File()]) -> JSONResponse:
+    return JSONResponse(svc.upload([(f.filename or "", f.file) for f in files]))
 
 
-@router.post("/square")
-def square(svc: CalibrationDep, body: SquareBody) -> dict:
-    return svc.set_square(body.square_m)
+@router.post("/square", response_model=SquareSet)
+def square(svc: CalibrationDep, body: SquareBody) -> JSONResponse:
+    return JSONResponse(svc.set_square(body.square_m))
 
 
-@router.post("/lens")
-def lens(svc: CalibrationDep, body: LensBody) -> dict:
-    return svc.set_lens_model(body.model)
+@router.post("/lens", response_model=LensSet)
+def lens(svc: CalibrationDep, body: LensBody) -> JSONResponse:
+    return JSONResponse(svc.set_lens_model(body.model))
 
 
-@router.post("/solve", status_code=202)
-def solve(svc: CalibrationDep) -> dict:
-    return svc.request_solve()
+@router.post("/solve", status_code=202, response_model=SolveRequested)
+def solve(svc: CalibrationDep) -> JSONResponse:
+    return JSONResponse(svc.request_solve(), status_code=202)
 
 
-@router.get("/result")
+@router.get("/result", response_model=CalibrationReport)
 def result(svc: CalibrationDep, download: bool = False) -> Response:
     headers = dict(NO_STORE)
     if download:
@@ -150,8 +146,6 @@ def camera_file(svc: CalibrationDep,
 
 @router.get("/board.pdf")
 def board_pdf(svc: CalibrationDep, paper: Literal["A4", "A3", "Letter"] = "A4") -> Response:
-    from drovisio.calibration.printout import board_pdf_bytes, print_square_mm
-
     board = svc.session.board
     square = print_square_mm(board, paper)
     data, _ = board_pdf_bytes(board, paper, square)
@@ -161,19 +155,19 @@ def board_pdf(svc: CalibrationDep, paper: Literal["A4", "A3", "Letter"] = "A4") 
                              "X-Square-mm": f"{square:g}"})
 
 
-@router.post("/use")
-def use(svc: CalibrationDep, request: Request) -> dict:
+@router.post("/use", response_model=InUse)
+def use(svc: CalibrationDep, request: Request) -> JSONResponse:
     out = svc.use_result()
     # the live view uses the chosen calibration at once (if it was made already)
     live = getattr(request.app.state, "live", None)
     if live is not None and hasattr(live, "reconfigure"):
         live.reconfigure()
-    return out
+    return JSONResponse(out)
 
 
-@router.post("/session")
-def new_session(svc: CalibrationDep, body: SessionBody | None = None) -> dict:
+@router.post("/session", response_model=NewSession)
+def new_session(svc: CalibrationDep, body: SessionBody | None = None) -> JSONResponse:
     body = body or SessionBody()
     svc.new_session(body.board, body.square_m)
-    return {"session": svc.session_id, "folder": str(svc.folder),
-            "board": svc.session.board.spec()}
+    return JSONResponse({"session": svc.session_id, "folder": str(svc.folder),
+                         "board": svc.session.board.spec()})

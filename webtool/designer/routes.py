@@ -47,121 +47,72 @@ impossible edit, 503 the 3D view could not start.
 
 from __future__ import annotations
 
-import math
+import base64
+import tempfile
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query, Request, WebSocket
+import cv2
+from fastapi import APIRouter, Query, Request
 from fastapi import Path as PathParam
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from starlette.requests import HTTPConnection
 
+from drovisio.designer.checks import blocking, check_design
+from drovisio.designer.export import (
+    build_layout,
+    export_glb,
+    mesh_stl_bytes,
+    print_sheet_pdf,
+    print_sheet_svg,
+    save_design,
+)
 from drovisio.designer.model import DesignError
+from drovisio.designer.verify import verify_layout
+from drovisio.layout import load_layout
 from webtool.deps import DesignerDep
+from webtool.designer.scene import DesignerScene
+from webtool.designer.schemas import (
+    ClickBody,
+    DefaultsBody,
+    DesignerState,
+    FixBody,
+    FrameBody,
+    LayoutBody,
+    MarkerBody,
+    ModeBody,
+    OpenBody,
+    SaveBody,
+    SelectBody,
+    UnitsBody,
+    Verification,
+)
 from webtool.designer.service import MODE_LABELS, DesignerService
 from webtool.errors import Conflict, ServiceError, TooBig, Unavailable
 from webtool.responses import NO_STORE, JSONResponse
+from webtool.schemas import SceneLink
 from webtool.services import DESIGNER, get_service
+from webtool.viewer.proxy import viewer_router as viewer_router_for
 
 router = APIRouter(prefix="/api/designer", tags=["designer"])
-viewer_router = APIRouter(prefix="/designer/3d", tags=["designer"])
 
 LONG_POLL_S = 4.0
 MM = 1000.0
 
 
-class Body(BaseModel):
-    """Every body: no unknown fields, finite numbers only."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-Size = Annotated[float, Field(gt=0, le=5000)]          # millimetres
-Angle = Annotated[float, Field(ge=-3600, le=3600)]      # degrees
-Coord = Annotated[float, Field(ge=-1e6, le=1e6)]
-Whole = Annotated[int, Field(ge=0, le=1_000_000)]
+async def _viewer(conn: HTTPConnection) -> DesignerScene | None:
+    """The designer's 3D view, started (None when it cannot start)."""
+    designer = get_service(conn.app, DESIGNER)
+    try:
+        return await run_in_threadpool(designer.viewer)
+    except (DesignError, OSError):
+        return None
 
 
-class OpenBody(Body):
-    example: Annotated[str, Field(min_length=1, max_length=300)]
-
-
-class UnitsBody(Body):
-    units: Literal["mm", "cm", "m"]
-
-
-class FrameBody(Body):
-    action: Literal["origin_top_centre", "align_x", "turn", "flip", "reset"]
-    angle_deg: Angle = 90.0
-
-
-class ModeBody(Body):
-    mode: Literal["code", "dot", "select", "origin"]
-
-
-class ClickBody(Body):
-    origin: tuple[Coord, Coord, Coord]
-    direction: tuple[Coord, Coord, Coord]
-
-    @field_validator("direction")
-    @classmethod
-    def _not_zero(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
-        if math.hypot(*v) < 1e-12:
-            raise ValueError("a click direction must not be zero")
-        return v
-
-
-class SelectBody(Body):
-    index: Whole | None = None
-
-
-class MarkerBody(Body):
-    size_mm: Size | None = None
-    color: Annotated[str, Field(min_length=1, max_length=40)] | None = None
-    slot: Annotated[int, Field(ge=0, le=10_000)] | None = None
-    rotate_deg: Angle | None = None
-    nudge_mm: tuple[Annotated[float, Field(ge=-5000, le=5000)],
-                    Annotated[float, Field(ge=-5000, le=5000)]] | None = None
-    centre: bool = False
-
-
-class DefaultsBody(Body):
-    code_size_mm: Size | None = None
-    dot_diameter_mm: Size | None = None
-    dot_color: Annotated[str, Field(min_length=1, max_length=40)] | None = None
-    grid_mm: Annotated[float, Field(ge=0, le=5000)] | None = None
-    snap_mm: Annotated[float, Field(ge=0, le=5000)] | None = None
-
-
-AutoInt = Whole | Literal["auto", ""] | None
-
-
-class LayoutBody(Body):
-    name: Annotated[str, Field(max_length=100)] | None = None
-    description: Annotated[str, Field(max_length=2000)] | None = None
-    first_id: AutoInt = None
-    ids_per_instance: AutoInt = None
-    instances: AutoInt = None
-    symmetry: Literal["none", "rot180_z"] | None = None
-    family: Annotated[str, Field(max_length=40)] | None = None
-
-
-class FixAction(Body):
-    op: Annotated[str, Field(min_length=1, max_length=40)]
-    marker: Whole | None = None
-    markers: Annotated[list[Whole], Field(min_length=1, max_length=200)] | None = None
-    color: Annotated[str, Field(max_length=40)] | None = None
-    size: Annotated[float, Field(gt=0, le=5)] | None = None
-    value: Annotated[str, Field(max_length=40)] | Whole | None = None
-    units: Literal["mm", "cm", "m"] | None = None
-
-
-class FixBody(Body):
-    action: FixAction
-
-
-class SaveBody(Body):
-    overwrite: bool = False
+# the 3D view edits the design: its socket needs full access; it starts with the socket
+viewer_router = viewer_router_for("/designer/3d", "designer", _viewer, full_access_only=True,
+                                  start_for_client=False)
 
 
 # ------------------------------------------------------------------------------ helpers
@@ -190,7 +141,7 @@ def _do(designer: DesignerService, fn, message: str | None = None,
 # ------------------------------------------------------------------------------ state
 
 
-@router.get("/state")
+@router.get("/state", response_model=DesignerState)
 async def state(designer: DesignerDep,
                 after: Annotated[int | None, Query(ge=0)] = None) -> JSONResponse:
     if after is not None:
@@ -198,7 +149,7 @@ async def state(designer: DesignerDep,
     return _state(designer)
 
 
-@router.get("/viewer")
+@router.get("/viewer", response_model=SceneLink)
 def viewer(designer: DesignerDep) -> JSONResponse:
     try:
         v = designer.viewer()
@@ -209,30 +160,6 @@ def viewer(designer: DesignerDep) -> JSONResponse:
 
 
 # ------------------------------------------------------------------------------ 3D proxy
-
-
-@viewer_router.get("/{path:path}")
-async def viewer_client(request: Request, path: str = "") -> Response:
-    from webtool.viewer.proxy import client_response
-
-    return await client_response(request, path)
-
-
-@viewer_router.websocket("")
-async def viewer_socket(ws: WebSocket) -> None:
-    from webtool.access import access_level
-    from webtool.viewer.proxy import proxy_socket
-
-    if access_level(ws) != "full":
-        await ws.close(code=1008)      # view-only links cannot edit the design
-        return
-    designer = get_service(ws.app, DESIGNER)
-    try:
-        v = await run_in_threadpool(designer.viewer)
-    except (DesignError, OSError):
-        await ws.close(code=1011)
-        return
-    await proxy_socket(ws, v.port)
 
 
 # ------------------------------------------------------------------------------ mesh
@@ -246,7 +173,7 @@ def _too_big(size: int, limit: int, claimed: bool) -> ServiceError:
                         "'decimate' or a coarser STL export) and upload it again.")
 
 
-@router.post("/mesh")
+@router.post("/mesh", response_model=DesignerState)
 async def upload_mesh(request: Request, designer: DesignerDep,
                       filename: Annotated[str, Query(min_length=1, max_length=255)],
                       units: Literal["auto", "mm", "cm", "m"] = "auto") -> JSONResponse:
@@ -270,20 +197,20 @@ async def upload_mesh(request: Request, designer: DesignerDep,
     return _state(designer)
 
 
-@router.post("/open")
+@router.post("/open", response_model=DesignerState)
 def open_example(designer: DesignerDep, body: OpenBody) -> JSONResponse:
     designer.open_example(body.example)
     return _state(designer)
 
 
-@router.post("/units")
+@router.post("/units", response_model=DesignerState)
 def set_units(designer: DesignerDep, body: UnitsBody) -> JSONResponse:
     names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
     return _do(designer, lambda d: d.set_units(body.units),
                f"The model's numbers are now read as {names[body.units]}.")
 
 
-@router.post("/frame")
+@router.post("/frame", response_model=DesignerState)
 def set_frame(designer: DesignerDep, body: FrameBody) -> JSONResponse:
     def run(d):
         if body.action == "origin_top_centre":
@@ -305,25 +232,25 @@ def set_frame(designer: DesignerDep, body: FrameBody) -> JSONResponse:
     return _do(designer, run, messages[body.action])
 
 
-@router.post("/mode")
+@router.post("/mode", response_model=DesignerState)
 def set_mode(designer: DesignerDep, body: ModeBody) -> JSONResponse:
     return _do(designer, lambda d: d.set_mode(body.mode),
                f"A click on the model now does: {MODE_LABELS[body.mode]}.", need_mesh=False)
 
 
-@router.post("/click")
+@router.post("/click", response_model=DesignerState)
 def click(designer: DesignerDep, body: ClickBody) -> JSONResponse:
     res = designer.click(list(body.origin), list(body.direction))
     return _state(designer, {"click": {"action": res.action, "message": res.message,
                                        "marker": res.marker}})
 
 
-@router.post("/select")
+@router.post("/select", response_model=DesignerState)
 def select(designer: DesignerDep, body: SelectBody) -> JSONResponse:
     return _do(designer, lambda d: d.select(body.index))
 
 
-@router.post("/markers/{index}")
+@router.post("/markers/{index}", response_model=DesignerState)
 def edit_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=1_000_000)],
                 body: MarkerBody) -> JSONResponse:
     def run(d):
@@ -341,13 +268,13 @@ def edit_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=
     return _do(designer, run)
 
 
-@router.delete("/markers/{index}")
+@router.delete("/markers/{index}", response_model=DesignerState)
 def delete_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=1_000_000)]
                   ) -> JSONResponse:
     return _do(designer, lambda d: d.delete_marker(index), "Marker deleted.")
 
 
-@router.post("/defaults")
+@router.post("/defaults", response_model=DesignerState)
 def set_defaults(designer: DesignerDep, body: DefaultsBody) -> JSONResponse:
     def mm(v: float | None) -> float | None:
         return None if v is None else v / MM
@@ -357,7 +284,7 @@ def set_defaults(designer: DesignerDep, body: DefaultsBody) -> JSONResponse:
     return _do(designer, lambda d: d.set_defaults(**kw), need_mesh=False)
 
 
-@router.post("/layout")
+@router.post("/layout", response_model=DesignerState)
 def set_layout(designer: DesignerDep, body: LayoutBody) -> JSONResponse:
     given = body.model_fields_set
 
@@ -377,24 +304,24 @@ def set_layout(designer: DesignerDep, body: LayoutBody) -> JSONResponse:
     return _do(designer, run)
 
 
-@router.post("/fix")
+@router.post("/fix", response_model=DesignerState)
 def fix(designer: DesignerDep, body: FixBody) -> JSONResponse:
     _need_mesh(designer)
     designer.apply_fix(body.action.model_dump(exclude_unset=True))
     return _state(designer)
 
 
-@router.post("/undo")
+@router.post("/undo", response_model=DesignerState)
 def undo(designer: DesignerDep) -> JSONResponse:
     return _do(designer, lambda d: d.undo() or None, "Undone.", need_mesh=False)
 
 
-@router.post("/redo")
+@router.post("/redo", response_model=DesignerState)
 def redo(designer: DesignerDep) -> JSONResponse:
     return _do(designer, lambda d: d.redo() or None, "Redone.", need_mesh=False)
 
 
-@router.post("/save")
+@router.post("/save", response_model=DesignerState)
 def save(designer: DesignerDep, body: SaveBody | None = None) -> JSONResponse:
     _need_mesh(designer)
     saved = designer.save(overwrite=bool(body and body.overwrite))
@@ -418,8 +345,6 @@ def _download(data: bytes | str, media: str, filename: str) -> Response:
 
 
 def _valid(designer: DesignerService, doc) -> None:
-    from drovisio.designer.checks import blocking, check_design
-
     errors = blocking(check_design(doc, designer.camera))
     if errors:
         raise DesignError("Fix these problems first: " + " ".join(f.message for f in errors))
@@ -427,8 +352,6 @@ def _valid(designer: DesignerService, doc) -> None:
 
 @router.get("/export/layout.json")
 def export_layout(designer: DesignerDep) -> Response:
-    from drovisio.designer.export import build_layout
-
     def run(doc):
         _valid(designer, doc)
         return build_layout(doc).to_json()
@@ -438,48 +361,30 @@ def export_layout(designer: DesignerDep) -> Response:
 
 @router.get("/export/mesh.stl")
 def export_mesh(designer: DesignerDep) -> Response:
-    from drovisio.designer.export import mesh_stl_bytes
-
     return _download(_export(designer, mesh_stl_bytes), "model/stl", f"{designer.doc.name}.stl")
 
 
 @router.get("/export/brick.glb")
-def export_glb(designer: DesignerDep) -> Response:
-    from drovisio.designer.export import export_glb as glb
-
-    return _download(_export(designer, glb), "model/gltf-binary", f"{designer.doc.name}.glb")
+def export_brick_glb(designer: DesignerDep) -> Response:
+    return _download(_export(designer, export_glb), "model/gltf-binary", f"{designer.doc.name}.glb")
 
 
 @router.get("/export/sheet.pdf")
 def export_pdf(designer: DesignerDep) -> Response:
-    from drovisio.designer.export import print_sheet_pdf
-
     return _download(_export(designer, print_sheet_pdf), "application/pdf",
                      f"{designer.doc.name}-print-sheet.pdf")
 
 
 @router.get("/export/sheet.svg")
 def export_svg(designer: DesignerDep, page: Annotated[int, Query(ge=1, le=1000)] = 1) -> Response:
-    from drovisio.designer.export import print_sheet_svg
-
     return _download(_export(designer, lambda d: print_sheet_svg(d, page)), "image/svg+xml",
                      f"{designer.doc.name}-print-sheet-{page}.svg")
 
 
-@router.post("/verify")
+@router.post("/verify", response_model=Verification)
 def verify(designer: DesignerDep) -> JSONResponse:
     """Render one brick of the current design and detect it (see
     :func:`drovisio.designer.verify.verify_layout`)."""
-    import base64
-    import tempfile
-    from pathlib import Path
-
-    import cv2
-
-    from drovisio.designer.export import save_design
-    from drovisio.designer.verify import verify_layout
-    from drovisio.layout import load_layout
-
     def run(doc):
         _valid(designer, doc)
         with tempfile.TemporaryDirectory(prefix="drovisio-verify-") as tmp:
