@@ -28,12 +28,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, Field
 from starlette.requests import HTTPConnection
 
 from webtool.access import access_level
 from webtool.deps import LiveStarted, started_live
 from webtool.errors import BadInput, Conflict, Forbidden, Unavailable
+from webtool.live.schemas import Bricks, LiveScene, LiveStatus, TargetBody, TargetSet
 from webtool.live.service import LEVELS
 from webtool.responses import NO_STORE, JSONResponse, json_safe
 from webtool.viewer.proxy import viewer_router as viewer_router_for
@@ -49,20 +49,14 @@ async def _scene(conn: HTTPConnection):
 viewer_router = viewer_router_for("/live/3d", "live", _scene)
 
 
-class TargetBody(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-    spec: Annotated[str, Field(min_length=1, max_length=200)]
-
-
-@router.get("/status")
+@router.get("/status", response_model=LiveStatus)
 async def status(request: Request, svc: LiveStarted) -> JSONResponse:
     st = svc.status()
     st["access"] = access_level(request)
     return JSONResponse(st, headers=NO_STORE)
 
 
-@router.get("/bricks")
+@router.get("/bricks", response_model=Bricks)
 async def bricks(svc: LiveStarted) -> JSONResponse:
     return JSONResponse({"seq": svc.seq, "bricks": svc.bricks_json()}, headers=NO_STORE)
 
@@ -79,7 +73,7 @@ async def frame(svc: LiveStarted, level: Annotated[int, Query(ge=0, lt=len(LEVEL
                     headers={**NO_STORE, "X-Frame-Seq": str(seq)})
 
 
-@router.post("/target")
+@router.post("/target", response_model=TargetSet)
 async def target(request: Request, svc: LiveStarted, body: TargetBody) -> JSONResponse:
     if access_level(request) != "full":  # the middleware already refuses viewer writes
         raise Forbidden("read-only access")
@@ -92,7 +86,7 @@ async def target(request: Request, svc: LiveStarted, body: TargetBody) -> JSONRe
     return JSONResponse({"target": t}, headers=NO_STORE)
 
 
-@router.get("/scene")
+@router.get("/scene", response_model=LiveScene)
 async def scene(svc: LiveStarted) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:

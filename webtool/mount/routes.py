@@ -24,11 +24,10 @@ import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, File, Request, UploadFile
-from pydantic import BaseModel, ConfigDict, Field
 
-from drovisio.mount import MountAngles
 from webtool.deps import LiveDep, MountDep
 from webtool.errors import Unavailable
+from webtool.mount.schemas import LiveBody, MountMeasured, MountScene, MountState, PreviewBody
 from webtool.responses import NO_STORE, JSONResponse
 from webtool.services import MOUNT, get_service
 from webtool.viewer.proxy import viewer_router as viewer_router_for
@@ -42,34 +41,21 @@ viewer_router = viewer_router_for("/mount/3d", "mount", _scene)
 
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class PreviewBody(Body):
-    angles: MountAngles
-    height_m: Annotated[float, Field(gt=0.05, le=100)] = 1.5   # metres above flat ground
-
-
-class LiveBody(Body):
-    aligned: bool = False
-
-
 async def _call(fn, *args) -> JSONResponse:
     return JSONResponse(await asyncio.to_thread(fn, *args), headers=NO_STORE)
 
 
-@router.get("")
+@router.get("", response_model=MountState)
 async def get_mount(svc: MountDep) -> JSONResponse:
     return await _call(svc.state)
 
 
-@router.post("/preview")
+@router.post("/preview", response_model=MountState)
 async def preview(svc: MountDep, body: PreviewBody) -> JSONResponse:
     return await _call(svc.preview, body.angles, body.height_m)
 
 
-@router.post("/save")
+@router.post("/save", response_model=MountState)
 async def save(svc: MountDep, request: Request) -> JSONResponse:
     out = await _call(svc.save)
     await asyncio.to_thread(_live_reconfigure, request)
@@ -83,19 +69,19 @@ def _live_reconfigure(request: Request) -> None:
         live.reconfigure()
 
 
-@router.post("/measure")
+@router.post("/measure", response_model=MountMeasured)
 def measure(svc: MountDep, files: Annotated[list[UploadFile], File()],
             aligned: bool = False) -> JSONResponse:
     got = svc.measure_pictures([(f.filename or "", f.file) for f in files], aligned)
     return JSONResponse(got, headers=NO_STORE)
 
 
-@router.post("/measure-live")
+@router.post("/measure-live", response_model=MountMeasured)
 def measure_live(svc: MountDep, live: LiveDep, body: LiveBody) -> JSONResponse:
     return JSONResponse(svc.measure_live(live, body.aligned), headers=NO_STORE)
 
 
-@router.get("/scene")
+@router.get("/scene", response_model=MountScene)
 async def scene(svc: MountDep) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:

@@ -2,18 +2,11 @@
 
 
 from fastapi import APIRouter, Request
-from pydantic import BaseModel
 
 from webtool.deps import CurrentSettings
+from webtool.pages.schemas import Health
 
 router = APIRouter(prefix="/api", tags=["health"])
-
-
-class Health(BaseModel):
-    status: str
-    version: str
-    source: str  # the --source given, or the sample session folder
-    sample: bool  # True when running on the built-in sample session
 
 
 @router.get("/health", response_model=Health)

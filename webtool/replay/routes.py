@@ -22,13 +22,19 @@ Every POST is a write: the access middleware refuses it to viewer tokens and oth
 from __future__ import annotations
 
 import asyncio
-from typing import Annotated
 
 from fastapi import APIRouter
-from pydantic import BaseModel, ConfigDict, Field
 
 from webtool.deps import ReplayDep
 from webtool.errors import Unavailable
+from webtool.replay.schemas import (
+    LoadBody,
+    ReplayRuns,
+    ReplayScene,
+    ReplayState,
+    SeekBody,
+    SpeedBody,
+)
 from webtool.responses import NO_STORE, JSONResponse
 from webtool.services import REPLAY, get_service
 from webtool.viewer.proxy import viewer_router as viewer_router_for
@@ -42,64 +48,47 @@ async def _scene(conn):
 viewer_router = viewer_router_for("/replay/3d", "replay", _scene)
 
 
-class Body(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-class LoadBody(Body):
-    name: Annotated[str, Field(min_length=1, max_length=255)] | None = None
-    path: Annotated[str, Field(min_length=1, max_length=4096)] | None = None
-
-
-class SeekBody(Body):
-    t: Annotated[float, Field(ge=0)]      # seconds; past the end means the end
-
-
-class SpeedBody(Body):
-    x: Annotated[float, Field(ge=0.05, le=64)]
-
-
 async def _call(fn, *args) -> JSONResponse:
     return JSONResponse(await asyncio.to_thread(fn, *args), headers=NO_STORE)
 
 
-@router.get("/runs")
+@router.get("/runs", response_model=ReplayRuns)
 async def runs(svc: ReplayDep) -> JSONResponse:
     items = await asyncio.to_thread(svc.runs)
     return JSONResponse({"folder": str(svc.folder()), "runs": items}, headers=NO_STORE)
 
 
-@router.post("/load")
+@router.post("/load", response_model=ReplayState)
 async def load(svc: ReplayDep, body: LoadBody) -> JSONResponse:
     return await _call(svc.load, body.name, body.path)
 
 
-@router.post("/play")
+@router.post("/play", response_model=ReplayState)
 async def play(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.play)
 
 
-@router.post("/pause")
+@router.post("/pause", response_model=ReplayState)
 async def pause(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.pause)
 
 
-@router.post("/seek")
+@router.post("/seek", response_model=ReplayState)
 async def seek(svc: ReplayDep, body: SeekBody) -> JSONResponse:
     return await _call(svc.seek, body.t)
 
 
-@router.post("/speed")
+@router.post("/speed", response_model=ReplayState)
 async def speed(svc: ReplayDep, body: SpeedBody) -> JSONResponse:
     return await _call(svc.set_speed, body.x)
 
 
-@router.get("/state")
+@router.get("/state", response_model=ReplayState)
 async def state(svc: ReplayDep) -> JSONResponse:
     return await _call(svc.state)
 
 
-@router.get("/scene")
+@router.get("/scene", response_model=ReplayScene)
 async def scene(svc: ReplayDep) -> JSONResponse:
     sc = await asyncio.to_thread(svc.start_scene)
     if sc is None or sc.port is None:

@@ -17,23 +17,24 @@ from fastapi.responses import FileResponse
 
 from webtool.deps import StudyDep
 from webtool.responses import NO_STORE, JSONResponse
+from webtool.study.schemas import StudyProgress, StudyReports
 
 router = APIRouter(prefix="/api/study", tags=["study"])
 viewer_router = APIRouter(prefix="/study/reports", tags=["study"])
 
 
 
-@router.get("/reports")
+@router.get("/reports", response_model=StudyReports)
 def reports(svc: StudyDep) -> JSONResponse:
     return JSONResponse({"folder": str(svc.folder), **svc.listing()}, headers=NO_STORE)
 
 
-@router.post("/start", status_code=202)
+@router.post("/start", status_code=202, response_model=StudyProgress)
 def start(svc: StudyDep) -> JSONResponse:
     return JSONResponse(svc.start(), status_code=202, headers=NO_STORE)
 
 
-@router.get("/progress")
+@router.get("/progress", response_model=StudyProgress)
 def progress(svc: StudyDep) -> JSONResponse:
     return JSONResponse(svc.progress, headers=NO_STORE)
 
