@@ -53,16 +53,11 @@ from drovisio.camera import Camera
 from drovisio.camera_file import load_camera, save_camera
 from drovisio.errors import InputError
 from drovisio.images import ImageError, read_image
-from drovisio.sources import FrameSource, Reader, SourceState
+from drovisio.sources import Reader
 from webtool.calibration import page_state, store
-from webtool.calibration.camera import (
-    BACKOFF_S,
-    CameraStatus,
-    FreshReader,
-    default_source_factory,
-    source_label,
-)
-from webtool.calibration.feedback import frame_feedback, next_step, plain_reason, saved_views
+from webtool.calibration.camera import default_source_factory, source_label
+from webtool.calibration.feed import CameraFeed
+from webtool.calibration.feedback import frame_feedback, next_step, plain_reason
 from webtool.calibration.pictures import decode, draw_corners, jpeg, png, thumbnail_jpeg
 from webtool.calibration.store import (
     SESSION_SCHEMA,
@@ -110,23 +105,12 @@ class CalibrationService:
                  idle_timeout: float = 45.0) -> None:
         self.settings = settings
         self.root = store.calibration_root(settings)
-        self._factory = source_factory or default_source_factory(settings)
-        self.idle_timeout = float(idle_timeout)
         self.source_key = source_label(settings)
         self._lock = threading.RLock()        # session swap, state file, caches
         self._keep_lock = threading.RLock()   # offering / adding views and persisting them
-        self._frame_cond = threading.Condition()
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._closed = False
-        self._last_request = time.monotonic()
-        self._camera = CameraStatus()
-        self._source_label = ""
-        self._latest_raw: np.ndarray | None = None
-        self._latest_raw_at = 0.0
-        self._latest_jpeg: bytes | None = None
-        self._frame_seq = 0
-        self._frame_size: tuple[int, int] | None = None
+        self._feed = CameraFeed(source_factory or default_source_factory(settings),
+                                self._process, lambda: len(self.session.views),
+                                self._read_error, idle_timeout)
         self._feedback: dict[str, Any] = frame_feedback(None, True)
         self._gen = 0                 # bumps whenever the kept views change
         self._result_seq = 0          # bumps whenever a solve finishes
@@ -262,96 +246,27 @@ class CalibrationService:
                 "lens_model": self.session.config.solve.model,
                 "used_camera": self.used_camera, "session": self.session.state()})
 
-    # ----------------------------------------------------------------------- worker thread
+    # ----------------------------------------------------------------------- camera
+    @property
+    def idle_timeout(self) -> float:
+        return self._feed.idle_timeout
+
     def touch(self) -> None:
         """A request came in: keep the camera running (start it if it was stopped)."""
-        self._last_request = time.monotonic()
-        if self._closed:
-            return
-        with self._lock:
-            if self._thread is None or not self._thread.is_alive():
-                self._stop.clear()
-                self._camera = CameraStatus("starting", "Starting the camera…", time.time())
-                self._thread = threading.Thread(target=self._run, daemon=True,
-                                                name="calibration-camera")
-                self._thread.start()
+        self._feed.touch()
 
     def close(self) -> None:
-        """Stop the worker and the session's solver (app shutdown)."""
-        self._closed = True
-        self._stop.set()
-        t = self._thread
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=5)
-        with self._frame_cond:
-            self._frame_cond.notify_all()
+        """Stop the camera and the session's solver (app shutdown)."""
+        self._feed.close()
         self.session.close()
 
     @property
     def camera_message(self) -> str:
         """What the camera is doing, for people ("Camera disconnected — retrying…")."""
-        return self._camera.message
+        return self._feed.message
 
-    def _set_camera(self, state: str, message: str) -> None:
-        with self._lock:
-            c = self._camera
-            if c.state != state:
-                self._camera = CameraStatus(state, message, time.time(),
-                                            c.failures if state == "disconnected" else 0)
-            else:
-                c.message = message
-
-    def _idle(self) -> bool:
-        return time.monotonic() - self._last_request > self.idle_timeout
-
-    def _run(self) -> None:
-        """The worker: frames from the camera to the session until nobody watches."""
-        reader = FreshReader(self._factory)
-        source = FrameSource(reader, pace="max", backoff=BACKOFF_S).start()
-        reported = 0  # losses already said on the page
-        try:
-            while not self._stop.is_set():
-                if self._idle():
-                    self._set_camera("stopped", "Camera paused: nobody is watching this page.")
-                    break
-                frame = source.get(timeout=0.25)
-                if frame is None:
-                    if source.state is SourceState.LOST and reader.losses != reported:
-                        reported = reader.losses
-                        self._lost(reader)
-                    continue
-                reported = reader.losses
-                if frame.image is None:   # one bad frame: not a lost camera
-                    continue
-                self._source_label = reader.label
-                if self._camera.state != "ok":
-                    self._set_camera("ok", "Camera connected.")
-                self._process(frame.image)
-        finally:
-            source.stop()
-            with self._frame_cond:
-                self._frame_cond.notify_all()
-
-    def _lost(self, reader: FreshReader) -> None:
-        """Say that the camera is lost (the frame source is reopening it)."""
-        if reader.read_error is not None:
-            self._feedback = {**self._feedback, "detail": reader.read_error}
-            reader.read_error = None
-        self._source_label = reader.label
-        with self._lock:
-            fails = self._camera.failures + 1
-        detail = f" ({reader.problem})" if reader.problem else ""
-        if self._frame_seq:
-            msg = f"Camera disconnected — retrying…{detail}."
-        else:
-            msg = (f"No picture from {self._source_label or 'the camera'} — retrying…{detail}. "
-                   "Check that the camera is plugged in.")
-        self._set_camera("disconnected", (msg + " " + saved_views(len(self.session.views)))
-                         .strip())
-        with self._lock:
-            self._camera.failures = fails
-        with self._frame_cond:
-            self._frame_cond.notify_all()
+    def _read_error(self, error: str) -> None:
+        self._feedback = {**self._feedback, "detail": error}
 
     def _offer(self, frame: np.ndarray) -> tuple[CalibrationSession, FrameResult | None, bool]:
         """Offer a camera frame to the session (kept when auto-capture is on and it passes
@@ -375,20 +290,16 @@ class CalibrationService:
         if fr is not None:
             draw_corners(annotated, sess.board, fr.detection,
                          (0, 220, 0) if fr.usable else (0, 140, 255))
-        data = jpeg(annotated)
-        with self._frame_cond:
-            self._latest_raw = frame
-            self._latest_raw_at = time.monotonic()
-            self._latest_jpeg = data
-            self._frame_seq += 1
-            self._frame_size = (frame.shape[1], frame.shape[0])
-            if fr is not None:
-                fb = frame_feedback(fr, auto)
-                # a capture message stays readable for a moment
-                if not (self._feedback.get("kept") and not fb["kept"]
-                        and time.monotonic() - self._feedback.get("_at", 0) < 1.5):
-                    self._feedback = {**fb, "_at": time.monotonic()}
-            self._frame_cond.notify_all()
+        self._feed.publish(frame, jpeg(annotated), lambda: self._show_feedback(fr, auto))
+
+    def _show_feedback(self, fr: FrameResult | None, auto: bool) -> None:
+        if fr is None:
+            return
+        fb = frame_feedback(fr, auto)
+        # a capture message stays readable for a moment
+        if not (self._feedback.get("kept") and not fb["kept"]
+                and time.monotonic() - self._feedback.get("_at", 0) < 1.5):
+            self._feedback = {**fb, "_at": time.monotonic()}
 
     def _persist_view(self, sess: CalibrationSession, fr: FrameResult, data: bytes) -> bool:
         """Write a just-kept view's image, then the state; on failure take the view back."""
@@ -545,11 +456,10 @@ class CalibrationService:
 
     def capture(self) -> dict[str, Any]:
         """Keep the current camera frame (the manual Capture button)."""
-        with self._frame_cond:
-            frame, at = self._latest_raw, self._latest_raw_at
-        if frame is None or self._camera.state != "ok" or time.monotonic() - at > 3.0:
+        frame, at = self._feed.latest()
+        if frame is None or self._feed.status.state != "ok" or time.monotonic() - at > 3.0:
             raise Conflict("No picture from the camera right now, so nothing to capture. "
-                           + (self._camera.message or ""))
+                           + (self._feed.message or ""))
         with self._keep_lock:
             sess = self.session
             name = f"capture-{self._capture_counter:04d}.png"
@@ -715,17 +625,7 @@ class CalibrationService:
     def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
         """The latest annotated frame (JPEG), waiting up to ``wait`` s for one newer than
         ``after``; (None, seq) when there is no live picture (camera lost or not started)."""
-        deadline = time.monotonic() + wait
-        with self._frame_cond:
-            while (self._frame_seq <= after and self._camera.state in ("ok", "starting")
-                   and not self._closed):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._frame_cond.wait(left)
-            if self._camera.state != "ok":
-                return None, self._frame_seq
-            return self._latest_jpeg, self._frame_seq
+        return self._feed.latest_frame(after, wait)
 
     def state(self) -> dict[str, Any]:
         """Everything the page shows (see ``GET /api/calibration/state``)."""
@@ -736,14 +636,14 @@ class CalibrationService:
         n = len(sess.views)
         current = sess.result_is_current
         good = bool(verdict.ok and current)
-        nxt = next_step(disconnected=self._camera.state == "disconnected", views=n,
+        nxt = next_step(disconnected=self._feed.status.state == "disconnected", views=n,
                         good=good, show_result=self.show_result, suggestion=sug)
         state = {
             "session": page_state.session_json(
-                sess, self.session_id, self.folder, self.created, self._source_label,
+                sess, self.session_id, self.folder, self.created, self._feed.source_label,
                 self.settings.source, square_measured=self.square_measured),
-            "camera": page_state.camera_json(self._camera, self._frame_seq,
-                                             sess.image_size or self._frame_size),
+            "camera": page_state.camera_json(self._feed.status, self._feed.seq,
+                                             sess.image_size or self._feed.frame_size),
             "auto_capture": self.auto_capture,
             "lens": {"model": sess.config.solve.model,
                      "solved_with": lens_key(res.camera) if res is not None else None,
