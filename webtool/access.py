@@ -338,7 +338,7 @@ def terminal_qr(text: str) -> str:
         import segno
     except ImportError:  # pragma: no cover - segno is a dependency
         return ""
-    import io
+    import io  # only for the terminal's QR codes
 
     qr = segno.make(text, error="m")
     buf = io.StringIO()

@@ -19,7 +19,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
 from webtool.access import AccessMiddleware
+from webtool.calibration import camera_in_use
 from webtool.errors import install_error_handlers
+from webtool.mount import mount_in_use
 from webtool.responses import JSONResponse
 from webtool.routes import calibration, designer, health, live, mount, pages, replay, study
 from webtool.services import lifespan
@@ -88,14 +90,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if settings.camera is None:
         # the calibration chosen on the calibration page ("Use this calibration") lasts
         # across restarts; a --camera given to `drovisio serve` takes precedence
-        from webtool.calibration import camera_in_use
-
         settings.camera = camera_in_use(settings)
     if settings.mount is None:
         # likewise the mount saved on the mount page (on the sample session too: what the
         # user saved is what the live view uses)
-        from webtool.mount import mount_in_use
-
         settings.mount = mount_in_use(settings)
     app = FastAPI(
         title="Drovisio web tool",

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drovisio.designer.export import code_image_rgb
 from drovisio.designer.model import (
     DesignDocument,
     DesignError,
@@ -73,7 +74,7 @@ class DesignerScene(ViserScene):
             self._mesh_version = doc.mesh_version
             self._rebuild_mesh(doc)
         B = doc.brick_from_mesh
-        from viser import transforms as vtf
+        from viser import transforms as vtf  # deferred: viser loads with the 3D view
 
         self.model.wxyz = vtf.SO3.from_matrix(B[:3, :3]).wxyz
         self.model.position = tuple(float(v) for v in B[:3, 3])
@@ -149,9 +150,7 @@ class DesignerScene(ViserScene):
 
     def _marker_nodes(self, i: int, m, dictionary, first: int, selected: bool, label: str,
                       pal) -> list:
-        from viser import transforms as vtf
-
-        from drovisio.designer.export import code_image_rgb
+        from viser import transforms as vtf  # deferred: viser loads with the 3D view
 
         scene = self.server.scene
         lift = 0.0006

@@ -21,6 +21,7 @@ import numpy as np
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.designer.checks import Finding, apply_fix, blocking, check_design
+from drovisio.designer.export import save_design
 from drovisio.designer.model import (
     MODES,
     ClickResult,
@@ -35,6 +36,7 @@ from drovisio.layout import (
     load_layout,
     shipped_layouts_dir,
 )
+from drovisio.meshes import shipped_mesh
 from drovisio.resources import user_data_dir
 from webtool.designer.scene import DesignerScene
 
@@ -175,8 +177,6 @@ class DesignerService:
     def open_example(self, example: str) -> None:
         kind, _, name = example.partition(":")
         if kind == "mesh":
-            from drovisio.meshes import shipped_mesh
-
             mesh = shipped_mesh(name)
             if mesh is None:
                 raise DesignError(f"no example model called {name!r}")
@@ -240,8 +240,6 @@ class DesignerService:
         self.edit(lambda doc: apply_fix(doc, action), "Fixed.")
 
     def save(self, overwrite: bool = False):
-        from drovisio.designer.export import save_design
-
         with self.lock:
             shipped = shipped_layouts_dir()
             if self.layouts_dir.resolve() == shipped.resolve():

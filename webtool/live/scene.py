@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from drovisio.geometry import quat_wxyz
+from drovisio.meshes import load_layout_mesh
 from drovisio.mount import Mount, down_camera_mount
 from webtool.viewer.scene import ViserScene
 
@@ -108,8 +109,6 @@ class LiveScene(ViserScene):
             lay = self.layouts.get(layout)
             if lay is not None:
                 try:
-                    from drovisio.meshes import load_layout_mesh
-
                     m = load_layout_mesh(lay)
                     if m is not None:
                         mesh = (np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))

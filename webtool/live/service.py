@@ -40,7 +40,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drovisio.fusion import so3_log
+from drovisio.mount import down_camera_mount
+from drovisio.pose.covariance import parent_covariance, uncertainty_words
 from webtool.live.annotate import annotate
+from webtool.live.scene import LiveScene
 from webtool.live.stream import DEFAULT_BANDWIDTH_BPS, LEVELS, AdaptiveStream
 
 __all__ = ["DEFAULT_BANDWIDTH_BPS", "LEVELS", "AdaptiveStream", "LiveService", "annotate"]
@@ -191,8 +195,6 @@ class LiveService:
         """The 3D scene, started on first use."""
         with self._lock:
             if self.scene is None and self.want_scene and not self._closed.is_set():
-                from webtool.live.scene import LiveScene
-
                 self.scene = LiveScene(self.mount, self.camera, self.layouts).start()
             return self.scene
 
@@ -364,10 +366,6 @@ class LiveService:
         if self.pipeline.source.now() - out.t_mono > self.pipeline.tracker.config.max_age:
             return []  # never a stale pose, on the page either
         res = []
-        from drovisio.fusion import so3_log
-        from drovisio.mount import down_camera_mount
-        from drovisio.pose.covariance import parent_covariance, uncertainty_words
-
         for b in out.bricks:
             d = b.to_json()
             T = b.body_from_brick

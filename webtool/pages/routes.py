@@ -5,8 +5,9 @@ import re
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.templating import Jinja2Templates
+from markdown_it import MarkdownIt
 
-from drovisio.resources import docs_dir
+from drovisio.resources import docs_dir, static_dir
 from webtool.deps import CurrentSettings, Templates
 from webtool.settings import Settings
 
@@ -52,8 +53,6 @@ _guide_cache: dict[str, tuple[float, str]] = {}
 def field_guide_html() -> str:
     """``docs/field-guide.md`` as HTML (CommonMark, raw HTML off), its pictures under
     ``/help/images/``; cached until the file changes."""
-    from markdown_it import MarkdownIt
-
     f = docs_dir() / "field-guide.md"
     mtime = f.stat().st_mtime
     hit = _guide_cache.get("guide")
@@ -74,8 +73,6 @@ def help_page(request: Request, templates: Templates, settings: CurrentSettings)
 @router.get("/favicon.ico", include_in_schema=False)
 def favicon() -> FileResponse:
     """Browsers ask for it on every page: the tool's icon, not a 404."""
-    from drovisio.resources import static_dir
-
     return FileResponse(static_dir() / "favicon.svg", media_type="image/svg+xml",
                         headers={"Cache-Control": "max-age=86400"})
 

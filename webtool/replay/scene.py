@@ -14,6 +14,8 @@ import math
 import numpy as np
 
 from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
+from drovisio.layout import load_layout
+from drovisio.meshes import load_layout_mesh
 from drovisio.resources import layouts_dir
 from webtool.viewer.scene import ViserScene
 
@@ -44,9 +46,6 @@ class ReplayScene(ViserScene):
         if layout not in self._meshes:
             mesh = None
             try:
-                from drovisio.layout import load_layout
-                from drovisio.meshes import load_layout_mesh
-
                 f = layouts_dir() / f"{layout}.json"
                 if f.is_file():
                     m = load_layout_mesh(load_layout(f))

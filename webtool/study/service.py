@@ -14,6 +14,9 @@ from pathlib import Path
 
 from drovisio.errors import InputError, one_line
 from drovisio.resources import sample_sessions_dir
+from drovisio.study.protocol import load_protocol
+from drovisio.study.report import write_report
+from drovisio.study.run import run_study
 from drovisio.textfile import parse_json, read_text
 from webtool.errors import Conflict, NotFound
 
@@ -113,10 +116,6 @@ class StudyService:
             return dict(self.progress)
 
     def _run(self, name: str) -> None:
-        from drovisio.study.protocol import load_protocol
-        from drovisio.study.report import write_report
-        from drovisio.study.run import run_study
-
         def say(frac: float, msg: str) -> None:
             self.progress.update(fraction=round(0.95 * frac, 3), message=msg)
 

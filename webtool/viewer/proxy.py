@@ -16,6 +16,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 from starlette.requests import HTTPConnection
+from websockets.asyncio.client import connect
 
 from webtool.access import access_level
 
@@ -25,7 +26,7 @@ _client_cache: dict[str, tuple[bytes, bytes]] = {}
 
 
 def _viser_build() -> Path:
-    import viser
+    import viser  # deferred: heavy, loaded when a 3D view is first asked for
 
     return Path(viser.__file__).resolve().parent / "client" / "build"
 
@@ -81,8 +82,6 @@ async def proxy_socket(ws: WebSocket, port: int | None) -> None:
     if port is None:
         await ws.close(code=1011)
         return
-    from websockets.asyncio.client import connect
-
     protos = list(ws.scope.get("subprotocols") or [])
     try:
         up = await connect(f"ws://127.0.0.1:{port}", subprotocols=protos or None,
