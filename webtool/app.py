@@ -3,8 +3,14 @@
 ``create_app(settings)`` assembles: the access middleware (Host, Origin, tokens:
 :mod:`webtool.access`), a body-size limit, the one error handler (:mod:`webtool.errors`), the
 services made on first use and closed in the lifespan (:mod:`webtool.services`), one router per
-area (``webtool/routes/``), the Jinja2 pages and the static files (found with
+area (listed in :mod:`webtool.routes`), the Jinja2 pages and the static files (found with
 :mod:`importlib.resources`, so a wheel works like a checkout).
+
+The tool is built by area, one package each: ``calibration``, ``designer``, ``live``, ``mount``,
+``replay``, ``study`` (each with ``routes`` — thin handlers —, ``schemas`` — request bodies and
+response models —, ``service`` and, with a 3D view, ``scene``) and ``pages`` (the HTML pages and
+the health check); ``viewer`` holds the base of the 3D views and the one proxy that serves them;
+``deps`` the routers' typed dependencies.
 """
 
 from __future__ import annotations

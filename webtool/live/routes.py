@@ -1,4 +1,4 @@
-"""The live view's API and streams (the page itself is ``/live``, in :mod:`webtool.routes.pages`).
+"""The live view's API and streams (the page itself is ``/live``, in :mod:`webtool.pages.routes`).
 
 =========  ========================  ==========================================================
 GET        /api/live/status          figures: fps, detect time, latency, bricks, source state,
