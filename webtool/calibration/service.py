@@ -32,19 +32,17 @@ from __future__ import annotations
 
 import logging
 import secrets
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import Future
 from pathlib import Path
-from typing import Any, BinaryIO, Literal
+from typing import Any, BinaryIO
 
-import cv2
 import numpy as np
 
 from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, to_gray
-from drovisio.calibration.report import _clean, build_report, uncertainty_image
+from drovisio.calibration.report import _clean
 from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
 from drovisio.calibration.solve import MODEL_CHOICES, SolveOptions
 from drovisio.calibration.uncertainty import lens_key
@@ -54,11 +52,12 @@ from drovisio.camera_file import load_camera, save_camera
 from drovisio.errors import InputError
 from drovisio.images import ImageError, read_image
 from drovisio.sources import Reader
-from webtool.calibration import page_state, store
+from webtool.calibration import page_state, results, store
 from webtool.calibration.camera import default_source_factory, source_label
 from webtool.calibration.feed import CameraFeed
 from webtool.calibration.feedback import frame_feedback, next_step, plain_reason
 from webtool.calibration.pictures import decode, draw_corners, jpeg, png, thumbnail_jpeg
+from webtool.calibration.results import KeyedCache
 from webtool.calibration.store import (
     SESSION_SCHEMA,
     atomic_write_bytes,
@@ -87,9 +86,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-CameraFormat = Literal["opencv", "ros", "json"]
-_CAMERA_SUFFIX: dict[str, str] = {"opencv": ".yaml", "ros": ".ros.yaml", "json": ".json"}
-
 
 class CalibrationService:
     """See the module docstring.
@@ -115,9 +111,9 @@ class CalibrationService:
         self._gen = 0                 # bumps whenever the kept views change
         self._result_seq = 0          # bumps whenever a solve finishes
         self._solve_pending = False
-        self._derived_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
-        self._report_cache: tuple[tuple[Any, ...], dict[str, Any]] | None = None
-        self._png_cache: tuple[tuple[Any, ...], bytes] | None = None
+        self._derived_cache: KeyedCache[dict[str, Any]] = KeyedCache()
+        self._report_cache: KeyedCache[dict[str, Any]] = KeyedCache()
+        self._png_cache: KeyedCache[bytes] = KeyedCache()
         self._thumbs: dict[tuple[str, int], bytes] = {}
         self._capture_counter = 1
         # session fields (set by _open_session)
@@ -230,7 +226,8 @@ class CalibrationService:
 
     def _after_session_change(self) -> None:
         self._gen += 1
-        self._derived_cache = self._report_cache = self._png_cache = None
+        for cache in (self._derived_cache, self._report_cache, self._png_cache):
+            cache.clear()
         self._thumbs.clear()
         self._capture_counter = store.next_capture_number(self.folder)
         atomic_write_bytes(self.root / "current", self.session_id.encode())
@@ -371,9 +368,9 @@ class CalibrationService:
         """Coverage, next-pose hint and verdict of the current views and solve (cached)."""
         sess = self.session
         key = (self.session_id, self._gen, self._result_seq, id(sess.result))
-        with self._lock:
-            if self._derived_cache is not None and self._derived_cache[0] == key:
-                return self._derived_cache[1]
+        hit = self._derived_cache.get(key)
+        if hit is not None:
+            return hit
         cov = sess.coverage()
         try:
             sug = sess.suggestion().to_json()
@@ -385,10 +382,8 @@ class CalibrationService:
             verdict = sess.verdict()
         except Exception as e:  # noqa: BLE001
             verdict = Verdict(False, [f"the calibration could not be judged ({e})"])
-        out = {"coverage": cov, "suggestion": sug, "verdict": verdict}
-        with self._lock:
-            self._derived_cache = (key, out)
-        return out
+        return self._derived_cache.put(key, {"coverage": cov, "suggestion": sug,
+                                             "verdict": verdict})
 
     # ----------------------------------------------------------------------------- views
     def _view_rows(self) -> list[dict[str, Any]]:
@@ -564,44 +559,31 @@ class CalibrationService:
             raise NotFound(sess.last_error and f"The solve failed: {sess.last_error}"
                            or "Not solved yet.")
         key = (self.session_id, self._gen, self._result_seq, id(res))
-        with self._lock:
-            if self._report_cache is not None and self._report_cache[0] == key:
-                return self._report_cache[1]
-        rep = build_report(sess)
-        rep["current"] = sess.result_is_current
-        rep["session_id"] = self.session_id
-        rep["result_seq"] = self._result_seq
-        with self._lock:
-            self._report_cache = (key, rep)
-        return rep
+        hit = self._report_cache.get(key)
+        if hit is not None:
+            return hit
+        return self._report_cache.put(key, results.report(sess, self.session_id,
+                                                          self._result_seq))
 
     def uncertainty_png(self) -> bytes:
         res = self.session.result
         if res is None:
             raise NotFound("Not solved yet.")
         key = (self.session_id, self._result_seq, id(res))
-        with self._lock:
-            if self._png_cache is not None and self._png_cache[0] == key:
-                return self._png_cache[1]
-        img = uncertainty_image(res, threshold_px=self.session.config.verdict
-                                .max_uncertainty_p95_px)
-        _, buf = cv2.imencode(".png", img)
-        data = buf.tobytes()
-        with self._lock:
-            self._png_cache = (key, data)
-        return data
+        hit = self._png_cache.get(key)
+        if hit is not None:
+            return hit
+        return self._png_cache.put(key, results.uncertainty_png(
+            res, self.session.config.verdict.max_uncertainty_p95_px))
 
     def camera_file(self, fmt: str = "opencv") -> tuple[bytes, str]:
         res = self.session.result
         if res is None:
             raise NotFound("Not solved yet: there is no camera file to download.")
-        ext = _CAMERA_SUFFIX.get(fmt)
-        if ext is None:
+        got = results.camera_file_bytes(res.camera, fmt)
+        if got is None:
             raise BadInput(f"unknown format {fmt!r}: use opencv, ros or json")
-        kind: CameraFormat = "opencv" if fmt == "opencv" else "ros" if fmt == "ros" else "json"
-        with tempfile.TemporaryDirectory() as d:
-            p = save_camera(res.camera, Path(d) / f"camera{ext}", fmt=kind)
-            data = p.read_bytes()
+        data, ext = got
         return data, f"camera-{self.session_id}{ext}"
 
     def use_result(self) -> dict[str, Any]:
