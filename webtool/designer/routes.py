@@ -47,31 +47,33 @@ impossible edit, 503 the 3D view could not start.
 
 from __future__ import annotations
 
-import base64
-import tempfile
-from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
-import cv2
 from fastapi import APIRouter, Query, Request
 from fastapi import Path as PathParam
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import Response
 from starlette.requests import HTTPConnection
 
-from drovisio.designer.checks import blocking, check_design
 from drovisio.designer.export import (
     build_layout,
     export_glb,
     mesh_stl_bytes,
     print_sheet_pdf,
     print_sheet_svg,
-    save_design,
 )
-from drovisio.designer.model import DesignError
-from drovisio.designer.verify import verify_layout
-from drovisio.layout import load_layout
+from drovisio.designer.model import DesignDocument, DesignError
 from webtool.deps import DesignerDep
+from webtool.designer.edits import (
+    UNIT_NAMES,
+    defaults_edit,
+    frame_edit,
+    frame_message,
+    layout_edit,
+    marker_edit,
+    require_valid,
+    verification,
+)
 from webtool.designer.scene import DesignerScene
 from webtool.designer.schemas import (
     ClickBody,
@@ -98,7 +100,6 @@ from webtool.viewer.proxy import viewer_router as viewer_router_for
 router = APIRouter(prefix="/api/designer", tags=["designer"])
 
 LONG_POLL_S = 4.0
-MM = 1000.0
 
 
 async def _viewer(conn: HTTPConnection) -> DesignerScene | None:
@@ -205,31 +206,13 @@ def open_example(designer: DesignerDep, body: OpenBody) -> JSONResponse:
 
 @router.post("/units", response_model=DesignerState)
 def set_units(designer: DesignerDep, body: UnitsBody) -> JSONResponse:
-    names = {"mm": "millimetres", "cm": "centimetres", "m": "metres"}
     return _do(designer, lambda d: d.set_units(body.units),
-               f"The model's numbers are now read as {names[body.units]}.")
+               f"The model's numbers are now read as {UNIT_NAMES[body.units]}.")
 
 
 @router.post("/frame", response_model=DesignerState)
 def set_frame(designer: DesignerDep, body: FrameBody) -> JSONResponse:
-    def run(d):
-        if body.action == "origin_top_centre":
-            d.origin_to_top_centre()
-        elif body.action == "align_x":
-            if not d.align_x_with_longest_edge():
-                raise DesignError("the model has no straight horizontal edge to align x with")
-        elif body.action == "turn":
-            d.turn_frame(body.angle_deg)
-        elif body.action == "flip":
-            d.flip_frame()
-        else:
-            d.reset_frame()
-
-    messages = {"origin_top_centre": "Origin moved to the centre of the top of the model.",
-                "align_x": "x now runs along the longest horizontal edge.",
-                "turn": f"Axes turned by {body.angle_deg:g}° about z.",
-                "flip": "Axes turned upside down.", "reset": "Axes back to the file's own."}
-    return _do(designer, run, messages[body.action])
+    return _do(designer, frame_edit(body), frame_message(body))
 
 
 @router.post("/mode", response_model=DesignerState)
@@ -253,19 +236,7 @@ def select(designer: DesignerDep, body: SelectBody) -> JSONResponse:
 @router.post("/markers/{index}", response_model=DesignerState)
 def edit_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, le=1_000_000)],
                 body: MarkerBody) -> JSONResponse:
-    def run(d):
-        d.select(index)
-        if body.size_mm is not None or body.color is not None or body.slot is not None:
-            d.set_marker(index, size=None if body.size_mm is None else body.size_mm / MM,
-                         color=body.color, slot=body.slot)
-        if body.rotate_deg:
-            d.rotate_marker(index, body.rotate_deg)
-        if body.nudge_mm:
-            d.nudge_marker(index, body.nudge_mm[0] / MM, body.nudge_mm[1] / MM)
-        if body.centre:
-            d.centre_marker(index)
-
-    return _do(designer, run)
+    return _do(designer, marker_edit(index, body))
 
 
 @router.delete("/markers/{index}", response_model=DesignerState)
@@ -276,32 +247,12 @@ def delete_marker(designer: DesignerDep, index: Annotated[int, PathParam(ge=0, l
 
 @router.post("/defaults", response_model=DesignerState)
 def set_defaults(designer: DesignerDep, body: DefaultsBody) -> JSONResponse:
-    def mm(v: float | None) -> float | None:
-        return None if v is None else v / MM
-
-    kw = dict(code_size=mm(body.code_size_mm), dot_diameter=mm(body.dot_diameter_mm),
-              dot_color=body.dot_color, grid=mm(body.grid_mm), snap_radius=mm(body.snap_mm))
-    return _do(designer, lambda d: d.set_defaults(**kw), need_mesh=False)
+    return _do(designer, defaults_edit(body), need_mesh=False)
 
 
 @router.post("/layout", response_model=DesignerState)
 def set_layout(designer: DesignerDep, body: LayoutBody) -> JSONResponse:
-    given = body.model_fields_set
-
-    def num(key: str) -> Any:
-        if key not in given:
-            return "keep"
-        v = getattr(body, key)
-        return None if v in (None, "", "auto") else int(v)
-
-    def run(d):
-        inst = num("instances")
-        d.set_layout_fields(name=body.name, description=body.description,
-                            first_id=num("first_id"), ids_per_instance=num("ids_per_instance"),
-                            instances=None if inst in ("keep", None) else inst,
-                            symmetry=body.symmetry, code_family=body.family)
-
-    return _do(designer, run)
+    return _do(designer, layout_edit(body))
 
 
 @router.post("/fix", response_model=DesignerState)
@@ -344,16 +295,10 @@ def _download(data: bytes | str, media: str, filename: str) -> Response:
         **NO_STORE, "Content-Disposition": f'attachment; filename="{filename}"'})
 
 
-def _valid(designer: DesignerService, doc) -> None:
-    errors = blocking(check_design(doc, designer.camera))
-    if errors:
-        raise DesignError("Fix these problems first: " + " ".join(f.message for f in errors))
-
-
 @router.get("/export/layout.json")
 def export_layout(designer: DesignerDep) -> Response:
-    def run(doc):
-        _valid(designer, doc)
+    def run(doc: DesignDocument) -> str:
+        require_valid(doc, designer.camera)
         return build_layout(doc).to_json()
 
     return _download(_export(designer, run), "application/json", f"{designer.doc.name}.json")
@@ -385,14 +330,5 @@ def export_svg(designer: DesignerDep, page: Annotated[int, Query(ge=1, le=1000)]
 def verify(designer: DesignerDep) -> JSONResponse:
     """Render one brick of the current design and detect it (see
     :func:`drovisio.designer.verify.verify_layout`)."""
-    def run(doc):
-        _valid(designer, doc)
-        with tempfile.TemporaryDirectory(prefix="drovisio-verify-") as tmp:
-            saved = save_design(doc, Path(tmp))
-            results, image = verify_layout(load_layout(saved.layout_path),
-                                           camera=designer.camera)
-        ok, jpg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 85])
-        return {"results": [r.to_json() for r in results],
-                "image": "data:image/jpeg;base64," + base64.b64encode(jpg.tobytes()).decode()}
-
-    return JSONResponse(_export(designer, run), headers=NO_STORE)
+    return JSONResponse(_export(designer, lambda doc: verification(doc, designer.camera)),
+                        headers=NO_STORE)
