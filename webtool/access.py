@@ -180,6 +180,24 @@ class AccessMiddleware:
         return None, False
 
     # ---------------------------------------------------------------- ASGI
+    def _site_refusal(self, scope: Scope, headers: dict[str, str], level: str | None,
+                      writes: bool) -> str | None:
+        """Why the request is refused for where it comes from (an unknown Host without a
+        token; a write from another site's page), or None."""
+        host = headers.get("host")
+        if not self._host_ok(host) and level is None:
+            return (f"unknown Host {host!r}: this tool answers to its own address only (open "
+                    "the address `drovisio serve` printed)")
+        if writes:
+            origin = headers.get("origin")
+            if origin is not None and not self._same_origin(origin, host,
+                                                            scope.get("scheme", "http")):
+                return (f"request from another site ({origin}) refused: only the tool's own "
+                        "pages may change it")
+            if headers.get("sec-fetch-site", "") == "cross-site":
+                return "cross-site request refused"
+        return None
+
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
             await self.app(scope, receive, send)
@@ -190,22 +208,10 @@ class AccessMiddleware:
         writes = is_socket or method in WRITE_METHODS
         level, in_query = self._token_level(scope, headers)
 
-        host = headers.get("host")
-        if not self._host_ok(host) and level is None:
-            await self._forbidden(scope, send, f"unknown Host {host!r}: this tool answers to "
-                                  "its own address only (open the address `drovisio serve` "
-                                  "printed)")
+        why = self._site_refusal(scope, headers, level, writes)
+        if why is not None:
+            await self._forbidden(scope, send, why)
             return
-        if writes:
-            origin = headers.get("origin")
-            if origin is not None and not self._same_origin(origin, host,
-                                                            scope.get("scheme", "http")):
-                await self._forbidden(scope, send, f"request from another site ({origin}) "
-                                      "refused: only the tool's own pages may change it")
-                return
-            if headers.get("sec-fetch-site", "") == "cross-site":
-                await self._forbidden(scope, send, "cross-site request refused")
-                return
 
         client = scope.get("client")
         if self.token is None or (client and is_loopback(client[0]) and level is None):
@@ -332,7 +338,7 @@ def terminal_qr(text: str) -> str:
         import segno
     except ImportError:  # pragma: no cover - segno is a dependency
         return ""
-    import io
+    import io  # only for the terminal's QR codes
 
     qr = segno.make(text, error="m")
     buf = io.StringIO()

@@ -3,8 +3,14 @@
 ``create_app(settings)`` assembles: the access middleware (Host, Origin, tokens:
 :mod:`webtool.access`), a body-size limit, the one error handler (:mod:`webtool.errors`), the
 services made on first use and closed in the lifespan (:mod:`webtool.services`), one router per
-area (``webtool/routes/``), the Jinja2 pages and the static files (found with
+area (listed in :mod:`webtool.routes`), the Jinja2 pages and the static files (found with
 :mod:`importlib.resources`, so a wheel works like a checkout).
+
+The tool is built by area, one package each: ``calibration``, ``designer``, ``live``, ``mount``,
+``replay``, ``study`` (each with ``routes`` — thin handlers —, ``schemas`` — request bodies and
+response models —, ``service`` and, with a 3D view, ``scene``) and ``pages`` (the HTML pages and
+the health check); ``viewer`` holds the base of the 3D views and the one proxy that serves them;
+``deps`` the routers' typed dependencies.
 """
 
 from __future__ import annotations
@@ -19,7 +25,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from drovisio.errors import LIMITS
 from drovisio.resources import static_dir, templates_dir
 from webtool.access import AccessMiddleware
+from webtool.calibration import camera_in_use
 from webtool.errors import install_error_handlers
+from webtool.mount import mount_in_use
 from webtool.responses import JSONResponse
 from webtool.routes import calibration, designer, health, live, mount, pages, replay, study
 from webtool.services import lifespan
@@ -88,14 +96,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if settings.camera is None:
         # the calibration chosen on the calibration page ("Use this calibration") lasts
         # across restarts; a --camera given to `drovisio serve` takes precedence
-        from webtool.calibration_service import camera_in_use
-
         settings.camera = camera_in_use(settings)
     if settings.mount is None:
         # likewise the mount saved on the mount page (on the sample session too: what the
         # user saved is what the live view uses)
-        from webtool.mount_service import mount_in_use
-
         settings.mount = mount_in_use(settings)
     app = FastAPI(
         title="Drovisio web tool",

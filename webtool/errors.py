@@ -19,22 +19,72 @@ import logging
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 
+from drovisio.designer.model import DesignError
 from drovisio.errors import InputError, WriteError, limit_message, one_line
-from webtool.responses import JSONResponse
+from webtool.responses import NO_STORE, JSONResponse
 
-__all__ = ["ServiceError", "install_error_handlers"]
+__all__ = ["BadInput", "Conflict", "DiskFull", "Forbidden", "NotFound", "ServiceError", "TooBig",
+           "Unavailable", "install_error_handlers"]
 
 log = logging.getLogger("webtool")
-NO_STORE = {"Cache-Control": "no-store"}
 
 
 class ServiceError(Exception):
-    """A request that cannot be done now; ``status`` is the HTTP status to answer with and the
-    message is meant for the person at the page."""
+    """A request that cannot be done now; the message is meant for the person at the page.
 
-    def __init__(self, message: str, status: int = 409) -> None:
+    Services raise one of the kinds below; its class says the HTTP status (``status``), so
+    that the mapping from domain errors to HTTP lives here only. ``ServiceError(message,
+    status)`` gives another status where no kind fits.
+    """
+
+    status = 409
+
+    def __init__(self, message: str, status: int | None = None) -> None:
         super().__init__(message)
-        self.status = status
+        if status is not None:
+            self.status = status
+
+
+class Forbidden(ServiceError):
+    """Not allowed with this access (a viewer link)."""
+
+    status = 403
+
+
+class NotFound(ServiceError):
+    """Nothing there (yet): no such view, report, recording; not solved yet."""
+
+    status = 404
+
+
+class Conflict(ServiceError):
+    """Not possible now (the state of the page does not allow it)."""
+
+    status = 409
+
+
+class TooBig(ServiceError):
+    """An upload over its limit."""
+
+    status = 413
+
+
+class BadInput(ServiceError):
+    """A request whose values cannot be used."""
+
+    status = 422
+
+
+class Unavailable(ServiceError):
+    """Not available now (no frame yet, a 3D view that could not start)."""
+
+    status = 503
+
+
+class DiskFull(ServiceError):
+    """Something could not be saved (nothing was lost)."""
+
+    status = 507
 
 
 def _answer(status: int, message: str) -> JSONResponse:
@@ -53,8 +103,6 @@ def _validation_message(exc: RequestValidationError) -> str:
 
 def install_error_handlers(app: FastAPI) -> None:
     """Register the one handler of every error the tool knows."""
-    from drovisio.designer.model import DesignError
-
     @app.exception_handler(ServiceError)
     async def _service(request: Request, exc: ServiceError) -> JSONResponse:
         return _answer(exc.status, str(exc))

@@ -16,7 +16,10 @@ from typing import Any
 
 from fastapi.responses import JSONResponse as _StarletteJSON
 
-__all__ = ["JSONResponse", "json_safe"]
+__all__ = ["NO_STORE", "JSONResponse", "json_safe"]
+
+#: the header of every answer that must not be cached (states, frames, downloads, errors)
+NO_STORE = {"Cache-Control": "no-store"}
 
 
 def json_safe(obj: Any, _depth: int = 0) -> Any:

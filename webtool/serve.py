@@ -5,9 +5,13 @@ from __future__ import annotations
 import argparse
 import socket
 import sys
+import threading
 from pathlib import Path
 
-from webtool.access import access_lines
+from drovisio.errors import InputError
+from drovisio.resources import sample_sessions_dir, user_data_dir
+from drovisio.startup import check_pipeline_options
+from webtool.access import access_lines, install_log_redaction
 from webtool.settings import Settings, is_loopback
 
 
@@ -55,10 +59,10 @@ def open_lines(settings: Settings) -> list[str]:
 def _warm_up_in_background() -> None:
     """Load (or, the first time on a machine, compile) the detectors' kernels while the
     server starts, so that the live view's first frame does not wait for them."""
-    import threading
 
     def work() -> None:
         try:
+            # deferred: loading the detectors is the slow part this thread takes off the start
             from drovisio.detect.warmup import warm_up
 
             warm_up()
@@ -72,19 +76,13 @@ def _warm_up_in_background() -> None:
 def _check_inputs(args: argparse.Namespace) -> None:
     """Bad set-up is said before the server starts (one line, exit 2), not on a page later:
     the pipeline's options through the one check ``run`` uses (sinks opened and closed)."""
-    from drovisio.startup import check_pipeline_options
-
     check_pipeline_options(args)
     if getattr(args, "replay_dir", None) and not Path(args.replay_dir).is_dir():
-        from drovisio.errors import InputError
-
         raise InputError(f"{args.replay_dir}: --replay-dir: no such folder")
 
 
 def _sample_missions() -> Path | None:
     """The shipped demo mission's folder (the replay panel's default), if installed."""
-    from drovisio.resources import sample_sessions_dir
-
     d = sample_sessions_dir() / "missions"
     return d if d.is_dir() else None
 
@@ -113,10 +111,9 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 
 def run(args: argparse.Namespace) -> int:
+    # deferred: the server and the app load only when serving (settings_from needs neither)
     import uvicorn
 
-    from drovisio.resources import user_data_dir
-    from webtool.access import install_log_redaction
     from webtool.app import create_app
 
     _check_inputs(args)
@@ -139,16 +136,12 @@ def run(args: argparse.Namespace) -> int:
     server.run()
     error = getattr(app.state, "startup_error", None)
     if error:
-        from drovisio.errors import InputError
-
         raise InputError(error)
     return 0
 
 
 def _check_port(host: str, port: int) -> None:
     """Say in one line that the port is taken (uvicorn would log and exit)."""
-    from drovisio.errors import InputError
-
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as e:
@@ -165,6 +158,6 @@ def _check_port(host: str, port: int) -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from drovisio.cli import main
+    from drovisio.cli import main  # deferred: the command line imports this module
 
     sys.exit(main(["serve", *sys.argv[1:]]))

@@ -1,77 +1,117 @@
 """The web tool's services: one per area, made on first use, closed when the app stops.
 
 =============  ======================================================================
-calibration    :class:`webtool.calibration_service.CalibrationService`
-designer       :class:`webtool.designer_service.DesignerService`
-live           :class:`webtool.live_service.LiveService`
-mount          :class:`webtool.mount_service.MountService`
-study          :class:`webtool.study_service.StudyService`
-replay         :class:`webtool.replay_service.ReplayService`
+calibration    :class:`webtool.calibration.service.CalibrationService`
+designer       :class:`webtool.designer.service.DesignerService`
+live           :class:`webtool.live.service.LiveService`
+mount          :class:`webtool.mount.service.MountService`
+study          :class:`webtool.study.service.StudyService`
+replay         :class:`webtool.replay.service.ReplayService`
 =============  ======================================================================
 
-Routers ask for them with :func:`service` (``Annotated[..., Depends(service("live"))]``); a
-service with a ``touch()`` method is told on every request that someone is watching (the
-camera of the calibration page stops when nobody is). Tests may put their own object in
-``app.state.<name>`` before the first request.
+Each is an :class:`Area`: its name (the ``app.state`` attribute that holds it) and its
+factory (takes the app's Settings). Routers ask for them through the typed dependencies of
+:mod:`webtool.deps`; a service with a ``touch()`` method is told on every request that someone
+is watching (the camera of the calibration page stops when nobody is). Tests may put their own
+object in ``app.state.<name>`` before the first request.
 """
 
 from __future__ import annotations
 
 import asyncio
-import importlib
 import logging
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Generic, Protocol, TypeVar, overload
 
 from fastapi import FastAPI
 from starlette.requests import HTTPConnection
 
-__all__ = ["SERVICES", "close_services", "lifespan", "service"]
+from webtool.calibration.service import CalibrationService
+from webtool.designer.service import DesignerService
+from webtool.live.service import LiveService
+from webtool.mount.service import MountService
+from webtool.replay.service import ReplayService
+from webtool.settings import Settings
+from webtool.study.service import StudyService
 
-#: name → "module:factory" (the factory takes the app's Settings)
-SERVICES: dict[str, str] = {
-    "calibration": "webtool.calibration_service:CalibrationService",
-    "designer": "webtool.designer_service:DesignerService",
-    "live": "webtool.live_service:LiveService",
-    "mount": "webtool.mount_service:MountService",
-    "study": "webtool.study_service:StudyService",
-    "replay": "webtool.replay_service:ReplayService",
-}
+__all__ = ["AREAS", "CALIBRATION", "DESIGNER", "LIVE", "MOUNT", "REPLAY", "SERVICES", "STUDY",
+           "Area", "close_services", "get_service", "lifespan", "service"]
+
+
+class Service(Protocol):
+    """What the app needs of every service: to close it when the app stops."""
+
+    def close(self) -> None: ...
+
+
+S = TypeVar("S", bound=Service)
+
+
+@dataclass(frozen=True)
+class Area(Generic[S]):
+    """One area's service: where the app keeps it and how it is made."""
+
+    name: str
+    """The ``app.state`` attribute that holds it."""
+    make: Callable[[Settings], S]
+    """Makes it from the app's settings."""
+
+
+CALIBRATION: Area[CalibrationService] = Area("calibration", CalibrationService)
+DESIGNER: Area[DesignerService] = Area("designer", DesignerService)
+LIVE: Area[LiveService] = Area("live", LiveService)
+MOUNT: Area[MountService] = Area("mount", MountService)
+STUDY: Area[StudyService] = Area("study", StudyService)
+REPLAY: Area[ReplayService] = Area("replay", ReplayService)
+
+#: every area, in the order they are closed
+AREAS: tuple[Area[Any], ...] = (CALIBRATION, DESIGNER, LIVE, MOUNT, STUDY, REPLAY)
+#: name → area
+SERVICES: dict[str, Area[Any]] = {a.name: a for a in AREAS}
+
 _lock = threading.Lock()
 log = logging.getLogger("webtool")
 
 
-def get_service(app: FastAPI, name: str) -> Any:
-    """The app's ``name`` service, made on first use."""
-    svc = getattr(app.state, name, None)
+@overload
+def get_service(app: FastAPI, area: Area[S]) -> S: ...
+
+
+@overload
+def get_service(app: FastAPI, area: str) -> Any: ...
+
+
+def get_service(app: FastAPI, area: Area[Any] | str) -> Any:
+    """The app's service of ``area`` (an :class:`Area`, or its name), made on first use."""
+    a = SERVICES[area] if isinstance(area, str) else area
+    svc = getattr(app.state, a.name, None)
     if svc is None:
         with _lock:
-            svc = getattr(app.state, name, None)
+            svc = getattr(app.state, a.name, None)
             if svc is None:
-                module, _, factory = SERVICES[name].partition(":")
-                make = getattr(importlib.import_module(module), factory)
-                svc = make(app.state.settings)
-                setattr(app.state, name, svc)
+                svc = a.make(app.state.settings)
+                setattr(app.state, a.name, svc)
     return svc
 
 
-def service(name: str) -> Callable[[HTTPConnection], Any]:
-    """A FastAPI dependency giving the ``name`` service (and touching it)."""
-    def dependency(conn: HTTPConnection) -> Any:
-        svc = get_service(conn.app, name)
+def service(area: Area[S]) -> Callable[[HTTPConnection], S]:
+    """A FastAPI dependency giving the ``area``'s service (and touching it)."""
+    def dependency(conn: HTTPConnection) -> S:
+        svc = get_service(conn.app, area)
         touch = getattr(svc, "touch", None)
         if touch is not None:
             touch()
         return svc
-    dependency.__name__ = f"{name}_service"
+    dependency.__name__ = f"{area.name}_service"
     return dependency
 
 
 def close_services(app: FastAPI) -> None:
-    for name in SERVICES:
-        svc = getattr(app.state, name, None)
+    for area in AREAS:
+        svc = getattr(app.state, area.name, None)
         if svc is not None:
             svc.close()
 
@@ -84,7 +124,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     app.state.startup_error = None
     if app.state.settings.flying:
         try:
-            svc = get_service(app, "live")
+            svc = get_service(app, LIVE)
             await asyncio.to_thread(svc.ensure_started)
             error = svc.error
         except Exception as e:  # noqa: BLE001 - never raised to uvicorn (a 29-frame traceback)

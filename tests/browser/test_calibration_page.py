@@ -11,7 +11,7 @@ import pytest
 
 from drovisio.camera_file import load_camera
 from webtool.app import create_app
-from webtool.calibration_service import CalibrationService
+from webtool.calibration.service import CalibrationService
 from webtool.settings import Settings
 
 pytestmark = pytest.mark.browser

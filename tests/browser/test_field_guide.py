@@ -18,7 +18,7 @@ import pytest
 from drovisio.mount import body_from_camera_angles, load_mount
 from drovisio.resources import docs_dir
 from webtool.app import create_app
-from webtool.calibration_service import CalibrationService
+from webtool.calibration.service import CalibrationService
 from webtool.settings import Settings
 
 pytestmark = pytest.mark.browser

@@ -1,4 +1,4 @@
-"""The calibration API (webtool.routes.calibration + webtool.calibration_service) through
+"""The calibration API (webtool.routes.calibration + webtool.calibration.service) through
 FastAPI's TestClient: live auto-capture and persistence, a camera that disappears, manual capture,
 delete, uploads with bad files, solve / result / downloads / use, resume after a restart, token
 access. Frames come from small scripted sources (the sample session's views), so each test takes
@@ -22,7 +22,7 @@ from fastapi.testclient import TestClient
 from drovisio.camera_file import load_camera
 from drovisio.sources import PlaybackReader, RawFrame
 from webtool.app import create_app
-from webtool.calibration_service import CalibrationService
+from webtool.calibration.service import CalibrationService
 from webtool.settings import Settings
 
 LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends
@@ -478,7 +478,7 @@ def test_the_page_offers_every_lens_model_the_calibration_knows(make_client):
     import typing
 
     from drovisio.calibration.solve import MODEL_CHOICES
-    from webtool.routes.calibration import LensBody
+    from webtool.calibration.routes import LensBody
 
     assert typing.get_args(LensBody.model_fields["model"].annotation) == MODEL_CHOICES
     html = make_client(no_camera).get("/calibration").text

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 
 from drovisio.resources import docs_dir
 from webtool.app import create_app
-from webtool.routes.pages import PAGES
+from webtool.pages.routes import PAGES
 from webtool.settings import Settings
 
 LOCAL = "http://127.0.0.1:8080"

@@ -15,7 +15,7 @@ from drovisio.pipeline import Pipeline
 from drovisio.sources import FrameSource, RawFrame
 from webtool.access import COOKIE_NAME
 from webtool.app import create_app
-from webtool.live_service import LEVELS, AdaptiveStream, LiveService
+from webtool.live.service import LEVELS, AdaptiveStream, LiveService
 from webtool.settings import Settings
 
 LOCAL = "http://127.0.0.1:8080"  # the Host a browser on this machine sends

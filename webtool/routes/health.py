@@ -1,28 +1,5 @@
-"""GET /api/health: is the tool up, which version, on which source."""
+"""The health check's router (:mod:`webtool.pages.health`)."""
 
-from typing import Annotated
+from webtool.pages.health import router
 
-from fastapi import APIRouter, Depends, Request
-from pydantic import BaseModel
-
-from webtool.routes.deps import get_settings
-from webtool.settings import Settings
-
-router = APIRouter(prefix="/api", tags=["health"])
-
-
-class Health(BaseModel):
-    status: str
-    version: str
-    source: str  # the --source given, or the sample session folder
-    sample: bool  # True when running on the built-in sample session
-
-
-@router.get("/health", response_model=Health)
-def health(request: Request, settings: Annotated[Settings, Depends(get_settings)]) -> Health:
-    return Health(
-        status="ok",
-        version=request.app.version,
-        source=settings.source if settings.source is not None else str(settings.sample_session),
-        sample=settings.uses_sample_session,
-    )
+__all__ = ["router"]

@@ -1,48 +1,5 @@
-"""The Study page: the evaluation reports of the data folder, and a study started on the
-shipped protocol.
+"""The study area's routers (:mod:`webtool.study.routes`)."""
 
-=======  ================================  ====================================================
-GET      /api/study/reports                the reports (name, protocol, frames, seconds)
-POST     /api/study/start                  run the shipped recorded-style protocol (409 while
-                                           one runs)
-GET      /api/study/progress               running, fraction, message, error, report
-GET      /study/reports/{name}/{file}      report.html or one of its figures
-=======  ================================  ====================================================
-"""
+from webtool.study.routes import router, viewer_router
 
-from __future__ import annotations
-
-from typing import Annotated
-
-from fastapi import APIRouter, Depends
-from fastapi.responses import FileResponse
-
-from webtool.responses import JSONResponse
-from webtool.services import service
-from webtool.study_service import StudyService
-
-router = APIRouter(prefix="/api/study", tags=["study"])
-viewer_router = APIRouter(prefix="/study/reports", tags=["study"])
-
-NO_STORE = {"Cache-Control": "no-store"}
-Study = Annotated[StudyService, Depends(service("study"))]
-
-
-@router.get("/reports")
-def reports(svc: Study) -> JSONResponse:
-    return JSONResponse({"folder": str(svc.folder), **svc.listing()}, headers=NO_STORE)
-
-
-@router.post("/start", status_code=202)
-def start(svc: Study) -> JSONResponse:
-    return JSONResponse(svc.start(), status_code=202, headers=NO_STORE)
-
-
-@router.get("/progress")
-def progress(svc: Study) -> JSONResponse:
-    return JSONResponse(svc.progress, headers=NO_STORE)
-
-
-@viewer_router.get("/{name}/{file}")
-def report_file(svc: Study, name: str, file: str) -> FileResponse:
-    return FileResponse(svc.report_file(name, file), headers=NO_STORE)
+__all__ = ["router", "viewer_router"]

@@ -18,10 +18,16 @@ from typing import BinaryIO
 
 import numpy as np
 
+from drovisio.autopilot.blind import blind_height
+from drovisio.calibration.mount import measure_from_images
+from drovisio.camera_file import load_camera
 from drovisio.errors import InputError
+from drovisio.fileio import atomic_write_text
 from drovisio.images import ImageError, decode_image
+from drovisio.layout import list_shipped_layouts, load_layout
 from drovisio.mount import Mount, MountAngles, down_camera_mount, ground_footprint, load_mount
-from webtool.errors import ServiceError
+from webtool.errors import Conflict
+from webtool.mount.scene import MountScene
 
 __all__ = ["MountService", "mount_in_use"]
 
@@ -83,8 +89,6 @@ class MountService:
     def camera(self):
         """The camera in use (its field of view draws the frustum and the footprint)."""
         if self._camera is None:
-            from drovisio.camera_file import load_camera
-
             s = self.settings
             path = Path(s.camera) if s.camera else Path(s.sample_session) / "camera.yaml"
             self._camera = load_camera(path)
@@ -109,8 +113,6 @@ class MountService:
     def _blind(self, m: Mount, cam) -> list[dict]:
         """Per layout: the camera height above the brick at which a straight descent onto it
         loses it from the picture, with this mount and looking straight down."""
-        from drovisio.autopilot.blind import blind_height
-
         if not cam.size_known:
             return []
         if self._blind_layouts is None:
@@ -139,8 +141,6 @@ class MountService:
     def save(self) -> dict:
         """Write the mount file (both forms; read back before it replaces the old one) and
         make it the one in use."""
-        from drovisio.fileio import atomic_write_text
-
         with self._lock:
             m = self.mount()
             m.note = "set on the camera mount page"
@@ -157,8 +157,6 @@ class MountService:
 
     # ------------------------------------------------------------------ measuring
     def _layouts(self):
-        from drovisio.layout import list_shipped_layouts, load_layout
-
         paths = list(self.settings.layouts) or list_shipped_layouts()
         return [load_layout(p) for p in paths]
 
@@ -175,8 +173,6 @@ class MountService:
 
     def measure_pictures(self, files: list[tuple[str, BinaryIO]], aligned: bool) -> dict:
         """Measure from uploaded pictures (the drone level, a code lying flat in view)."""
-        from drovisio.calibration.mount import measure_from_images
-
         if not files:
             raise InputError("no pictures: choose one or more photos from the drone's camera")
         if len(files) > MAX_PICTURES:
@@ -199,11 +195,9 @@ class MountService:
 
     def measure_live(self, live, aligned: bool, frames: int = 5, timeout: float = 4.0) -> dict:
         """Measure from the live camera's next ``frames`` frames."""
-        from drovisio.calibration.mount import measure_from_images
-
         live.ensure_started()
         if live.error:
-            raise ServiceError(f"the camera could not start: {live.error}", 409)
+            raise Conflict(f"the camera could not start: {live.error}")
         got: list[tuple[str, np.ndarray | str]] = []
         seen = -1
         deadline = time.monotonic() + timeout
@@ -214,8 +208,8 @@ class MountService:
                 got.append((f"live frame {seen}", latest[1]))
             time.sleep(0.05)
         if not got:
-            raise ServiceError("no frame from the camera in "
-                               f"{timeout:g} s: is it connected?", 409)
+            raise Conflict("no frame from the camera in "
+                           f"{timeout:g} s: is it connected?")
         camera = live.camera or self.camera()
         layouts = live.layouts or self._layouts()
         measured = measure_from_images(got, camera, layouts, aligned)
@@ -225,8 +219,6 @@ class MountService:
     def start_scene(self):
         with self._lock:
             if self.scene is None:
-                from webtool.mount_scene import MountScene
-
                 self.scene = MountScene(self.camera()).start()
                 st = self.state()
                 self.scene.show(self.mount(), self.height_m, st["footprint"])

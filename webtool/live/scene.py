@@ -10,7 +10,7 @@ viewer's "up" is set to −z. Nodes:
   label; the target brick is drawn in yellow, predicted (unmeasured) ones half transparent;
 * ``/trails/<track>`` — the brick's last positions (body frame) as line segments.
 
-The server is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port, reached through
+The server is a :class:`webtool.viewer.scene.ViserScene` (127.0.0.1, own port, reached through
 the app at ``/live/3d/``). :class:`LiveScene` is started lazily, updated at most ``max_hz``
 times a second from the pipeline's outputs (in its own thread, so the pipeline never waits
 for it) and stopped with the app. Quaternions are viser's (w, x, y, z).
@@ -22,12 +22,14 @@ import math
 import threading
 import time
 from collections import deque
+from typing import Any
 
 import numpy as np
 
 from drovisio.geometry import quat_wxyz
+from drovisio.meshes import load_layout_mesh
 from drovisio.mount import Mount, down_camera_mount
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
 __all__ = ["LiveScene"]
 
@@ -107,8 +109,6 @@ class LiveScene(ViserScene):
             lay = self.layouts.get(layout)
             if lay is not None:
                 try:
-                    from drovisio.meshes import load_layout_mesh
-
                     m = load_layout_mesh(lay)
                     if m is not None:
                         mesh = (np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))
@@ -157,59 +157,75 @@ class LiveScene(ViserScene):
             except Exception:  # noqa: BLE001 - a failed update is skipped, never fatal
                 pass
 
-    def _apply(self, out) -> None:
+    def _body_from_brick(self, b: Any) -> np.ndarray:
+        """The brick's pose in the body frame (4×4): the pipeline's, else through the mount."""
+        T = b.body_from_brick
+        return T if T is not None else self.mount.body_from(b.camera_from_brick())
+
+    def _apply(self, out: Any) -> None:
+        """Bring the scene in line with one pipeline output (under the server's lock)."""
         seen = set()
         target_key = None if out.target is None else out.target.track
         for b in out.bricks:
-            T = b.body_from_brick
-            if T is None:
-                T = self.mount.body_from(b.camera_from_brick())
-            key = b.track
-            seen.add(key)
-            name = b.layout + (f":{b.instance}" if b.instance is not None else f" #{b.track}")
-            nodes = self._bricks.get(key)
-            if nodes is None:
-                nodes = self._bricks[key] = self._brick_nodes(key, b.layout, name)
-            nodes["mesh"].position = tuple(float(x) for x in T[:3, 3])
-            nodes["mesh"].wxyz = tuple(quat_wxyz(T[:3, :3]))
-            color = TARGET_RGB if key == target_key else (
-                DOTS_RGB if b.method == "dots" else BRICK_RGB)
-            if nodes["color"] != color:
-                nodes["mesh"].color = color
-                nodes["color"] = color
-            opacity = 1.0 if b.measured else 0.45
-            if nodes["opacity"] != opacity and hasattr(nodes["mesh"], "opacity"):
-                nodes["mesh"].opacity = opacity
-                nodes["opacity"] = opacity
-            text = f"{name}  {b.distance:.2f} m" + (" TARGET" if key == target_key else "")
-            if nodes.get("text") != text:
-                nodes["label"].text = text
-                nodes["text"] = text
-            tr = self._trails.setdefault(key, deque(maxlen=self.trail_len))
-            tr.append(T[:3, 3].astype(np.float32))
-            if len(tr) >= 2:
-                pts = np.array(tr)
-                segs = np.stack([pts[:-1], pts[1:]], axis=1)
-                h = nodes.get("trail")
-                if h is None:
-                    nodes["trail"] = self.server.scene.add_line_segments(
-                        f"/trails/{key}", segs, colors=(240, 140, 20), thickness=0.006)
-                else:
-                    h.points = segs
-        # the ground grid under the bricks (their lowest top face + a brick height), smoothed
-        downs = [float((b.body_from_brick if b.body_from_brick is not None else
-                        self.mount.body_from(b.camera_from_brick()))[2, 3])
-                 for b in out.bricks if b.measured]
+            seen.add(b.track)
+            self._show_brick(b, self._body_from_brick(b), b.track == target_key)
+        self._move_ground(out)
+        for key in [k for k in self._bricks if k not in seen]:
+            self._remove_brick(key)
+
+    def _show_brick(self, b: Any, T: np.ndarray, is_target: bool) -> None:
+        """Place, colour and label one tracked brick (``T``: body_from_brick, 4×4)."""
+        key = b.track
+        name = b.layout + (f":{b.instance}" if b.instance is not None else f" #{b.track}")
+        nodes = self._bricks.get(key)
+        if nodes is None:
+            nodes = self._bricks[key] = self._brick_nodes(key, b.layout, name)
+        nodes["mesh"].position = tuple(float(x) for x in T[:3, 3])
+        nodes["mesh"].wxyz = tuple(quat_wxyz(T[:3, :3]))
+        color = TARGET_RGB if is_target else (DOTS_RGB if b.method == "dots" else BRICK_RGB)
+        if nodes["color"] != color:
+            nodes["mesh"].color = color
+            nodes["color"] = color
+        opacity = 1.0 if b.measured else 0.45
+        if nodes["opacity"] != opacity and hasattr(nodes["mesh"], "opacity"):
+            nodes["mesh"].opacity = opacity
+            nodes["opacity"] = opacity
+        text = f"{name}  {b.distance:.2f} m" + (" TARGET" if is_target else "")
+        if nodes.get("text") != text:
+            nodes["label"].text = text
+            nodes["text"] = text
+        self._extend_trail(key, nodes, T)
+
+    def _extend_trail(self, key: int, nodes: dict[str, Any], T: np.ndarray) -> None:
+        """Add the brick's position (body frame, metres) to its trail and redraw it."""
+        tr = self._trails.setdefault(key, deque(maxlen=self.trail_len))
+        tr.append(T[:3, 3].astype(np.float32))
+        if len(tr) < 2:
+            return
+        pts = np.array(tr)
+        segs = np.stack([pts[:-1], pts[1:]], axis=1)
+        h = nodes.get("trail")
+        if h is None:
+            nodes["trail"] = self.server.scene.add_line_segments(
+                f"/trails/{key}", segs, colors=(240, 140, 20), thickness=0.006)
+        else:
+            h.points = segs
+
+    def _move_ground(self, out: Any) -> None:
+        """The ground grid under the bricks (their lowest top face + a brick height; body z
+        points down), smoothed."""
+        downs = [float(self._body_from_brick(b)[2, 3]) for b in out.bricks if b.measured]
         if downs:
             z = max(downs) + 0.12
             self._ground_z += 0.2 * (z - self._ground_z)
             self._ground.position = (0.0, 0.0, round(self._ground_z, 3))
-        for key in [k for k in self._bricks if k not in seen]:
-            nodes = self._bricks.pop(key)
-            self._trails.pop(key, None)
-            for n in ("label", "axes", "mesh", "trail"):
-                if nodes.get(n) is not None:
-                    nodes[n].remove()
+
+    def _remove_brick(self, key: int) -> None:
+        nodes = self._bricks.pop(key)
+        self._trails.pop(key, None)
+        for n in ("label", "axes", "mesh", "trail"):
+            if nodes.get(n) is not None:
+                nodes[n].remove()
 
     # ------------------------------------------------------------------ inspection (tests)
     def brick_names(self) -> list[str]:

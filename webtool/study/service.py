@@ -14,8 +14,11 @@ from pathlib import Path
 
 from drovisio.errors import InputError, one_line
 from drovisio.resources import sample_sessions_dir
+from drovisio.study.protocol import load_protocol
+from drovisio.study.report import write_report
+from drovisio.study.run import run_study
 from drovisio.textfile import parse_json, read_text
-from webtool.errors import ServiceError
+from webtool.errors import Conflict, NotFound
 
 __all__ = ["StudyService"]
 
@@ -93,17 +96,17 @@ class StudyService:
 
     def report_file(self, name: str, file: str) -> Path:
         if not _NAME.match(name) or not re.match(r"^(report\.html|fig-6\.\d+\.png)$", file):
-            raise ServiceError("no such report", 404)
+            raise NotFound("no such report")
         f = self.folder / name / file
         if not f.is_file():
-            raise ServiceError("no such report", 404)
+            raise NotFound("no such report")
         return f
 
     def start(self) -> dict:
         """Run the shipped recorded-style protocol into a new report folder."""
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
-                raise ServiceError("a study is already running: wait for it to finish", 409)
+                raise Conflict("a study is already running: wait for it to finish")
             name = time.strftime("%Y%m%d-%H%M%S") + "-sample"
             self.progress = {"running": True, "fraction": 0.0, "message": "starting",
                              "error": None, "report": None, "name": name}
@@ -113,10 +116,6 @@ class StudyService:
             return dict(self.progress)
 
     def _run(self, name: str) -> None:
-        from drovisio.study.protocol import load_protocol
-        from drovisio.study.report import write_report
-        from drovisio.study.run import run_study
-
         def say(frac: float, msg: str) -> None:
             self.progress.update(fraction=round(0.95 * frac, 3), message=msg)
 

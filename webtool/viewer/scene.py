@@ -3,7 +3,7 @@ that only the tool's own proxy may talk to them.
 
 viser runs its own HTTP/WebSocket server on its own port; the tool starts each on 127.0.0.1
 and serves it to browsers through the app (``/live/3d``, ``/designer/3d``, ``/replay/3d``,
-:mod:`webtool.viser_proxy`), where the access middleware checks Host, Origin and token. The
+:mod:`webtool.viewer.proxy`), where the access middleware checks Host, Origin and token. The
 port itself must not be a back door: any web page can open a WebSocket to 127.0.0.1 on any
 port. So a viser server started here refuses every HTTP request or WebSocket that carries an
 ``Origin`` header — which every browser sends and the tool's proxy does not. viser has no
@@ -40,6 +40,7 @@ def _guarded_serve(serve: Any) -> Any:
 def _install_guard() -> None:
     """Give viser's infrastructure module a ``websockets`` whose ``serve`` refuses browsers
     (only that module sees it; everything else keeps the real one)."""
+    # deferred: viser is heavy, loaded when the first 3D view starts
     import websockets
     import websockets.asyncio.server as ws_server
     from viser.infra import _infra
@@ -60,7 +61,7 @@ def _install_guard() -> None:
 
 def refuses_browsers() -> bool:
     """True once the guard is in place (tests check the running servers themselves)."""
-    from viser.infra import _infra
+    from viser.infra import _infra  # deferred: heavy (see _install_guard)
 
     return bool(getattr(_infra, "_drovisio_guard", False))
 
@@ -89,7 +90,7 @@ class ViserScene:
     def start(self) -> ViserScene:
         with self._lock:
             if self.server is None:
-                import viser
+                import viser  # deferred: heavy, loaded when the first 3D view starts
 
                 _install_guard()
                 server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False,

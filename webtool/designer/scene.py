@@ -1,6 +1,6 @@
 """The marker designer's 3D view (viser): the brick's mesh, its axes and the markers.
 
-:class:`DesignerScene` is a :class:`webtool.viser_base.ViserScene` (127.0.0.1, own port,
+:class:`DesignerScene` is a :class:`webtool.viewer.scene.ViserScene` (127.0.0.1, own port,
 started when the page asks for it, stopped with the app; browsers reach it through the app at
 ``/designer/3d/``, under the access token) that shows the mesh, the brick axes and the markers
 (codes with their real pattern as a texture, dots in their colour). The controls are the
@@ -17,21 +17,32 @@ the pointer) and clicked to select them.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
+from drovisio.designer.export import code_image_rgb
 from drovisio.designer.model import (
     DesignDocument,
     DesignError,
 )
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
-if TYPE_CHECKING:
-    from webtool.designer_service import DesignerService
+__all__ = ["DesignerScene", "DesignSession"]
 
-__all__ = ["DesignerScene"]
 
+class DesignSession(Protocol):
+    """What the 3D view needs of the design it shows (the designer's service): the document,
+    the page's message, and where clicks and drags go."""
+
+    doc: DesignDocument
+    message: str
+
+    def click(self, origin: Any, direction: Any) -> Any: ...
+
+    def marker_clicked(self, index: int, origin: Any, direction: Any) -> None: ...
+
+    def drag_marker(self, index: int, phase: str, origin: Any, direction: Any) -> None: ...
 
 
 class DesignerScene(ViserScene):
@@ -40,7 +51,7 @@ class DesignerScene(ViserScene):
     label = "Drovisio marker designer"
     up = "+z"
 
-    def __init__(self, session: DesignerService):
+    def __init__(self, session: DesignSession):
         super().__init__()
         self.session = session
         self._mesh_version = -1
@@ -55,7 +66,7 @@ class DesignerScene(ViserScene):
 
     # ---- scene
 
-    def sync(self, session: DesignerService) -> None:
+    def sync(self, session: DesignSession) -> None:
         """Bring the scene in line with the document (called under the
         session lock after every change)."""
         doc = session.doc
@@ -63,7 +74,7 @@ class DesignerScene(ViserScene):
             self._mesh_version = doc.mesh_version
             self._rebuild_mesh(doc)
         B = doc.brick_from_mesh
-        from viser import transforms as vtf
+        from viser import transforms as vtf  # deferred: viser loads with the 3D view
 
         self.model.wxyz = vtf.SO3.from_matrix(B[:3, :3]).wxyz
         self.model.position = tuple(float(v) for v in B[:3, 3])
@@ -139,9 +150,7 @@ class DesignerScene(ViserScene):
 
     def _marker_nodes(self, i: int, m, dictionary, first: int, selected: bool, label: str,
                       pal) -> list:
-        from viser import transforms as vtf
-
-        from drovisio.designer.export import code_image_rgb
+        from viser import transforms as vtf  # deferred: viser loads with the 3D view
 
         scene = self.server.scene
         lift = 0.0006

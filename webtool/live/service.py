@@ -34,171 +34,20 @@ import json
 import math
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from drovisio.fusion import so3_log
+from drovisio.mount import down_camera_mount
+from drovisio.pose.covariance import parent_covariance, uncertainty_words
+from webtool.live.annotate import annotate
+from webtool.live.scene import LiveScene
+from webtool.live.stream import DEFAULT_BANDWIDTH_BPS, LEVELS, AdaptiveStream
+
 __all__ = ["DEFAULT_BANDWIDTH_BPS", "LEVELS", "AdaptiveStream", "LiveService", "annotate"]
-
-DEFAULT_BANDWIDTH_BPS = 2_000_000
-
-#: (scale, JPEG quality), best first.
-LEVELS: list[tuple[float, int]] = [
-    (1.0, 80), (1.0, 70), (1.0, 60), (1.0, 50), (0.75, 60), (0.75, 50), (0.75, 40),
-    (0.5, 55), (0.5, 45), (0.5, 35), (0.375, 40), (0.25, 40), (0.25, 30)]
-
-
-class AdaptiveStream:
-    """When to send the next image to one viewer, and at which level (see the module doc).
-
-    Args:
-        rate_bps: This viewer's share of the bandwidth cap, bits per second.
-        fps: The frame rate aimed at (the source's, at most ``max_fps`` of the service).
-        clock: Monotonic clock (tests).
-    """
-
-    def __init__(self, rate_bps: float, fps: float = 15.0, level: int = 4,
-                 max_inflight: int = 2, clock=time.monotonic):
-        self.clock = clock
-        self.rate_Bps = rate_bps / 8.0
-        self.fps = fps
-        self.level = level
-        self.max_inflight = max_inflight
-        self.inflight: deque[float] = deque()
-        self.tokens = 0.0
-        self.t_last = clock()
-        self.last_send = -1e9
-        self.fits = 0
-        self.ack_delay = 0.0
-        self.sent: deque[tuple[float, int]] = deque(maxlen=64)
-        self.total_bytes = 0
-        self.frames = 0
-
-    def set_rate(self, rate_bps: float) -> None:
-        self.rate_Bps = rate_bps / 8.0
-
-    @property
-    def budget(self) -> float:
-        """Bytes per frame that keep ``fps`` within the share."""
-        return self.rate_Bps / max(self.fps, 0.1)
-
-    def _refill(self, now: float) -> None:
-        self.tokens = min(self.tokens + (now - self.t_last) * self.rate_Bps, 2 * self.budget)
-        self.t_last = now
-
-    def ready(self) -> bool:
-        now = self.clock()
-        self._refill(now)
-        return (len(self.inflight) < self.max_inflight and self.tokens >= 0
-                and now - self.last_send >= 0.9 / max(self.fps, 0.1))
-
-    def on_sent(self, nbytes: int) -> None:
-        now = self.clock()
-        self._refill(now)
-        self.tokens -= nbytes
-        self.last_send = now
-        self.inflight.append(now)
-        self.sent.append((now, nbytes))
-        self.total_bytes += nbytes
-        self.frames += 1
-        if nbytes > 1.05 * self.budget and self.level < len(LEVELS) - 1:
-            # far over budget: several steps at once (each step is ~25-35 % smaller)
-            steps = max(1, int(math.log(nbytes / self.budget) / math.log(1.35)))
-            self.level = min(len(LEVELS) - 1, self.level + steps)
-            self.fits = 0
-        elif nbytes < 0.5 * self.budget:
-            self.fits += 1
-            if self.fits >= 5 and self.level > 0 and self.ack_delay < 0.3:
-                self.level -= 1
-                self.fits = 0
-        else:
-            self.fits = 0
-
-    def on_ack(self) -> None:
-        now = self.clock()
-        if self.inflight:
-            d = now - self.inflight.popleft()
-            self.ack_delay = 0.7 * self.ack_delay + 0.3 * d
-            if self.ack_delay > 0.5 and self.level < len(LEVELS) - 1:
-                self.level += 1  # the link (or the phone) cannot keep up
-                self.ack_delay = 0.3  # give the smaller level time to show its effect
-                self.fits = 0
-
-    def kbps(self) -> float:
-        now = self.clock()
-        recent = [(t, n) for t, n in self.sent if now - t <= 3.0]
-        if not recent:
-            return 0.0
-        span = max(now - recent[0][0], 1.0 / max(self.fps, 0.1))
-        return 8 * sum(n for _, n in recent) / span / 1000
-
-    def info(self) -> dict:
-        scale, q = LEVELS[self.level]
-        return {"level": self.level, "scale": scale, "jpeg_quality": q,
-                "share_kbps": round(self.rate_Bps * 8 / 1000, 1), "kbps": round(self.kbps(), 1),
-                "ack_ms": round(self.ack_delay * 1000, 1)}
-
-
-# ------------------------------------------------------------------------------------------
-# Drawing
-# ------------------------------------------------------------------------------------------
-
-_TARGET = (0, 210, 255)   # BGR yellow
-_CODE = (255, 160, 40)
-_DOT = (60, 60, 255)
-
-
-def _short(layout: str) -> str:
-    return layout.replace("drick-", "")
-
-
-def annotate(image: np.ndarray, output, camera) -> np.ndarray:
-    """The frame with this frame's detections: code outlines, dot circles, each tracked
-    brick's axes (10 cm) with its name and distance; the target in yellow."""
-    img = image.copy() if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-    if output is None:
-        return img
-    tkey = None if output.target is None else output.target.track
-    for b in output.bricks:
-        is_t = b.track == tkey
-        m = b.measurement
-        if m is not None and m.image_points is not None:
-            pts = np.asarray(m.image_points, np.float64).reshape(-1, 2)
-            if m.method in ("aruco", "fused") and len(pts) >= 4:
-                n4 = len(pts) // 4 * 4
-                for q in pts[:n4].reshape(-1, 4, 2):
-                    cv2.polylines(img, [np.round(q).astype(np.int32)], True,
-                                  _TARGET if is_t else _CODE, 2, cv2.LINE_AA)
-                rest = pts[n4:]
-            else:
-                rest = pts
-            for p in rest:
-                cv2.circle(img, (int(round(p[0])), int(round(p[1]))), 5,
-                           _TARGET if is_t else _DOT, 2, cv2.LINE_AA)
-        if camera is not None and b.tvec[2] > 0.05:
-            try:
-                axes = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]], np.float64)
-                c = camera.cv_project(axes, b.rvec, b.tvec)
-                if not np.all(np.isfinite(c)) or np.abs(c).max() > 1e5:
-                    continue
-                o = tuple(int(v) for v in np.round(c[0]))
-                for k, col in ((1, (0, 0, 255)), (2, (0, 200, 0)), (3, (255, 0, 0))):
-                    cv2.line(img, o, tuple(int(v) for v in np.round(c[k])), col,
-                             2 if b.measured else 1, cv2.LINE_AA)
-                x, y = o
-                name = _short(b.layout) + (f":{b.instance}" if b.instance is not None
-                                           else f" #{b.track}")
-                text = f"{name} {b.distance:.2f}m" + ("" if b.measured else " (pred)")
-                for col, th in (((0, 0, 0), 4), (_TARGET if is_t else (255, 255, 255), 1)):
-                    cv2.putText(img, text, (x + 8, y - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, col,
-                                th, cv2.LINE_AA)
-            except cv2.error:
-                pass
-    return img
-
 
 # ------------------------------------------------------------------------------------------
 # The service
@@ -346,8 +195,6 @@ class LiveService:
         """The 3D scene, started on first use."""
         with self._lock:
             if self.scene is None and self.want_scene and not self._closed.is_set():
-                from webtool.live_scene import LiveScene
-
                 self.scene = LiveScene(self.mount, self.camera, self.layouts).start()
             return self.scene
 
@@ -519,10 +366,6 @@ class LiveService:
         if self.pipeline.source.now() - out.t_mono > self.pipeline.tracker.config.max_age:
             return []  # never a stale pose, on the page either
         res = []
-        from drovisio.fusion import so3_log
-        from drovisio.mount import down_camera_mount
-        from drovisio.pose.covariance import parent_covariance, uncertainty_words
-
         for b in out.bricks:
             d = b.to_json()
             T = b.body_from_brick

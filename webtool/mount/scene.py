@@ -17,7 +17,7 @@ import numpy as np
 
 from drovisio.geometry import quat_wxyz
 from drovisio.mount import Mount
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
 __all__ = ["MountScene"]
 

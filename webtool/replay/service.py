@@ -3,7 +3,7 @@
 :class:`ReplayService` lists the recordings in ``Settings.replay_dir`` (each a folder with a
 ``manifest.json``), loads one and plays it on a server-side thread: the playback clock ``t``
 advances ``speed`` times real time, at ~15 Hz, and every step updates the replay's own viser
-scene (:class:`webtool.replay_scene.ReplayScene`, served through the app at ``/replay/3d/``).
+scene (:class:`webtool.replay.scene.ReplayScene`, served through the app at ``/replay/3d/``).
 Only recordings inside the recordings folder can be loaded.
 """
 
@@ -20,8 +20,8 @@ from typing import Any
 from drovisio.errors import one_line
 from drovisio.mission.record import load_manifest, load_recording
 from drovisio.textfile import path_text_problem
-from webtool.errors import ServiceError
-from webtool.replay_scene import ReplayScene
+from webtool.errors import BadInput, Conflict, Forbidden, NotFound
+from webtool.replay.scene import ReplayScene
 
 __all__ = ["Playback", "ReplayService"]
 
@@ -77,7 +77,7 @@ class Playback:
 
     def __init__(self, path: Path, manifest: dict, ticks: list[dict]):
         if not ticks:
-            raise ServiceError(f"{path}: the recording has no ticks", 422)
+            raise BadInput(f"{path}: the recording has no ticks")
         self.path = path
         self.manifest = manifest
         self.ticks = ticks
@@ -128,11 +128,11 @@ class ReplayService:
     def folder(self) -> Path:
         d = getattr(self.settings, "replay_dir", None)
         if d is None:
-            raise ServiceError("no recordings folder is configured (replay_dir; "
-                              "`drovisio serve --replay-dir DIR`)", 404)
+            raise NotFound("no recordings folder is configured (replay_dir; "
+                              "`drovisio serve --replay-dir DIR`)")
         d = Path(d)
         if not d.is_dir():
-            raise ServiceError(f"the recordings folder {d} does not exist", 404)
+            raise NotFound(f"the recordings folder {d} does not exist")
         return d
 
     def runs(self) -> list[dict]:
@@ -158,25 +158,25 @@ class ReplayService:
         for field, text in (("path", path), ("name", name)):
             problem = path_text_problem(text) if text else None
             if problem:
-                raise ServiceError(f"{field}: the {field} {problem}", 422)
+                raise BadInput(f"{field}: the {field} {problem}")
         if path:
             p = Path(path)
             if not p.is_absolute():
                 p = d / p
         elif name:
             if "/" in name or "\\" in name or name == "..":
-                raise ServiceError(f"bad recording name {name!r}", 422)
+                raise BadInput(f"bad recording name {name!r}")
             p = d if name == "." else d / name
         else:
-            raise ServiceError('give "name" (a recording in the folder) or "path"', 422)
+            raise BadInput('give "name" (a recording in the folder) or "path"')
         # only recordings in the recordings folder: a path must not reach any other folder
         if not p.resolve().is_relative_to(d.resolve()):
-            raise ServiceError(f"{path or name}: not in the recordings folder {d}; copy the "
-                               "recording there", 403)
+            raise Forbidden(f"{path or name}: not in the recordings folder {d}; copy the "
+                            "recording there")
         if not p.is_dir():
-            raise ServiceError(f"no recording folder {p}", 404)
+            raise NotFound(f"no recording folder {p}")
         if not (p / "manifest.json").is_file():
-            raise ServiceError(f"{p} has no manifest.json: not a mission recording", 422)
+            raise BadInput(f"{p} has no manifest.json: not a mission recording")
         return p
 
     def load(self, name: str | None = None, path: str | None = None) -> dict:
@@ -184,7 +184,7 @@ class ReplayService:
         try:
             manifest, ticks = load_recording(p)
         except (ValueError, KeyError, OSError) as e:
-            raise ServiceError(f"bad recording {p}: {one_line(e, 300)}", 422) from None
+            raise BadInput(f"bad recording {p}: {one_line(e, 300)}") from None
         pb = Playback(p, manifest, ticks)
         with self._lock:
             if self.scene is not None and self.scene.server is not None:
@@ -192,8 +192,7 @@ class ReplayService:
                     self.scene.load(manifest)
                 except (ValueError, KeyError, TypeError, IndexError, AttributeError) as e:
                     # the playing recording stays loaded: a bad one never replaces it
-                    raise ServiceError(f"bad recording {p}: manifest.json: {one_line(e, 200)}",
-                                       422) from None
+                    raise BadInput(f"bad recording {p}: manifest.json: {one_line(e, 200)}") from None
             self.pb = pb
             self._shown = -1
         self._ensure_thread()
@@ -202,7 +201,7 @@ class ReplayService:
 
     def _need(self) -> Playback:
         if self.pb is None:
-            raise ServiceError("no recording loaded", 409)
+            raise Conflict("no recording loaded")
         return self.pb
 
     # --------------------------------------------------------------- controls
@@ -224,14 +223,14 @@ class ReplayService:
         with self._lock:
             pb = self._need()
             if not math.isfinite(t):
-                raise ServiceError("t must be a number of seconds", 422)
+                raise BadInput("t must be a number of seconds")
             pb.t = min(max(float(t), 0.0), pb.duration)
         self._wake.set()
         return self.state()
 
     def set_speed(self, x: float) -> dict:
         if not (math.isfinite(x) and 0.05 <= x <= 64):
-            raise ServiceError("speed must be between 0.05 and 64", 422)
+            raise BadInput("speed must be between 0.05 and 64")
         with self._lock:
             self._need().speed = float(x)
         return self.state()

@@ -3,7 +3,7 @@
 :class:`DesignerService` owns the :class:`drovisio.designer.model.DesignDocument`, a lock, the
 change notifications the page long-polls (without holding a worker thread: see
 :meth:`DesignerService.wait_for_change_async`), and, once the page asks for it, the 3D view
-(:class:`webtool.designer_scene.DesignerScene`). Both the JSON endpoint ``POST
+(:class:`webtool.designer.scene.DesignerScene`). Both the JSON endpoint ``POST
 /api/designer/click`` and the 3D view's click handler call :meth:`DesignerService.click`.
 """
 
@@ -14,13 +14,14 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.designer.checks import Finding, apply_fix, blocking, check_design
+from drovisio.designer.export import save_design
 from drovisio.designer.model import (
     MODES,
     ClickResult,
@@ -35,10 +36,9 @@ from drovisio.layout import (
     load_layout,
     shipped_layouts_dir,
 )
+from drovisio.meshes import shipped_mesh
 from drovisio.resources import user_data_dir
-
-if TYPE_CHECKING:
-    from webtool.designer_scene import DesignerScene
+from webtool.designer.scene import DesignerScene
 
 __all__ = ["MODE_LABELS", "DesignerService"]
 
@@ -177,8 +177,6 @@ class DesignerService:
     def open_example(self, example: str) -> None:
         kind, _, name = example.partition(":")
         if kind == "mesh":
-            from drovisio.meshes import shipped_mesh
-
             mesh = shipped_mesh(name)
             if mesh is None:
                 raise DesignError(f"no example model called {name!r}")
@@ -242,8 +240,6 @@ class DesignerService:
         self.edit(lambda doc: apply_fix(doc, action), "Fixed.")
 
     def save(self, overwrite: bool = False):
-        from drovisio.designer.export import save_design
-
         with self.lock:
             shipped = shipped_layouts_dir()
             if self.layouts_dir.resolve() == shipped.resolve():
@@ -304,50 +300,17 @@ class DesignerService:
             }
             if not doc.has_mesh:
                 return out
-            dims = doc.dimensions()
-            B = doc.brick_from_mesh
-            out["mesh"] = {
-                "name": doc.mesh_name, "units": doc.units, "units_guessed": doc.units_guessed,
-                "size_mm": [round(float(d) * 1000, 1) for d in dims],
-                "triangles": int(len(doc.mesh.faces)), "flat_faces": len(doc.faces),
-                "brick_from_mesh": [[round(float(v), 9) for v in row] for row in B],
-                "frame_is_file_frame": bool(np.allclose(B, np.eye(4))),
-                "source_layout": str(doc.source_layout) if doc.source_layout else None,
-            }
-            block = doc.id_block()
-            out["ids"] = {
-                "first_id": doc.effective_first_id() if doc.codes() else doc.first_id,
-                "first_id_auto": doc.first_id is None,
-                "ids_per_instance": doc.effective_ids_per_instance(),
-                "ipi_auto": doc.ids_per_instance is None,
-                "instances": doc.instances, "family": doc.code_family,
-                "dictionary": doc.dictionary(),
-                "block": [block.start, block.stop - 1] if block else None,
-            }
+            out["mesh"] = _mesh_json(doc)
+            out["ids"] = _ids_json(doc)
             out["layout"] = {"name": doc.name, "description": doc.description or "",
                              "symmetry": doc.symmetry}
-            first = doc.effective_first_id() if doc.codes() else 0
-            for i, m in enumerate(doc.brick_markers()):
-                item: dict[str, Any] = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
-                        "size_mm": round(m.size * 1000, 3),
-                        "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
-                        "normal": [round(v, 4) + 0.0 for v in m.normal],
-                        "on_face": doc.markers[i].face is not None}
-                if m.kind == "aruco" and m.slot is not None:
-                    item["slot"] = m.slot
-                    item["id"] = first + m.slot
-                elif m.color is not None:
-                    item["color"] = m.color
-                    item["rgb"] = list(doc.palette()[m.color].display_rgb())
-                out["markers"].append(item)
+            out["markers"] = _markers_json(doc)
             return out
 
     # ---------------------------------------------------------------- viewer
 
     def viewer(self) -> DesignerScene:
         """The 3D viewer, started on first use."""
-        from webtool.designer_scene import DesignerScene
-
         with self._viewer_lock:
             if self._closed:
                 raise DesignError("the designer is shutting down")
@@ -368,3 +331,52 @@ class DesignerService:
             self.changed.notify_all()
         if v is not None:
             v.close()
+
+
+def _mesh_json(doc: DesignDocument) -> dict[str, Any]:
+    """The loaded mesh: name, units, size (mm), triangles, flat faces, brick_from_mesh (4×4)."""
+    dims = doc.dimensions()
+    B = doc.brick_from_mesh
+    return {
+        "name": doc.mesh_name, "units": doc.units, "units_guessed": doc.units_guessed,
+        "size_mm": [round(float(d) * 1000, 1) for d in dims],
+        "triangles": int(len(doc.mesh.faces)), "flat_faces": len(doc.faces),
+        "brick_from_mesh": [[round(float(v), 9) for v in row] for row in B],
+        "frame_is_file_frame": bool(np.allclose(B, np.eye(4))),
+        "source_layout": str(doc.source_layout) if doc.source_layout else None,
+    }
+
+
+def _ids_json(doc: DesignDocument) -> dict[str, Any]:
+    """The code ids: first id, ids per instance, instances, family, dictionary, id block."""
+    block = doc.id_block()
+    return {
+        "first_id": doc.effective_first_id() if doc.codes() else doc.first_id,
+        "first_id_auto": doc.first_id is None,
+        "ids_per_instance": doc.effective_ids_per_instance(),
+        "ipi_auto": doc.ids_per_instance is None,
+        "instances": doc.instances, "family": doc.code_family,
+        "dictionary": doc.dictionary(),
+        "block": [block.start, block.stop - 1] if block else None,
+    }
+
+
+def _markers_json(doc: DesignDocument) -> list[dict[str, Any]]:
+    """Every marker in the brick frame: kind, label, size and centre (mm), normal; a code's
+    slot and id, a dot's colour."""
+    first = doc.effective_first_id() if doc.codes() else 0
+    out = []
+    for i, m in enumerate(doc.brick_markers()):
+        item: dict[str, Any] = {"index": i, "kind": m.kind, "label": doc.marker_label(i),
+                                "size_mm": round(m.size * 1000, 3),
+                                "center_mm": [round(v * 1000, 2) + 0.0 for v in m.center],
+                                "normal": [round(v, 4) + 0.0 for v in m.normal],
+                                "on_face": doc.markers[i].face is not None}
+        if m.kind == "aruco" and m.slot is not None:
+            item["slot"] = m.slot
+            item["id"] = first + m.slot
+        elif m.color is not None:
+            item["color"] = m.color
+            item["rgb"] = list(doc.palette()[m.color].display_rgb())
+        out.append(item)
+    return out

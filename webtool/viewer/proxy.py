@@ -16,6 +16,9 @@ from typing import Any
 from fastapi import APIRouter, HTTPException, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import Response
 from starlette.requests import HTTPConnection
+from websockets.asyncio.client import connect
+
+from webtool.access import access_level
 
 __all__ = ["client_response", "proxy_socket", "viewer_router"]
 
@@ -23,7 +26,7 @@ _client_cache: dict[str, tuple[bytes, bytes]] = {}
 
 
 def _viser_build() -> Path:
-    import viser
+    import viser  # deferred: heavy, loaded when a 3D view is first asked for
 
     return Path(viser.__file__).resolve().parent / "client" / "build"
 
@@ -79,8 +82,6 @@ async def proxy_socket(ws: WebSocket, port: int | None) -> None:
     if port is None:
         await ws.close(code=1011)
         return
-    from websockets.asyncio.client import connect
-
     protos = list(ws.scope.get("subprotocols") or [])
     try:
         up = await connect(f"ws://127.0.0.1:{port}", subprotocols=protos or None,
@@ -119,18 +120,33 @@ async def proxy_socket(ws: WebSocket, port: int | None) -> None:
 
 
 def viewer_router(prefix: str, tag: str,
-                  start_scene: Callable[[HTTPConnection], Awaitable[Any]]) -> APIRouter:
+                  start_scene: Callable[[HTTPConnection], Awaitable[Any]], *,
+                  full_access_only: bool = False, start_for_client: bool = True) -> APIRouter:
     """``GET prefix/…`` (viser's client) and ``WebSocket prefix`` (relayed to the scene's
-    port) of one area's 3D view; ``start_scene(conn)`` starts the scene (or None)."""
+    port) of one area's 3D view; ``start_scene(conn)`` starts the scene (or gives None: the
+    socket is closed).
+
+    Args:
+        prefix: Where the view is served (``/live/3d``…).
+        tag: The OpenAPI tag.
+        start_scene: Starts the area's scene and gives it (its ``port``), or None.
+        full_access_only: The socket is refused to view-only links (a 3D view that edits).
+        start_for_client: Start the scene when the client's files are asked for (else only
+            when the socket opens).
+    """
     router = APIRouter(prefix=prefix, tags=[tag])
 
     @router.get("/{path:path}")
     async def viser_client(request: Request, path: str = "") -> Response:
-        await start_scene(request)
+        if start_for_client:
+            await start_scene(request)
         return await client_response(request, path)
 
     @router.websocket("")
     async def viser_socket(ws: WebSocket) -> None:
+        if full_access_only and access_level(ws) != "full":
+            await ws.close(code=1008)      # view-only links cannot edit
+            return
         sc = await start_scene(ws)
         await proxy_socket(ws, sc.port if sc is not None else None)
 

@@ -4,7 +4,7 @@ The scene is in the site frame (x east, y north, z up, metres): a ground grid, t
 ghost outlines, the drone (FRD body axes, a flat box and the camera frustum at
 ``body_from_camera``) at its recorded pose, its setpoint (a small orange ball), and each brick
 as its layout's mesh at its recorded top-face pose (placed bricks turn green). Served through
-the app at ``/replay/3d/`` (:mod:`webtool.viser_base`). Quaternions are viser's (w, x, y, z).
+the app at ``/replay/3d/`` (:mod:`webtool.viewer.scene`). Quaternions are viser's (w, x, y, z).
 """
 
 from __future__ import annotations
@@ -14,8 +14,10 @@ import math
 import numpy as np
 
 from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
+from drovisio.layout import load_layout
+from drovisio.meshes import load_layout_mesh
 from drovisio.resources import layouts_dir
-from webtool.viser_base import ViserScene
+from webtool.viewer.scene import ViserScene
 
 __all__ = ["ReplayScene"]
 
@@ -44,9 +46,6 @@ class ReplayScene(ViserScene):
         if layout not in self._meshes:
             mesh = None
             try:
-                from drovisio.layout import load_layout
-                from drovisio.meshes import load_layout_mesh
-
                 f = layouts_dir() / f"{layout}.json"
                 if f.is_file():
                     m = load_layout_mesh(load_layout(f))
@@ -73,58 +72,72 @@ class ReplayScene(ViserScene):
         """Draw the static part of a recording (site, wall plan, drone, bricks)."""
         if self.server is None:
             return
-        sc = self.server.scene
         with self._lock, self.server.atomic():
-            sc.reset()
+            self.server.scene.reset()
             self._bricks.clear()
-            site = manifest.get("site") or {}
-            lo, hi = (site.get("bounds") or {}).get("min"), (site.get("bounds") or {}).get("max")
-            if lo and hi:
-                w, h = hi[0] - lo[0], hi[1] - lo[1]
-                sc.add_grid("/ground", width=w, height=h, plane="xy", cell_size=0.25,
-                            section_size=1.0,
-                            position=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0))
-            else:
-                sc.add_grid("/ground", width=8.0, height=8.0, plane="xy", cell_size=0.25)
+            bounds = (manifest.get("site") or {}).get("bounds") or {}
+            lo, hi = bounds.get("min"), bounds.get("max")
+            self._draw_ground(lo, hi)
             layouts = manifest.get("layouts") or {}
             for b in manifest.get("bricks", []):
-                dims = (layouts.get(b["layout"]) or {}).get("dimensions") or [0.3, 0.15, 0.12]
-                plan = b["plan"]
-                mesh = self._mesh(b["layout"])
-                if mesh is not None:
-                    sc.add_mesh_simple(f"/plan/{b['id']}", mesh[0], mesh[1], color=GHOST_RGB,
-                                       wireframe=True, opacity=0.35,
-                                       position=tuple(plan["position"]),
-                                       wxyz=yaw_quat_wxyz(plan["yaw"]))
-                else:
-                    sc.add_box(f"/plan/{b['id']}", color=GHOST_RGB, dimensions=tuple(dims),
-                               wireframe=True, wxyz=yaw_quat_wxyz(plan["yaw"]),
-                               position=tuple(np.asarray(plan["position"]) -
-                                              [0, 0, dims[2] / 2]))
-                pick = b["pick"]
-                node = self._brick_node(f"/bricks/{b['id']}", b["layout"], dims, BRICK_RGB,
-                                        position=tuple(pick["position"]),
-                                        wxyz=yaw_quat_wxyz(pick["yaw"]))
-                self._bricks[b["id"]] = {"node": node, "color": BRICK_RGB}
-            self._drone = sc.add_frame("/drone", axes_length=0.25, axes_radius=0.01)
-            sc.add_box("/drone/body", color=(70, 70, 70), dimensions=(0.35, 0.35, 0.06),
-                       opacity=0.7)
-            cam = manifest.get("camera") or {}
-            T = np.asarray(cam.get("body_from_camera") or np.eye(4), float)
-            fov, aspect = 1.0, 4 / 3
-            if cam.get("K") and cam.get("height"):
-                fov = 2 * math.atan2(cam["height"] / 2, cam["K"][1][1])
-                aspect = cam["width"] / cam["height"]
-
-            sc.add_camera_frustum("/drone/camera", fov=fov, aspect=aspect, scale=0.15,
-                                  color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
-                                  position=tuple(T[:3, 3]))
-            self._setpoint = sc.add_icosphere("/setpoint", radius=0.05, color=SETPOINT_RGB, opacity=0.8)
+                self._draw_brick(b, layouts)
+            self._draw_drone(manifest.get("camera") or {})
             cx, cy, y0 = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[1]) if lo and hi \
                 else (1.0, 1.0, -1.0)
             self.server.initial_camera.position = (cx, y0 - 3.0, 5.0)
             self.server.initial_camera.look_at = (cx, cy, 0.5)
             self.server.initial_camera.up = (0.0, 0.0, 1.0)
+
+    def _draw_ground(self, lo: list[float] | None, hi: list[float] | None) -> None:
+        """The ground grid over the site's bounds (world frame, metres), else 8 m square."""
+        sc = self.server.scene
+        if lo and hi:
+            w, h = hi[0] - lo[0], hi[1] - lo[1]
+            sc.add_grid("/ground", width=w, height=h, plane="xy", cell_size=0.25,
+                        section_size=1.0,
+                        position=((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0))
+        else:
+            sc.add_grid("/ground", width=8.0, height=8.0, plane="xy", cell_size=0.25)
+
+    def _draw_brick(self, b: dict, layouts: dict) -> None:
+        """A brick's place in the wall plan (a ghost) and the brick itself at its pick-up
+        place."""
+        sc = self.server.scene
+        dims = (layouts.get(b["layout"]) or {}).get("dimensions") or [0.3, 0.15, 0.12]
+        plan = b["plan"]
+        mesh = self._mesh(b["layout"])
+        if mesh is not None:
+            sc.add_mesh_simple(f"/plan/{b['id']}", mesh[0], mesh[1], color=GHOST_RGB,
+                               wireframe=True, opacity=0.35,
+                               position=tuple(plan["position"]),
+                               wxyz=yaw_quat_wxyz(plan["yaw"]))
+        else:
+            sc.add_box(f"/plan/{b['id']}", color=GHOST_RGB, dimensions=tuple(dims),
+                       wireframe=True, wxyz=yaw_quat_wxyz(plan["yaw"]),
+                       position=tuple(np.asarray(plan["position"]) - [0, 0, dims[2] / 2]))
+        pick = b["pick"]
+        node = self._brick_node(f"/bricks/{b['id']}", b["layout"], dims, BRICK_RGB,
+                                position=tuple(pick["position"]),
+                                wxyz=yaw_quat_wxyz(pick["yaw"]))
+        self._bricks[b["id"]] = {"node": node, "color": BRICK_RGB}
+
+    def _draw_drone(self, cam: dict) -> None:
+        """The drone (axes and airframe), its camera's frustum at ``body_from_camera`` and the
+        setpoint."""
+        sc = self.server.scene
+        self._drone = sc.add_frame("/drone", axes_length=0.25, axes_radius=0.01)
+        sc.add_box("/drone/body", color=(70, 70, 70), dimensions=(0.35, 0.35, 0.06),
+                   opacity=0.7)
+        T = np.asarray(cam.get("body_from_camera") or np.eye(4), float)
+        fov, aspect = 1.0, 4 / 3
+        if cam.get("K") and cam.get("height"):
+            fov = 2 * math.atan2(cam["height"] / 2, cam["K"][1][1])
+            aspect = cam["width"] / cam["height"]
+        sc.add_camera_frustum("/drone/camera", fov=fov, aspect=aspect, scale=0.15,
+                              color=(20, 20, 20), wxyz=tuple(quat_wxyz(T[:3, :3])),
+                              position=tuple(T[:3, 3]))
+        self._setpoint = sc.add_icosphere("/setpoint", radius=0.05, color=SETPOINT_RGB,
+                                          opacity=0.8)
 
     def show(self, tick: dict, placed: set[str]) -> None:
         """Move the drone, setpoint and bricks to a tick's poses."""
