@@ -29,7 +29,17 @@ from webtool.calibration import camera_in_use
 from webtool.errors import install_error_handlers
 from webtool.mount import mount_in_use
 from webtool.responses import JSONResponse
-from webtool.routes import calibration, designer, health, live, mount, pages, replay, study
+from webtool.routes import (
+    calibration,
+    designer,
+    fleet,
+    health,
+    live,
+    mount,
+    pages,
+    replay,
+    study,
+)
 from webtool.services import lifespan
 from webtool.settings import Settings
 
@@ -117,7 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(pages.router)
     app.include_router(health.router)
-    for area in (calibration, designer, live, mount, replay, study):
+    for area in (calibration, designer, live, mount, replay, study, fleet):
         app.include_router(area.router)
         if hasattr(area, "viewer_router"):
             app.include_router(area.viewer_router)

@@ -12,12 +12,14 @@ from starlette.requests import HTTPConnection
 
 from webtool.calibration.service import CalibrationService
 from webtool.designer.service import DesignerService
+from webtool.fleet.service import FleetService
 from webtool.live.service import LiveService
 from webtool.mount.service import MountService
 from webtool.replay.service import ReplayService
 from webtool.services import (
     CALIBRATION,
     DESIGNER,
+    FLEET,
     LIVE,
     MOUNT,
     REPLAY,
@@ -28,7 +30,7 @@ from webtool.services import (
 from webtool.settings import Settings
 from webtool.study.service import StudyService
 
-__all__ = ["CalibrationDep", "CurrentSettings", "DesignerDep", "LiveDep", "LiveStarted",
+__all__ = ["CalibrationDep", "CurrentSettings", "DesignerDep", "FleetDep", "LiveDep", "LiveStarted",
            "MountDep", "ReplayDep", "StudyDep", "Templates", "get_settings", "get_templates",
            "started_live"]
 
@@ -55,6 +57,7 @@ CurrentSettings = Annotated[Settings, Depends(get_settings)]
 Templates = Annotated[Jinja2Templates, Depends(get_templates)]
 CalibrationDep = Annotated[CalibrationService, Depends(service(CALIBRATION))]
 DesignerDep = Annotated[DesignerService, Depends(service(DESIGNER))]
+FleetDep = Annotated[FleetService, Depends(service(FLEET))]
 LiveDep = Annotated[LiveService, Depends(service(LIVE))]
 """The live service as it is (the mount page reads its camera's frames when it runs)."""
 LiveStarted = Annotated[LiveService, Depends(started_live)]

@@ -7,6 +7,7 @@ live           :class:`webtool.live.service.LiveService`
 mount          :class:`webtool.mount.service.MountService`
 study          :class:`webtool.study.service.StudyService`
 replay         :class:`webtool.replay.service.ReplayService`
+fleet          :class:`webtool.fleet.service.FleetService` (``drovisio station``)
 =============  ======================================================================
 
 Each is an :class:`Area`: its name (the ``app.state`` attribute that holds it) and its
@@ -31,13 +32,14 @@ from starlette.requests import HTTPConnection
 
 from webtool.calibration.service import CalibrationService
 from webtool.designer.service import DesignerService
+from webtool.fleet.service import FleetService
 from webtool.live.service import LiveService
 from webtool.mount.service import MountService
 from webtool.replay.service import ReplayService
 from webtool.settings import Settings
 from webtool.study.service import StudyService
 
-__all__ = ["AREAS", "CALIBRATION", "DESIGNER", "LIVE", "MOUNT", "REPLAY", "SERVICES", "STUDY",
+__all__ = ["AREAS", "CALIBRATION", "DESIGNER", "FLEET", "LIVE", "MOUNT", "REPLAY", "SERVICES", "STUDY",
            "Area", "close_services", "get_service", "lifespan", "service"]
 
 
@@ -66,9 +68,10 @@ LIVE: Area[LiveService] = Area("live", LiveService)
 MOUNT: Area[MountService] = Area("mount", MountService)
 STUDY: Area[StudyService] = Area("study", StudyService)
 REPLAY: Area[ReplayService] = Area("replay", ReplayService)
+FLEET: Area[FleetService] = Area("fleet", FleetService)
 
 #: every area, in the order they are closed
-AREAS: tuple[Area[Any], ...] = (CALIBRATION, DESIGNER, LIVE, MOUNT, STUDY, REPLAY)
+AREAS: tuple[Area[Any], ...] = (CALIBRATION, DESIGNER, LIVE, MOUNT, STUDY, REPLAY, FLEET)
 #: name → area
 SERVICES: dict[str, Area[Any]] = {a.name: a for a in AREAS}
 
@@ -137,5 +140,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             server = getattr(app.state, "uvicorn_server", None)
             if server is not None:
                 server.should_exit = True
+    if app.state.settings.is_station:
+        # a station hears its drones from the start, watched or not
+        await asyncio.to_thread(get_service, app, FLEET)
     yield
     await asyncio.to_thread(close_services, app)

@@ -79,6 +79,12 @@ class Settings(BaseModel):
     # Replay panel of the live page (webtool.replay_service): the folder of simulated mission
     # recordings (`drovisio mission simulate ... --record DIR`) it lists; None: no replay.
     replay_dir: Path | None = None
+    # The ground station (`drovisio station`): Zenoh endpoints where drones are heard
+    # (listen: they connect here; connect: a router or drones that listen) and the ROS domain
+    # id; none: this web tool is no station and its Fleet page says so.
+    station_listen: list[str] = []
+    station_connect: list[str] = []
+    station_domain: int = Field(default=0, ge=0, le=232)
     # Access token. None means "no token needed", which is only allowed on a loopback host:
     # binding anywhere else generates one (see `token_required`).
     token: str | None = None
@@ -107,6 +113,10 @@ class Settings(BaseModel):
         if self.data_dir is not None:
             return Path(self.data_dir) / area
         return user_data_dir(area)
+
+    @property
+    def is_station(self) -> bool:
+        return bool(self.station_listen or self.station_connect)
 
     @property
     def flying(self) -> bool:

@@ -158,6 +158,21 @@ class Fleet:
             d2 = self._drones.get(drone_id)
             return (None, None) if d2 is None else (d2.image, d2.image_t)
 
+    def last_bricks(self, drone_id: str) -> list[dict[str, Any]]:
+        """The bricks of a drone's last frame that carry a pose (``rvec``, ``tvec`` of three
+        finite numbers each), as its JSON output lists them."""
+        with self._lock:
+            d = self._drones.get(drone_id)
+            bricks = (d.last_output or {}).get("bricks") if d is not None else None
+        out = []
+        for b in bricks if isinstance(bricks, list) else []:
+            if isinstance(b, dict) and all(
+                    isinstance(b.get(k), list) and len(b[k]) == 3
+                    and all(isinstance(x, (int, float)) and math.isfinite(x) for x in b[k])
+                    for k in ("rvec", "tvec")):
+                out.append(b)
+        return out
+
     def presence(self, drone_id: str, present: bool) -> None:
         """A drone's session opened (its liveliness token appeared) or closed."""
         with self._lock:

@@ -21,6 +21,7 @@ PAGES = {
     "/live": ("live.html", "Live view"),
     "/mount": ("mount.html", "Camera mount"),
     "/study": ("study.html", "Study"),
+    "/fleet": ("fleet.html", "Fleet"),
     "/help": ("help.html", "Field guide"),
 }
 

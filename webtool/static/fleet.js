@@ -53,6 +53,9 @@
         $("fleet-empty").hidden = js.drones.length > 0;
         $("fleet-table").hidden = js.drones.length === 0;
         $("fleet-rows").replaceChildren(...js.drones.map((d) => row(d, now)));
+        $("lost-after").textContent = String(js.lost_after_s);
+        $("fleet-error").hidden = !js.error;
+        $("fleet-error").textContent = js.error || "";
       }
     } catch (e) { /* the station restarts: the next poll tells */ }
     setTimeout(poll, 500);

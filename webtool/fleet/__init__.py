@@ -1,0 +1,1 @@
+"""The Fleet page's area: every drone the station hears (``drovisio station``)."""
