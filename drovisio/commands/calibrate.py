@@ -27,10 +27,13 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from drovisio.arguments import Command, board_square, mount_offset
 from drovisio.errors import InputError
 from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 
-__all__ = ["run", "collect_images"]
+__all__ = ["BOARD_COMMAND", "COMMAND", "MOUNT_COMMAND", "add_arguments", "add_board_arguments",
+           "add_mount_arguments", "collect_images", "measure_mount_command", "print_board",
+           "run"]
 
 PROG = "drovisio calibrate"
 
@@ -324,3 +327,99 @@ def measure_mount_command(args: argparse.Namespace) -> int:
         for lay in layouts:
             print(blind_heights_text(camera, mount, lay), file=sys.stderr)
     return 0
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--board", required=True, metavar="KIND:COLSxROWS",
+                   help="calibration target, e.g. chessboard:9x6 (inner corners, columns x rows)")
+    p.add_argument("--square", required=True, type=board_square, metavar="METRES",
+                   help="side of one board square in metres, e.g. 0.025")
+    p.add_argument("--report", metavar="REPORT.json",
+                   help="write the calibration report (errors, rejected views, verdict) here")
+    p.add_argument("--out", required=True, metavar="CAMERA.yaml",
+                   help="camera file to write (OpenCV FileStorage form)")
+    p.add_argument("--model", default="plumb_bob",
+                   choices=("auto", "plumb_bob", "rational", "thin_prism", "tilted", "fisheye"),
+                   help="lens model: plumb_bob (OpenCV's 5 coefficients, default), rational "
+                        "(8), thin_prism (12: rational + thin prism), tilted (14: + the "
+                        "sensor's tilt), fisheye (Kannala-Brandt, 4: lenses of 120 deg and "
+                        "more), or auto (plumb_bob, rational or fisheye, chosen on held-out "
+                        "views; the report says why)")
+    p.add_argument("--board-flatness", action="store_true",
+                   help="also measure how far the board bowed (fitted with the lens, as "
+                        "mrcal's board warp): a bow of a millimetre "
+                        "moves the focal length by about 1 %%; the report says it")
+    p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
+                   help="calibration images, or folders of them")
+
+
+def add_board_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pdf", required=True, metavar="BOARD.pdf", help="PDF file to write")
+    p.add_argument("--board", default="chessboard:9x6", metavar="KIND:COLSxROWS",
+                   help="chessboard:9x6 (default) or charuco:7x5 (inner corners)")
+    p.add_argument("--paper", default="A4", choices=("A4", "A3", "Letter"),
+                   help="paper size (default A4); the board is as large as fits")
+    p.add_argument("--square", type=board_square, metavar="METRES",
+                   help="side of one square on paper (default: the largest whole mm that fits)")
+
+
+def add_mount_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    p.add_argument("--layout", action="append", metavar="LAYOUT.json",
+                   help="layout of the code lying flat (default: the shipped landing pad and "
+                        "dricks)")
+    p.add_argument("--aligned", action="store_true",
+                   help="the code's x axis points toward the drone's nose: measure the pan too")
+    p.add_argument("--offset", nargs=3, type=mount_offset, default=(0.0, 0.0, 0.0),
+                   metavar=("FORWARD", "RIGHT", "DOWN"),
+                   help="the camera's centre from the body origin, metres (measured with a "
+                        "tape; default 0 0 0)")
+    p.add_argument("--out", required=True, metavar="MOUNT.json", help="mount file to write")
+    p.add_argument("images", nargs="+", metavar="IMAGE_OR_FOLDER",
+                   help="pictures from the drone's camera, the drone standing level")
+
+
+COMMAND = Command(
+    name="calibrate",
+    summary="calibrate a camera from chessboard images",
+    description="Calibrate the camera and its lens model (--model) from views of a "
+                "chessboard or ChArUco board. Writes the camera file and, with --report, "
+                "the RMS reprojection error, per-view errors, rejected views and corners, "
+                "and a verdict. To print a board first: drovisio calibrate board --pdf "
+                "board.pdf [--board chessboard:9x6] [--paper A4|A3|Letter].",
+    example="drovisio calibrate --board chessboard:9x6 --square 0.025 \\\n"
+            "    --report report.json --out camera.yaml calib_images/",
+    add_arguments=add_arguments,
+)
+
+
+BOARD_COMMAND = Command(
+    name="calibrate-board",
+    spelled="calibrate board",
+    summary="write the calibration board to print (true-scale PDF)",
+    description="Write a true-scale PDF of a calibration board to print, with a 100 mm "
+                "ruler to check the print; measure a printed square and give it to "
+                "--square when calibrating.",
+    example="drovisio calibrate board --pdf board.pdf --board chessboard:9x6 --paper A4",
+    add_arguments=add_board_arguments,
+    target="drovisio.commands.calibrate:print_board",
+)
+
+
+MOUNT_COMMAND = Command(
+    name="calibrate-mount",
+    spelled="calibrate mount",
+    summary="measure the camera mount from pictures of the landing pad",
+    description="Measure the camera mount (tilt, roll, and pan with --aligned) from "
+                "pictures of a shipped code lying flat (the landing pad is best) in "
+                "front of the drone standing level, and write the mount file.",
+    example="drovisio calibrate mount --camera sample_sessions/camera.yaml --aligned "
+            "--offset 0.08 0 0.05 \\\n    --out mount.json sample_sessions/pad",
+    add_arguments=add_mount_arguments,
+    target="drovisio.commands.calibrate:measure_mount_command",
+)

@@ -32,6 +32,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from drovisio.arguments import Command
 from drovisio.errors import InputError, WriteError
 
 PROG = "drovisio detect"
@@ -320,4 +321,37 @@ def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: in
              "name as given)")
 
 
-__all__ = ["GravityTable", "run"]
+__all__ = ["COMMAND", "GravityTable", "add_arguments", "run"]
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
+                   help="camera file (OpenCV FileStorage YAML/XML/JSON or ROS camera_info YAML)")
+    p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types")
+    p.add_argument("--method", choices=("auto", "aruco", "dots"), default="auto",
+                   help="detector to use (default: auto, i.e. whatever the layouts need)")
+    p.add_argument("--gravity-file", metavar="FILE",
+                   help='JSON Lines {"file": ..., "gravity": [gx, gy, gz]} per frame, unit vector '
+                        "pointing down in the camera frame; resolves flip ambiguities")
+    p.add_argument("--out", metavar="FILE", help="write JSON Lines here instead of stdout")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="image files, folders of images, or video files")
+
+
+COMMAND = Command(
+    name="detect",
+    summary="find bricks in images or videos and print their poses (JSON Lines)",
+    description="Detect bricks by their ArUco codes or colour dots and estimate each "
+                "brick's pose relative to the camera (camera_from_brick: rvec, tvec in "
+                "metres). One JSON object per frame, in input order, on stdout unless "
+                "--out is given; timings and summaries go to stderr.",
+    example="drovisio detect --camera camera.yaml \\\n"
+            "    --layout marker_layouts/drick-aruco-pyramids.json frames/ > poses.jsonl",
+    add_arguments=add_arguments,
+)

@@ -20,9 +20,11 @@ import signal
 import sys
 import time
 
+from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
 
-__all__ = ["build_pipeline", "new_notes", "run", "sink_failures", "status_line"]
+__all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
+           "run", "sink_failures", "status_line"]
 
 
 def _err(msg: str) -> None:
@@ -220,3 +222,77 @@ def run(args: argparse.Namespace) -> int:
     if failures or st.get("sink_errors"):
         code = 1
     return code
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_pipeline_arguments(p: argparse.ArgumentParser, serving: bool) -> None:
+    """The pipeline's options, shared by ``run`` and ``serve`` (one process on the drone)."""
+    p.add_argument("--layout", required=not serving, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types"
+                        + (" (default: the shipped layouts)" if serving else ""))
+    p.add_argument("--mount", metavar="MOUNT_FILE",
+                   help="camera mount (tilt, pan, roll and offset, or body_from_camera) for "
+                        "poses in the drone's FRD body frame")
+    p.add_argument("--sink", action="append", metavar="SINK",
+                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION, ws://HOST:PORT "
+                        "(WebSocket feed) or zenoh:connect=tcp/HOST:PORT (ROS 2 messages over "
+                        "Zenoh, as rmw_zenoh); repeatable"
+                        + (" (with a sink, the pipeline runs from the start, watched or not)"
+                           if serving else " (default jsonl:-)"))
+    p.add_argument("--record", metavar="DIR|FILE.mcap",
+                   help="also record the frames and results here: a folder (Drovisio's own "
+                        "form) or an .mcap file (ROS 2 messages, for ros2 bag and Foxglove)")
+    p.add_argument("--drone-id", type=drone_id, metavar="ID",
+                   help="this drone's name on a site with several (letters, digits, _): ROS 2 "
+                        "topics under /drovisio/ID and frame ids ID/base_link (zenoh: sinks, "
+                        ".mcap recordings)")
+    p.add_argument("--record-images", choices=("jpeg", "png"), default="jpeg",
+                   help="images of an .mcap recording: jpeg (quality 95, default) or png "
+                        "(lossless: a replay sees exactly the frames the run saw; ~4x larger "
+                        "and slower to write)")
+    p.add_argument("--target", default="nearest", metavar="TARGET",
+                   help="brick sent to the flight controller: nearest (default), LAYOUT, "
+                        "LAYOUT:INSTANCE, track:N or none; changeable at run time"
+                        + (" on the live page" if serving else " through a ws:// sink"))
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
+                        "distance, default) or px4 (LOCAL_NED from the link's attitude and "
+                        "position)")
+    p.add_argument("--send-held-targets", action="store_true",
+                   help="also send the flight controller a target not seen in the current frame "
+                        "(its last measurement, stamped with that measurement's time). Off by "
+                        "default: autopilots filter line-of-sight measurements and expect "
+                        "silence when the target is not seen")
+    p.add_argument("--max-age", type=bounded(0.0, 3600.0, above=True), default=0.5,
+                   metavar="SECONDS",
+                   help="drop a brick not seen for this long (default 0.5 s)")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--source", required=True, metavar="SOURCE",
+                   help="camera index (0), video file, folder of images (name order) or stream URL")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    add_pipeline_arguments(p, serving=False)
+    p.add_argument("--pace", choices=("realtime", "max"), default="realtime",
+                   help="files and recordings: play at their own frame rate like a camera "
+                        "(realtime, default) or process every frame as fast as possible (max)")
+    p.add_argument("--frames", type=positive_int, metavar="N",
+                   help="stop after N processed frames")
+    p.add_argument("--quiet", action="store_true", help="no status line every second")
+
+
+COMMAND = Command(
+    name="run",
+    summary="run the positioning pipeline headless (on the drone)",
+    description="Read frames from a source, detect bricks, estimate and track their "
+                "poses, and send the results to one or more sinks. A finite source (a "
+                "video, a folder) ends the run when it is exhausted.",
+    example="drovisio run --source 0 --camera camera.yaml \\\n"
+            "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.json \\\n"
+            "    --sink jsonl:- --sink mavlink:udpout:127.0.0.1:14550",
+    add_arguments=add_arguments,
+)
