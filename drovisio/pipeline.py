@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drovisio.camera import Camera
 from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
 from drovisio.fusion import fuse_frame
@@ -173,7 +174,7 @@ class Pipeline:
                  gravity: Callable[[float], np.ndarray | None] | None = None,
                  recorder=None, max_age: float = 0.5, parallel: bool = True,
                  fuse: bool = True, layouts: Sequence = (), camera=None,
-                 detector_factory: Callable[[object], list[Detector]] | None = None):
+                 detector_factory: Callable[[Camera], list[Detector]] | None = None):
         self.source = source
         self.detectors = list(detectors)
         self.camera = camera

@@ -44,6 +44,8 @@ import argparse
 import gc
 import json
 import os
+import socket
+import subprocess
 import sys
 import tempfile
 import threading
@@ -51,11 +53,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from drovisio.bounds import ArgumentParser, number
+from drovisio.fileio import atomic_write_text
+from drovisio.geometry import from_rvec_tvec
+from drovisio.mount import load_mount
+from drovisio.pipeline import Pipeline
+from drovisio.pipeline_config import PipelineConfig
 from drovisio.resources import layouts_dir, sample_sessions_dir
-from drovisio.sources import Pace
+from drovisio.sinks.mavlink import mavutil2
+from drovisio.sources import FrameSource, Pace, VideoFileReader
+from drovisio.startup import build_pipeline
 
 __all__ = ["main", "rss_mb"]
 
@@ -99,19 +109,17 @@ class _AtFps:
         self.r.close()
 
 
-def _args(sinks: list[str]) -> argparse.Namespace:
-    return argparse.Namespace(source=str(APPROACH / "approach.mp4"),
-                              camera=str(SAMPLE / "camera.yaml"),
-                              layout=[str(x) for x in LAYOUTS], mount=str(APPROACH / "mount.json"),
-                              sink=sinks, record=None, target="nearest",
-                              autopilot="ardupilot", max_age=0.5, pace="realtime")
+def _config(sinks: list[str]) -> PipelineConfig:
+    """``drovisio run`` on the sample approach video with the three drick layouts."""
+    return PipelineConfig(source=str(APPROACH / "approach.mp4"),
+                          camera=str(SAMPLE / "camera.yaml"),
+                          layouts=[str(x) for x in LAYOUTS], mount=str(APPROACH / "mount.json"),
+                          sinks=sinks, record=None, target="nearest",
+                          autopilot="ardupilot", max_age=0.5, pace="realtime")
 
 
-def _pipeline(sinks: list[str], fps: float, pace: Pace):
-    from drovisio.commands.run import build_pipeline
-    from drovisio.sources import FrameSource, VideoFileReader
-
-    p = build_pipeline(_args(sinks))
+def _pipeline(sinks: list[str], fps: float, pace: Pace) -> Pipeline:
+    p = build_pipeline(_config(sinks))
     p.source = FrameSource(_AtFps(VideoFileReader(APPROACH / "approach.mp4", loop=True), fps),
                            pace=pace)
     return p
@@ -122,8 +130,6 @@ def _pct(a, q: float) -> float:
 
 
 def bench_latency(fps: float, seconds: float) -> dict:
-    from drovisio.sinks.mavlink import mavutil2
-
     mavutil = mavutil2()
     rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
     port = rx.port.getsockname()[1]
@@ -183,8 +189,6 @@ class MjpegCamera:
     the socket is recorded per frame index."""
 
     def __init__(self, jpegs: list[bytes], fps: float, order: list[int] | None = None):
-        import socket
-
         self.jpegs = jpegs
         self.order = order or list(range(len(jpegs)))
         self.fps = fps
@@ -203,8 +207,6 @@ class MjpegCamera:
         return f"http://127.0.0.1:{self.port}/stream.mjpg"
 
     def _serve(self) -> None:
-        import socket
-
         self.sock.settimeout(0.5)
         while not self.stop.is_set():
             try:
@@ -240,9 +242,6 @@ class MjpegCamera:
 
 def _body_truth() -> list[np.ndarray]:
     """Per frame of the sample video: the true body-frame positions (B, 3) of its bricks."""
-    from drovisio.geometry import from_rvec_tvec
-    from drovisio.mount import load_mount
-
     mount = load_mount(APPROACH / "mount.json")
     out = []
     for line in (APPROACH / "truth.jsonl").read_text().splitlines():
@@ -257,12 +256,6 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
     """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
     ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
     flight controller's path must not change)."""
-    import subprocess
-
-    import cv2
-
-    from drovisio.sinks.mavlink import mavutil2
-
     cap = cv2.VideoCapture(str(APPROACH / "approach.mp4"))
     jpegs = []
     while True:
@@ -458,7 +451,5 @@ def main(argv: list[str]) -> int:
               f"{r['rss_mb']['end_median']} MB at the end, growth {r['growth_mb']} MB "
               f"(slope {r['slope_mb_per_hour']} MB/h) — {'PASS' if r['pass'] else 'FAIL'}")
     if a.json:
-        from drovisio.fileio import atomic_write_text
-
         atomic_write_text(a.json, json.dumps(res, indent=1))
     return 0 if ok else 1

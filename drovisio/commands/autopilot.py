@@ -17,7 +17,9 @@ import threading
 import time
 
 from drovisio.arguments import Command, nonnegative_float, positive_float
+from drovisio.commands.run import build_pipeline
 from drovisio.errors import InputError
+from drovisio.pipeline_config import PipelineConfig
 
 __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 
@@ -25,12 +27,9 @@ __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
     """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
     target measurements per second)."""
-    from drovisio.commands.run import build_pipeline
-
-    ns = argparse.Namespace(source=args.source, camera=args.camera, layout=args.layout,
-                            mount=args.mount, sink=[], record=None, target=args.target,
-                            autopilot=args.autopilot, max_age=0.5, pace="realtime")
-    pipeline = build_pipeline(ns, default_sinks=())
+    config = PipelineConfig(source=args.source, camera=args.camera, layouts=args.layout or [],
+                            mount=args.mount, target=args.target, autopilot=args.autopilot)
+    pipeline = build_pipeline(config, default_sinks=())
     measured: list[float] = []
     latency: list[float] = []
 

@@ -19,9 +19,14 @@ import argparse
 import signal
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
+from drovisio.pipeline_config import PipelineConfig
+
+if TYPE_CHECKING:
+    from drovisio.pipeline import Pipeline
 
 __all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
            "run", "sink_failures", "status_line"]
@@ -84,82 +89,15 @@ def new_notes(st: dict, said: set[str]) -> str:
     return out
 
 
-def build_pipeline(args: argparse.Namespace, loop: bool = False,
-                   default_sinks: tuple[str, ...] = ("jsonl:-",)):
-    """The pipeline a ``drovisio run`` namespace describes (also used by ``drovisio serve``
-    and the benchmarks).
+def build_pipeline(args: argparse.Namespace | PipelineConfig, loop: bool = False,
+                   default_sinks: tuple[str, ...] = ("jsonl:-",)) -> Pipeline:
+    """The pipeline a ``drovisio run`` command line (or its configuration) describes: see
+    :func:`drovisio.startup.build_pipeline`."""
+    # deferred: the pipeline loads OpenCV and the detectors, which `drovisio --help` must not
+    from drovisio.startup import build_pipeline as build
 
-    Args:
-        args: ``source``, ``camera``, ``layout``, ``mount``, ``sink``, ``record``, ``target``,
-            ``autopilot``, ``send_held_targets``, ``max_age``, ``pace``.
-        loop: Play a file source in a loop (the web tool's sample session).
-        default_sinks: The sinks when ``args.sink`` is empty.
-    """
-    from drovisio.camera_file import load_camera
-    from drovisio.layout import load_layouts
-    from drovisio.mount import load_mount
-    from drovisio.pipeline import Pipeline, detectors_for
-    from drovisio.recording import Recorder
-    from drovisio.sinks.mavlink import MavlinkSink
-    from drovisio.sinks.target import TargetSelector
-    from drovisio.sources import FrameSource, reader_for
-    from drovisio.startup import check_pipeline_options, open_sinks_of
-
-    check_pipeline_options(args, open_sinks=False)   # the same check as `serve`'s
-    camera = load_camera(args.camera)
-    layouts = load_layouts(args.layout)
-    if not any(lay.has_codes or lay.has_dots for lay in layouts):
-        raise InputError("the layouts have neither codes nor dots: nothing to detect")
-    mount = load_mount(args.mount) if getattr(args, "mount", None) else None
-    reader = reader_for(args.source, loop=loop)
-    target = TargetSelector(getattr(args, "target", None) or "nearest")  # checked above
-    sinks = open_sinks_of(args, target, mount, layouts, default_sinks, camera=camera)
-    mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
-    if mav is not None and mount is not None and camera.size_known:
-        from drovisio.autopilot.blind import blind_height
-
-        # the highest over the layouts: PX4's final-approach altitude must cover it
-        heights = [b.leaves_at_m for b in (blind_height(camera, mount, lay) for lay in layouts)
-                   if b.leaves_at_m is not None]
-        mav.blind_height_m = max(heights) if heights else None
-
-    def attitude_gravity(t_mono: float):
-        """Gravity in the camera frame: the autopilot's roll/pitch if the link gives them,
-        else level flight."""
-        if mav is not None and mount is not None:
-            att = mav.attitude_at(t_mono)
-            if att is not None:
-                return mount.gravity_in_camera(att[0], att[1])
-        return level
-
-    level = mount.gravity_in_camera() if mount is not None else None
-    gravity = attitude_gravity if mount is not None else None
-
-    source = FrameSource(reader, pace=getattr(args, "pace", "realtime"))
-    recorder: object | None = None
-    if getattr(args, "record", None) and str(args.record).lower().endswith(".mcap"):
-        from drovisio.ros.mcap_recorder import McapRecorder
-        from drovisio.ros.messages import RosMessages, namespace_for
-
-        ns, prefix = namespace_for(getattr(args, "drone_id", None))
-        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts, namespace=ns,
-                                                         frame_prefix=prefix),
-                                source=args.source,
-                                image_format=getattr(args, "record_images", "jpeg"))
-    elif getattr(args, "record", None):
-        recorder = Recorder(args.record, source=args.source, camera_file=args.camera,
-                            mount_file=getattr(args, "mount", None))
-
-    def make_detectors(cam):
-        return detectors_for(cam, layouts)
-
-    pipeline = Pipeline(source, make_detectors(camera) if camera.size_known else [],
-                        sinks=sinks, mount=mount, target=target, gravity=gravity,
-                        recorder=recorder, max_age=getattr(args, "max_age", 0.5),
-                        layouts=layouts, camera=camera, detector_factory=make_detectors)
-    if camera.size_known:
-        pipeline.warm_up(camera.width, camera.height)
-    return pipeline
+    config = args if isinstance(args, PipelineConfig) else PipelineConfig.from_args(args)
+    return build(config, loop=loop, default_sinks=default_sinks)
 
 
 def run(args: argparse.Namespace) -> int:
