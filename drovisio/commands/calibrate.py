@@ -29,6 +29,7 @@ from pathlib import Path
 
 from drovisio.arguments import Command, board_square, mount_offset
 from drovisio.errors import InputError
+from drovisio.fileio import atomic_write_text, check_output_path
 from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 
 __all__ = ["BOARD_COMMAND", "COMMAND", "MOUNT_COMMAND", "add_arguments", "add_board_arguments",
@@ -78,8 +79,6 @@ def _ros_path(out: Path) -> Path:
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
-    from drovisio.fileio import atomic_write_text
-
     text = json.dumps(data, indent=1, allow_nan=False) + "\n"
     atomic_write_text(path, text, make_parents=True, verify=lambda tmp: json.loads(
         tmp.read_text(encoding="utf-8")))
@@ -126,19 +125,9 @@ def _probe_board_size(images: list[Path], board) -> str | None:
     return None
 
 
-def run(args: argparse.Namespace) -> int:
-    from drovisio.calibration.board import BoardSpecError, parse_board
-    from drovisio.calibration.report import build_report, format_summary
-    from drovisio.calibration.session import CalibrationSession, SessionConfig
-    from drovisio.calibration.solve import CalibrationError, SolveOptions
-    from drovisio.camera_file import save_camera
-    from drovisio.fileio import check_output_path
-
-    try:
-        board = parse_board(args.board, args.square)
-    except BoardSpecError as e:
-        raise InputError(str(e)) from None
-    images = collect_images(list(args.images))
+def _outputs(args: argparse.Namespace, images: list[Path]) -> tuple[Path, Path, Path | None]:
+    """The camera file, the ROS camera file beside it and the report (or None), each checked
+    against the inputs and the others."""
     inputs = {f"input {p}": p for p in images}
     out = check_output_path(args.out, "--out", inputs)
     ros = _ros_path(out)
@@ -148,13 +137,15 @@ def run(args: argparse.Namespace) -> int:
         report_path = check_output_path(args.report, "--report",
                                         {**inputs, "--out": out, "the ROS camera file "
                                          "written beside --out": ros})
+    return out, ros, report_path
+
+
+def _evaluate_images(session, images: list[Path]) -> tuple[list, int]:
+    """Find the board in every image, saying one line per image: (the evaluated frames, how
+    many images could be read)."""
     n = len(images)
     width = len(str(n))
-
-    session = CalibrationSession(board, config=SessionConfig(
-        camera_name=out.stem or "camera", solve=SolveOptions(
-            model=args.model, board_flatness=args.board_flatness)))
-    frames = []  # (path name, FrameResult)
+    frames = []  # FrameResult per readable image
     n_read = 0
     for i, path in enumerate(images, 1):
         name = str(path)
@@ -175,12 +166,12 @@ def run(args: argparse.Namespace) -> int:
                   f"{edges}", file=sys.stderr, flush=True)
         else:
             print(f"{tag}: rejected: {'; '.join(fr.reasons)}", file=sys.stderr, flush=True)
+    return frames, n_read
 
-    if n_read == 0:
-        _err(f"none of the {n} file(s) could be read as an image")
-        _maybe_report(report_path, session, build_report)
-        return 1
-    # one resolution: the one most usable views (then most images) have
+
+def _one_size(frames: list) -> tuple[list, tuple[int, int]]:
+    """The frames that have a size, and the one resolution calibrated: the one most usable
+    views (then most images) have; mixed sizes are said."""
     sized = [(fr, fr.image_size) for fr in frames if fr.image_size is not None]
     sizes = Counter(s for fr, s in sized if fr.usable) or Counter(s for _, s in sized)
     size, _ = sizes.most_common(1)[0]
@@ -189,6 +180,12 @@ def run(args: argparse.Namespace) -> int:
         desc = ", ".join(f"{c} at {w}x{h}" for (w, h), c in all_sizes.most_common())
         _err(f"mixed image sizes ({desc}); calibrating the {size[0]}x{size[1]} images (a "
              "calibration belongs to one resolution)")
+    return sized, size
+
+
+def _keep_views(session, frames: list) -> None:
+    """Keep the usable views of the one resolution, each once; reject the others with why."""
+    sized, size = _one_size(frames)
     for fr, fsize in sized:
         if fsize != size:
             session.add_rejected(fr.name, f"image size {fsize[0]}x{fsize[1]} "
@@ -207,6 +204,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             session.add_rejected(fr.name, "; ".join(fr.reasons) or "not usable")
 
+
+def _too_few_views(session, frames: list, images: list[Path], board, n_read: int) -> bool:
+    """Say why the views cannot be solved (no board found, fewer than 3 usable); True then."""
+    n = len(images)
     kept = len(session.views)
     if not any(fr.detection is not None for fr in frames):
         _err(f"no {board.spec()} board found in any of the {n_read} image(s)")
@@ -215,20 +216,19 @@ def run(args: argparse.Namespace) -> int:
                       f"(a board of {board.cols + 1}x{board.rows + 1} squares)"
                       + ("; the whole board must be visible" if board.kind == "chessboard"
                          else "")), file=sys.stderr)
-        _maybe_report(report_path, session, build_report)
-        return 1
+        return True
     if kept < 3:
         _err(f"only {kept} usable view(s) of {n} image(s); a calibration needs at least 3 "
              "(10 or more, varied, for a good one)")
-        _maybe_report(report_path, session, build_report)
-        return 1
-    print(f"solving with {kept} views...", file=sys.stderr, flush=True)
-    try:
-        result = session.solve()
-    except CalibrationError as e:
-        _err(f"calibration failed: {e}")
-        _maybe_report(report_path, session, build_report)
-        return 1
+        return True
+    return False
+
+
+def _write_results(result, session, out: Path, ros: Path, report_path: Path | None) -> None:
+    """Write the camera files (and the report) and print the summary."""
+    from drovisio.calibration.report import build_report, format_summary
+    from drovisio.camera_file import save_camera
+
     cam = result.camera
     report = build_report(session)
     save_camera(cam, out)
@@ -244,6 +244,43 @@ def run(args: argparse.Namespace) -> int:
                                     f"not computed: {flat['reason']}"), file=sys.stderr)
     print(f"wrote {out} (OpenCV) and {ros} (ROS camera_info)"
           + (f", report {report_path}" if report_path else ""), file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``drovisio calibrate``: 0 when the camera file was written, 1 when the images do not
+    calibrate (said in one line, the report written all the same)."""
+    # deferred: the calibration loads OpenCV, which `drovisio --help` must not
+    from drovisio.calibration.board import BoardSpecError, parse_board
+    from drovisio.calibration.report import build_report
+    from drovisio.calibration.session import CalibrationSession, SessionConfig
+    from drovisio.calibration.solve import CalibrationError, SolveOptions
+
+    try:
+        board = parse_board(args.board, args.square)
+    except BoardSpecError as e:
+        raise InputError(str(e)) from None
+    images = collect_images(list(args.images))
+    out, ros, report_path = _outputs(args, images)
+    session = CalibrationSession(board, config=SessionConfig(
+        camera_name=out.stem or "camera", solve=SolveOptions(
+            model=args.model, board_flatness=args.board_flatness)))
+    frames, n_read = _evaluate_images(session, images)
+    if n_read == 0:
+        _err(f"none of the {len(images)} file(s) could be read as an image")
+        _maybe_report(report_path, session, build_report)
+        return 1
+    _keep_views(session, frames)
+    if _too_few_views(session, frames, images, board, n_read):
+        _maybe_report(report_path, session, build_report)
+        return 1
+    print(f"solving with {len(session.views)} views...", file=sys.stderr, flush=True)
+    try:
+        result = session.solve()
+    except CalibrationError as e:
+        _err(f"calibration failed: {e}")
+        _maybe_report(report_path, session, build_report)
+        return 1
+    _write_results(result, session, out, ros, report_path)
     return 0
 
 
@@ -261,7 +298,6 @@ def print_board(args: argparse.Namespace) -> int:
     """``drovisio calibrate board``: the board as a true-scale PDF."""
     from drovisio.calibration.board import BoardSpecError, parse_board
     from drovisio.calibration.printout import board_pdf
-    from drovisio.fileio import check_output_path
 
     try:
         board = parse_board(args.board, args.square or 0.025)
@@ -283,7 +319,6 @@ def measure_mount_command(args: argparse.Namespace) -> int:
     """``drovisio calibrate mount``: the mount from a code lying flat, the drone level."""
     from drovisio.calibration.mount import measure_from_images
     from drovisio.camera_file import load_camera
-    from drovisio.fileio import atomic_write_text, check_output_path
     from drovisio.layout import load_layout, shipped_layouts_dir
     from drovisio.mount import Mount, body_from_camera_angles, load_mount
 

@@ -27,6 +27,7 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -34,6 +35,8 @@ import numpy as np
 
 from drovisio.arguments import Command
 from drovisio.errors import InputError, WriteError
+from drovisio.fileio import atomic_write, check_output_path
+from drovisio.textfile import parse_json, read_text
 
 PROG = "drovisio detect"
 
@@ -55,8 +58,6 @@ class GravityTable:
 
     @classmethod
     def load(cls, path: str) -> GravityTable:
-        from drovisio.textfile import parse_json, read_text
-
         text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
         t = cls()
         for ln, line in enumerate(text.splitlines(), 1):
@@ -134,8 +135,6 @@ def _output(args: argparse.Namespace) -> tuple[TextIO, Path | None, Path | None]
     """(stream to write, temporary file, final path) for ``--out`` (stdout without it)."""
     if not args.out:
         return sys.stdout, None, None
-    from drovisio.fileio import check_output_path
-
     others: dict[str, str] = {"the camera file": args.camera}
     others.update({f"layout {lay}": lay for lay in args.layout})
     if args.gravity_file:
@@ -152,8 +151,6 @@ def _output(args: argparse.Namespace) -> tuple[TextIO, Path | None, Path | None]
 
 
 def _finish_output(stream: TextIO, tmp: Path, out: Path) -> None:
-    from drovisio.fileio import atomic_write
-
     try:
         stream.flush()
         os.fsync(stream.fileno())
@@ -209,7 +206,8 @@ def run(args: argparse.Namespace) -> int:
     gravity = GravityTable.load(args.gravity_file) if args.gravity_file else None
     stream, tmp, out = _output(args)
     try:
-        code = _run_frames(args, _Streams(args.camera, camera, aruco_layouts, dots_layouts), gravity, stream)
+        code = _run_frames(args, _Streams(args.camera, camera, aruco_layouts, dots_layouts),
+                           gravity, stream)
     except BaseException:
         if tmp is not None:
             stream.close()
@@ -220,85 +218,108 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
+@dataclass
+class _Tally:
+    """What the run counted, for its summary, and what it said once per input."""
+
+    frames: int = 0
+    bricks: int = 0
+    errors: int = 0
+    gravity: int = 0
+    dup_frames: int = 0
+    times: list[float] = field(default_factory=list)
+    """Detection and pose time of each frame, seconds."""
+    noted: set[str] = field(default_factory=set)
+
+    def say_once(self, key: str, message: str) -> None:
+        if key not in self.noted:
+            self.noted.add(key)
+            _err(message)
+
+
+def _detect(item, res, streams: _Streams, gravity: GravityTable | None,
+            tally: _Tally) -> None:
+    """Detect the bricks of one readable frame into ``res`` (a failure is its error)."""
+    for note in item.notes:
+        tally.say_once(f"{item.source}: {note}", f"{item.file}: {note}")
+    img = item.image
+    assert img is not None
+    stream = item.is_video or item.source != item.file   # a video or a folder
+    try:
+        dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
+    except ValueError as e:
+        res.error = str(e)
+        dets = []
+    g = gravity.lookup(item.file, item.frame, item.is_video) if gravity else None
+    tally.gravity += g is not None
+    t0 = time.perf_counter()
+    for det in dets:
+        try:
+            res.bricks.extend(det.detect(img, gravity=g))
+        except Exception as e:  # noqa: BLE001 - a frame must never stop the run
+            res.bricks = []
+            res.error = f"detection failed: {type(e).__name__}: {e}"
+            break
+    if dets:
+        tally.times.append(time.perf_counter() - t0)
+
+
+def _say_duplicates(item, res, where: str, tally: _Tally) -> None:
+    """Codes of one brick whose id was read several times: said once per input."""
+    dup = sorted({(b.layout, b.instance) for b in res.bricks if b.duplicate}, key=str)
+    tally.dup_frames += bool(dup)
+    for lay_name, inst in dup:
+        n = sum(1 for b in res.bricks if b.duplicate and b.layout == lay_name
+                and b.instance == inst)
+        tally.say_once(f"{item.source}: {lay_name}:{inst}",
+                       f"{where}: {n} codes of {lay_name} instance {inst} share their id: each "
+                       "is posed on its own and flagged \"duplicate\" (give each brick its own "
+                       "ids: the layout's first_id, ids_per_instance, instances)")
+
+
+def _say_messages(messages: list[str], tally: _Tally) -> None:
+    """The inputs' own messages (a file that could not be read), counted as errors."""
+    for m in messages:
+        _err(m)
+    tally.errors += len(messages)
+    messages.clear()
+
+
 def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: TextIO) -> int:
+    # deferred: the detectors and the readers load OpenCV, which `drovisio --help` must not
+    from drovisio.detect.corners import normalized_grid
     from drovisio.detect.result import FrameResult
     from drovisio.sources import iter_inputs
 
-    if streams.aruco_layouts:  # the per-camera undistortion table, once, outside the timing
-        from drovisio.detect.corners import normalized_grid
-
-        if streams.camera.size_known:
-            normalized_grid(streams.camera)
-
+    if streams.aruco_layouts and streams.camera.size_known:
+        normalized_grid(streams.camera)  # the undistortion table, once, outside the timing
     messages: list[str] = []
-    n_frames = n_bricks = n_errors = n_gravity = n_dup_frames = 0
-    times: list[float] = []   # detection + pose time of each frame
-    noted: set[str] = set()
+    tally = _Tally()
     for item in iter_inputs(args.inputs, messages):
-        for m in messages:
-            _err(m)
-        n_errors += len(messages)
-        messages.clear()
-        n_frames += 1
+        _say_messages(messages, tally)
+        tally.frames += 1
         res = FrameResult(file=item.file, frame=item.frame)
         where = f"{item.file}" + (f" frame {item.frame}" if item.is_video else "")
         if item.error is not None:
             res.error = item.error
         else:
-            for note in item.notes:
-                key = f"{item.source}: {note}"
-                if key not in noted:
-                    noted.add(key)
-                    _err(f"{item.file}: {note}")
-            img = item.image
-            assert img is not None
-            stream = item.is_video or item.source != item.file   # a video or a folder
-            try:
-                dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
-            except ValueError as e:
-                res.error = str(e)
-                dets = []
-            g = gravity.lookup(item.file, item.frame, item.is_video) if gravity else None
-            n_gravity += g is not None
-            t0 = time.perf_counter()
-            for det in dets:
-                try:
-                    res.bricks.extend(det.detect(img, gravity=g))
-                except Exception as e:  # noqa: BLE001 - a frame must never stop the run
-                    res.bricks = []
-                    res.error = f"detection failed: {type(e).__name__}: {e}"
-                    break
-            if dets:
-                times.append(time.perf_counter() - t0)
-        dup = sorted({(b.layout, b.instance) for b in res.bricks if b.duplicate},
-                     key=str)
-        n_dup_frames += bool(dup)
-        for lay_name, inst in dup:
-            key = f"{item.source}: {lay_name}:{inst}"
-            if key not in noted:   # said once per input, not once per frame
-                noted.add(key)
-                n = sum(1 for b in res.bricks if b.duplicate and b.layout == lay_name
-                        and b.instance == inst)
-                _err(f"{where}: {n} codes of {lay_name} instance {inst} share their id: each "
-                     "is posed on its own and flagged \"duplicate\" (give each brick its own "
-                     "ids: the layout's first_id, ids_per_instance, instances)")
+            _detect(item, res, streams, gravity, tally)
+        _say_duplicates(item, res, where, tally)
         if res.error is not None:
-            n_errors += 1
+            tally.errors += 1
             _err(f"{where}: {res.error}")
-        n_bricks += len(res.bricks)
+        tally.bricks += len(res.bricks)
         out.write(json.dumps(res.to_json(), allow_nan=False) + "\n")
         out.flush()
-    for m in messages:
-        _err(m)
-    n_errors += len(messages)
-    if n_frames == 0:
+    _say_messages(messages, tally)
+    if tally.frames == 0:
         _err("no frames to process")
         return 1
-    _summary(n_frames, n_bricks, n_errors, gravity, n_gravity, times)
-    if n_dup_frames:
-        _err(f"{n_dup_frames} of {n_frames} frames had codes sharing one id (flagged "
+    _summary(tally.frames, tally.bricks, tally.errors, gravity, tally.gravity, tally.times)
+    if tally.dup_frames:
+        _err(f"{tally.dup_frames} of {tally.frames} frames had codes sharing one id (flagged "
              "\"duplicate\")")
-    return 1 if n_errors else 0
+    return 1 if tally.errors else 0
 
 
 def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: int,
