@@ -25,7 +25,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -35,7 +34,8 @@ import numpy as np
 from drovisio.camera import Camera
 from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
-from drovisio.fusion import fuse_frame
+from drovisio.fusion import dots_half_turn_symmetric, fuse_frame
+from drovisio.pipeline_status import PipelineStats, PipelineStatus, TargetBrickStatus
 from drovisio.sinks.target import TargetSelector
 from drovisio.sources import Frame, FrameSource, SourceState
 from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
@@ -45,6 +45,7 @@ __all__ = [
     "FrameOutput",
     "Pipeline",
     "PipelineStats",
+    "PipelineStatus",
     "detectors_for",
 ]
 
@@ -103,48 +104,6 @@ class FrameOutput:
         return out
 
 
-class PipelineStats:
-    """Rolling figures (bounded memory: fixed-size windows)."""
-
-    def __init__(self, window: int = 90):
-        self.detect_ms: deque[float] = deque(maxlen=window)
-        self.latency_ms: deque[float] = deque(maxlen=window)
-        self.frame_times: deque[float] = deque(maxlen=window)
-        self.frames = 0
-        self.detector_errors = 0
-        self.sink_errors = 0
-        self.bricks = 0
-        self.held = 0
-        """Bricks of the last frame held over by the tracker (not measured in it)."""
-        self.last_error: str | None = None
-        self.duplicates: dict[str, int] = {}
-        """``layout:instance`` -> frames in which its code id was read on several codes (those
-        copies are not tracked: which one is the brick is unknown); at most 16 names."""
-
-    def fps(self, now: float | None = None) -> float:
-        ft = list(self.frame_times)
-        if len(ft) < 2:
-            return 0.0
-        now = time.monotonic() if now is None else now
-        recent = [t for t in ft if now - t <= 2.0]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
-
-    @staticmethod
-    def _median(d: deque) -> float:
-        return float(np.median(list(d))) if d else 0.0
-
-    def snapshot(self) -> dict:
-        return {"frames": self.frames, "fps": round(self.fps(), 2),
-                "detect_ms": round(self._median(self.detect_ms), 2),
-                "latency_ms": round(self._median(self.latency_ms), 2),
-                "bricks": self.bricks, "held": self.held,
-                "detector_errors": self.detector_errors,
-                "sink_errors": self.sink_errors, "last_error": self.last_error,
-                "duplicates": dict(self.duplicates)}
-
-
 class Pipeline:
     """Runs the stages on a source until it ends or :meth:`stop` is called.
 
@@ -191,8 +150,6 @@ class Pipeline:
         self.recorder = recorder
         self.fuse = fuse
         self.layouts = list(layouts)
-        from drovisio.fusion import dots_half_turn_symmetric
-
         self._symmetric_dots = {lay.name for lay in self.layouts
                                 if getattr(lay, "has_codes", False)
                                 and dots_half_turn_symmetric(lay)}
@@ -268,9 +225,8 @@ class Pipeline:
         # detector, but never tracked (one track would jump between the copies)
         tracked = [p for p in poses if not p.duplicate]
         if len(tracked) != len(poses):
-            for name in sorted({f"{p.layout}:{p.instance}" for p in poses if p.duplicate}):
-                if name in self.stats.duplicates or len(self.stats.duplicates) < 16:
-                    self.stats.duplicates[name] = self.stats.duplicates.get(name, 0) + 1
+            self.stats.count_duplicates({f"{p.layout}:{p.instance}" for p in poses
+                                         if p.duplicate})
         bricks = self.tracker.update(tracked, frame.t_mono, frame.t_wall)
         target = self.target.choose(bricks)
         out = FrameOutput(source=self.source.label, frame=frame.index, seq=frame.seq,
@@ -345,11 +301,11 @@ class Pipeline:
 
     # ------------------------------------------------------------------ loop
     def run(self, max_frames: int | None = None,
-            on_status: Callable[[dict], None] | None = None, status_period: float = 1.0
-            ) -> int:
+            on_status: Callable[[PipelineStatus], None] | None = None,
+            status_period: float = 1.0) -> int:
         """Loop until the source ends, :meth:`stop` is called or ``max_frames`` were done.
 
-        ``on_status(status_dict)`` is called every ``status_period`` seconds.
+        ``on_status(snapshot)`` is called every ``status_period`` seconds.
         Returns the number of frames processed.
         """
         self.source.start()
@@ -367,27 +323,29 @@ class Pipeline:
                 next_status += status_period
                 if time.monotonic() > next_status:
                     next_status = time.monotonic() + status_period
-                on_status(self.status())
+                on_status(self.snapshot())
         return n
 
     def stop(self) -> None:
         self._stop.set()
 
-    def status(self) -> dict:
+    def snapshot(self) -> PipelineStatus:
         """Figures for status lines and the live page."""
-        s = self.stats.snapshot()
-        src = self.source.status()
-        s["source"] = src.to_json()
-        s["target"] = self.target.spec.to_json()
-        t = self.last_output.target if self.last_output is not None else None
-        s["target_brick"] = None if t is None or self.last_output is None or \
-            self.source.now() - self.last_output.t_mono > self.tracker.config.max_age else \
-            {"layout": t.layout, "instance": t.instance, "track": t.track,
-             "distance": round(t.distance, 3)}
-        s["sinks"] = [x.status() for x in self.sinks if hasattr(x, "status")]
-        if self.recorder is not None:
-            s["recording"] = self.recorder.status()
-        return s
+        out = self.last_output
+        t = out.target if out is not None else None
+        fresh = (t is not None and out is not None
+                 and self.source.now() - out.t_mono <= self.tracker.config.max_age)
+        brick = (TargetBrickStatus(t.layout, t.instance, t.track, round(t.distance, 3))
+                 if fresh and t is not None else None)
+        return PipelineStatus.of(
+            self.stats, source=self.source.status(), target=self.target.spec,
+            target_brick=brick,
+            sinks=[x.status() for x in self.sinks if hasattr(x, "status")],
+            recording=self.recorder.status() if self.recorder is not None else None)
+
+    def status(self) -> dict:
+        """:meth:`snapshot`'s JSON form."""
+        return self.snapshot().to_json()
 
     def close(self) -> None:
         """Stop the source, close the sinks and the recorder."""

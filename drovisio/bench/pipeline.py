@@ -161,18 +161,18 @@ def bench_latency(fps: float, seconds: float) -> dict:
         time.sleep(seconds)
         p.stop()
         th_run.join(5)
-        st = p.status()
+        st = p.snapshot()
         p.close()
     stop.set()
     th.join(1)
     rx.close()
     lat_a = np.array(lat[int(fps):])  # first second: warm-up
     rx_a = np.array(got[int(fps):]) * 1e3
-    frames_offered = st["source"]["frames"]
+    frames_offered = st.source.frames
     return {
         "fps_camera": fps, "seconds": seconds, "frames_offered": frames_offered,
-        "frames_processed": st["frames"], "frames_dropped": st["source"]["dropped"],
-        "processed_fps": round(st["frames"] / seconds, 2),
+        "frames_processed": st.frames, "frames_dropped": st.source.dropped,
+        "processed_fps": round(st.frames / seconds, 2),
         "latency_ms": {"median": round(_pct(lat_a, 50), 2), "p90": round(_pct(lat_a, 90), 2),
                        "max": round(float(lat_a.max()) if len(lat_a) else float("nan"), 2)},
         "capture_to_received_ms": {"median": round(_pct(rx_a, 50), 2),
@@ -373,7 +373,7 @@ def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bo
     gc.collect()
     n = p.run(max_frames=frames_total)
     wall = time.monotonic() - t0
-    st = p.status()
+    st = p.snapshot()
     p.close()
     a = np.array(samples)
     post = a[a[:, 0] >= warmup_minutes]
@@ -390,7 +390,7 @@ def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bo
                    "end_median": round(float(np.median(last)), 2),
                    "max": round(float(a[:, 1].max()), 2)},
         "growth_mb": round(growth, 3), "slope_mb_per_hour": round(slope * 60, 3),
-        "detector_errors": st["detector_errors"], "pass": bool(growth <= 1.0),
+        "detector_errors": st.detector_errors, "pass": bool(growth <= 1.0),
     }
 
 

@@ -19,14 +19,17 @@ import argparse
 import signal
 import sys
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
 from drovisio.pipeline_config import PipelineConfig
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must not
     from drovisio.pipeline import Pipeline
+    from drovisio.pipeline_status import PipelineStatus
+    from drovisio.sources import SourceStatus
 
 __all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
            "run", "sink_failures", "status_line"]
@@ -39,49 +42,63 @@ def _err(msg: str) -> None:
         pass
 
 
-def sink_failures(st: dict) -> list[tuple[str, int, str | None]]:
+def _sinks_of(st: PipelineStatus | Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Each sink's own status, from the snapshot or its JSON form."""
+    return list(st.get("sinks", [])) if isinstance(st, Mapping) else st.sinks
+
+
+def sink_failures(st: PipelineStatus | Mapping[str, Any]) -> list[tuple[str, int, str | None]]:
     """(sink, failures, last error) for every sink that failed at least once."""
     out = []
-    for s in st.get("sinks", []):
+    for s in _sinks_of(st):
         n = int(s.get("errors") or 0)
         if n:
             out.append((s.get("sink", "?"), n, s.get("last_error")))
     return out
 
 
-def status_line(st: dict, elapsed: float) -> str:
-    src = st["source"]
-    state = src["state"] + (f" ({src['error']})" if src["state"] in ("lost", "failed")
-                            and src["error"] else "")
-    if src.get("frame_errors"):
-        state += f", {src['frame_errors']} undecodable frames"
-    tb = st.get("target_brick")
-    if tb:
-        name = tb["layout"] + (f":{tb['instance']}" if tb["instance"] is not None
-                               else f" track {tb['track']}")
-        target = f"target {name} at {tb['distance']:.2f} m"
-    else:
-        target = f"target ({st['target']['spec']}) none"
-    extra = f" | {st['detector_errors']} detector errors" if st["detector_errors"] else ""
+def _source_words(src: SourceStatus) -> str:
+    state = src.state + (f" ({src.error})" if src.state in ("lost", "failed")
+                         and src.error else "")
+    if src.frame_errors:
+        state += f", {src.frame_errors} undecodable frames"
+    return state
+
+
+def _target_words(st: PipelineStatus) -> str:
+    tb = st.target_brick
+    if tb is None:
+        return f"target ({st.target}) none"
+    name = tb.layout + (f":{tb.instance}" if tb.instance is not None else f" track {tb.track}")
+    return f"target {name} at {tb.distance_m:.2f} m"
+
+
+def _trouble_words(st: PipelineStatus) -> str:
+    extra = f" | {st.detector_errors} detector errors" if st.detector_errors else ""
     for name, n, last in sink_failures(st):
         extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
-    if st.get("sink_errors"):
-        extra += f" | {st['sink_errors']} sink exceptions"
-    if st.get("duplicates"):
+    if st.sink_errors:
+        extra += f" | {st.sink_errors} sink exceptions"
+    if st.duplicates:
         extra += (" | id read on several codes, not tracked (give each brick its own ids): "
-                  + ", ".join(sorted(st["duplicates"])))
-    return (f"{elapsed:7.1f} s | {st['fps']:5.1f} fps | detect {st['detect_ms']:6.1f} ms | "
-            f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks"
-            + (f" ({st['held']} held over, not sent)" if st.get("held") else "")
-            + f" | source {state} | "
-            f"{target}{extra}")
+                  + ", ".join(sorted(st.duplicates)))
+    return extra
 
 
-def new_notes(st: dict, said: set[str]) -> str:
+def status_line(st: PipelineStatus, elapsed: float) -> str:
+    """The status line printed every second (``elapsed``: seconds since the start)."""
+    return (f"{elapsed:7.1f} s | {st.fps:5.1f} fps | detect {st.detect_ms:6.1f} ms | "
+            f"latency {st.latency_ms:6.1f} ms | {st.bricks} bricks"
+            + (f" ({st.held} held over, not sent)" if st.held else "")
+            + f" | source {_source_words(st.source)} | "
+            f"{_target_words(st)}{_trouble_words(st)}")
+
+
+def new_notes(st: PipelineStatus | Mapping[str, Any], said: set[str]) -> str:
     """The sinks' notes not yet said (each is said once: the MAVLink link's missing
     streams), as `` | sink: note`` for the status line."""
     out = ""
-    for s in st.get("sinks", []):
+    for s in _sinks_of(st):
         note = s.get("note")
         if note and note not in said:
             said.add(note)
@@ -100,66 +117,91 @@ def build_pipeline(args: argparse.Namespace | PipelineConfig, loop: bool = False
     return build(config, loop=loop, default_sinks=default_sinks)
 
 
-def run(args: argparse.Namespace) -> int:
-    from drovisio.sinks.base import SinkError
+def _started(config: PipelineConfig) -> Pipeline:
+    """The pipeline, or one line saying why not (exit 2)."""
+    from drovisio.sinks.base import SinkError  # deferred with build_pipeline's imports
 
     try:
-        pipeline = build_pipeline(args)
+        return build_pipeline(config)
     except SinkError as e:
         raise InputError(str(e)) from None
     except OSError as e:   # a recording folder that cannot be made
         raise InputError(f"--record: {e}") from None
 
+
+def _say_start(config: PipelineConfig, pipeline: Pipeline) -> None:
+    names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
+    _err(f"source {config.source}; detectors {names}; sinks "
+         f"{', '.join(s.name for s in pipeline.sinks)}; target {pipeline.target.spec}"
+         + ("" if pipeline.mount is not None else "; no --mount: poses in the camera frame "
+            "only (MAVLink assumes a camera looking straight down)"))
+
+
+def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0: float
+                    ) -> tuple[int, PipelineStatus]:
+    """Run until the source ends, ``max_frames``, Ctrl+C or SIGTERM; (frames processed, the
+    last status). The pipeline is closed after."""
     def _terminate(signum, _frame) -> None:
         pipeline.stop()
 
     old = signal.signal(signal.SIGTERM, _terminate) if hasattr(signal, "SIGTERM") else None
-    t0 = time.monotonic()
-    quiet = getattr(args, "quiet", False)
-
     said: set[str] = set()
 
-    def on_status(st: dict) -> None:
+    def on_status(st: PipelineStatus) -> None:
         if not quiet:
             print(status_line(st, time.monotonic() - t0) + new_notes(st, said), file=sys.stderr,
                   flush=True)
 
-    names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
-    _err(f"source {args.source}; detectors {names}; sinks "
-         f"{', '.join(s.name for s in pipeline.sinks)}; target {pipeline.target.spec}"
-         + ("" if pipeline.mount is not None else "; no --mount: poses in the camera frame "
-            "only (MAVLink assumes a camera looking straight down)"))
     n = 0
     try:
-        n = pipeline.run(max_frames=getattr(args, "frames", None), on_status=on_status)
+        n = pipeline.run(max_frames=max_frames, on_status=on_status)
     except KeyboardInterrupt:
         pass
     finally:
-        st = pipeline.status()
+        st = pipeline.snapshot()
         pipeline.close()
         if old is not None:
             signal.signal(signal.SIGTERM, old)
-    if not quiet:
-        print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
-    for note in pipeline.notes:
-        _err(f"{args.camera}: {note}")
-    src = st["source"]
-    if src["state"] == "failed":
-        raise InputError(f"{args.source}: --source: {src['error']}")
-    _err(f"done: {n} frames, source {src['state']}, {src['dropped']} frames dropped "
+    return n, st
+
+
+def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
+    """Say how the run ended: 1 when nothing could be read or a sink failed, else 0.
+
+    Raises:
+        InputError: the source failed (exit 2).
+    """
+    src = st.source
+    if src.state == "failed":
+        raise InputError(f"{config.source}: --source: {src.error}")
+    _err(f"done: {n} frames, source {src.state}, {src.dropped} frames dropped "
          "(newest-frame policy)"
-         + (f", {src['frame_errors']} frames could not be decoded" if src.get("frame_errors")
-            else ""))
+         + (f", {src.frame_errors} frames could not be decoded" if src.frame_errors else ""))
     code = 0
-    if src.get("finite") and src["frames"] == 0:
-        _err(f"{args.source}: nothing could be read from the source")
+    if src.finite and src.frames == 0:
+        _err(f"{config.source}: nothing could be read from the source")
         code = 1
     failures = sink_failures(st)
     for name, count, last in failures:
         _err(f"sink {name}: {count} sends failed" + (f" (last: {last})" if last else ""))
-    if failures or st.get("sink_errors"):
+    if failures or st.sink_errors:
         code = 1
     return code
+
+
+def run(args: argparse.Namespace) -> int:
+    """``drovisio run`` (see the module doc): its exit status."""
+    config = PipelineConfig.from_args(args)
+    pipeline = _started(config)
+    t0 = time.monotonic()
+    quiet = getattr(args, "quiet", False)
+    _say_start(config, pipeline)
+    n, st = _run_until_done(pipeline, getattr(args, "frames", None), quiet, t0)
+    if not quiet:
+        print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
+    for note in pipeline.notes:
+        _err(f"{config.camera}: {note}")
+    return _exit_code(config, n, st)
 
 
 # --------------------------------------------------------------------------------------------
