@@ -201,23 +201,49 @@ class Pipeline:
             results = [one(d) for d in self.detectors]
         return [p for r in results for p in r], errors
 
+    def _gravity_at(self, t_mono: float) -> np.ndarray | None:
+        """Gravity in the camera frame at ``t_mono`` (None when unknown or it failed)."""
+        if self.gravity is None:
+            return None
+        try:
+            return self.gravity(t_mono)
+        except Exception:  # noqa: BLE001
+            return None
+
+    def _measure(self, frame: Frame, g: np.ndarray | None
+                 ) -> tuple[list[BrickPose], list[str]]:
+        """The frame's detections and errors (an undecodable frame or one of another size
+        is said, not detected)."""
+        mismatch = self._fit_camera(frame.image) if frame.image is not None else None
+        if frame.image is None:   # a frame the source could not decode: said, not detected
+            return [], [frame.error or "frame could not be decoded"]
+        if mismatch is not None:
+            return [], [mismatch]
+        return self._detect(frame, g)
+
+    def _send(self, out: FrameOutput) -> None:
+        for s in self.sinks:
+            try:
+                s.send(out)
+            except Exception as e:  # noqa: BLE001
+                self.stats.sink_errors += 1
+                self.stats.last_error = f"{getattr(s, 'name', s)}: {e}"
+
+    def _count(self, frame: Frame, bricks: list[TrackedBrick], detect_ms: float) -> None:
+        now = time.monotonic()
+        st = self.stats
+        st.latency_ms.append((now - (frame.t_read or frame.t_mono)) * 1e3)
+        st.detect_ms.append(detect_ms)
+        st.frame_times.append(now)
+        st.frames += 1
+        st.bricks = len(bricks)
+        st.held = sum(not b.measured for b in bricks)
+
     def process(self, frame: Frame) -> FrameOutput:
         """All stages for one frame; sends the output to the sinks and returns it."""
-        g = None
-        if self.gravity is not None:
-            try:
-                g = self.gravity(frame.t_mono)
-            except Exception:  # noqa: BLE001
-                g = None
+        g = self._gravity_at(frame.t_mono)
         t0 = time.perf_counter()
-        mismatch = self._fit_camera(frame.image) if frame.image is not None else None
-        poses: list[BrickPose]
-        if frame.image is None:   # a frame the source could not decode: said, not detected
-            poses, errors = [], [frame.error or "frame could not be decoded"]
-        elif mismatch is not None:
-            poses, errors = [], [mismatch]
-        else:
-            poses, errors = self._detect(frame, g)
+        poses, errors = self._measure(frame, g)
         detect_ms = (time.perf_counter() - t0) * 1e3
         if self.fuse:
             poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
@@ -233,20 +259,8 @@ class Pipeline:
                           t=frame.t_wall, t_mono=frame.t_mono, bricks=bricks, target=target,
                           detections=poses, detect_ms=detect_ms,
                           source_state=self.source.state.value, gravity=g, errors=errors)
-        for s in self.sinks:
-            try:
-                s.send(out)
-            except Exception as e:  # noqa: BLE001
-                self.stats.sink_errors += 1
-                self.stats.last_error = f"{getattr(s, 'name', s)}: {e}"
-        now = time.monotonic()
-        st = self.stats
-        st.latency_ms.append((now - (frame.t_read or frame.t_mono)) * 1e3)
-        st.detect_ms.append(detect_ms)
-        st.frame_times.append(now)
-        st.frames += 1
-        st.bricks = len(bricks)
-        st.held = sum(not b.measured for b in bricks)
+        self._send(out)
+        self._count(frame, bricks, detect_ms)
         if self.recorder is not None and frame.image is not None:
             self.recorder.add(frame, out)
         self.last_output = out

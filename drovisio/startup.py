@@ -43,6 +43,30 @@ __all__ = ["build_pipeline", "check_pipeline_options", "check_record_folder", "c
            "open_sinks_of"]
 
 
+def _stat(p: Path) -> os.stat_result | None:
+    """``p``'s status, None when it does not exist yet."""
+    try:
+        return p.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as e:
+        raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
+
+
+def _check_existing(p: Path, st: os.stat_result, mcap: bool) -> None:
+    """A recording is never written over: an existing ``.mcap``, a file or device given as
+    the folder, a folder that holds a recording are refused."""
+    if mcap:
+        raise InputError(f"{p}: --record: the file exists (a recording is never written "
+                         "over); give a new FILE.mcap")
+    if not stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
+                         "missing)")
+    if holds_recording(p):
+        raise InputError(f"{p}: --record: the folder already holds a recording (a "
+                         "recording is never written over); give a new folder")
+
+
 def check_record_folder(path: str | os.PathLike) -> Path:
     """``--record DIR``: a folder that exists or can be made, writable, not a file;
     ``--record FILE.mcap``: a file (new or regular) in a writable folder.
@@ -54,23 +78,10 @@ def check_record_folder(path: str | os.PathLike) -> Path:
         p = check_output_name(path, "--record")
     except WriteError as e:
         raise InputError(str(e)) from None
-    try:
-        st = p.stat()
-    except FileNotFoundError:
-        st = None
-    except OSError as e:
-        raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
+    st = _stat(p)
     mcap = p.suffix.lower() == ".mcap"
-    if mcap and st is not None:
-        raise InputError(f"{p}: --record: the file exists (a recording is never written "
-                         "over); give a new FILE.mcap")
-    if not mcap and st is not None and not stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
-                         "missing)")
-    if not mcap and st is not None:
-        if holds_recording(p):
-            raise InputError(f"{p}: --record: the folder already holds a recording (a "
-                             "recording is never written over); give a new folder")
+    if st is not None:
+        _check_existing(p, st, mcap)
     # the nearest folder that exists must be writable: the recording is made inside it
     q = p if (st is not None and not mcap) else p.absolute().parent
     while not q.exists() and q != q.parent:

@@ -50,6 +50,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -251,11 +252,8 @@ def _body_truth() -> list[np.ndarray]:
     return out
 
 
-def bench_wire(fps: float, seconds: float, send_held: bool = False,
-               extra_sinks: tuple[str, ...] = ()) -> dict:
-    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
-    ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
-    flight controller's path must not change)."""
+def _sample_jpegs() -> list[bytes]:
+    """The sample approach video's frames as JPEG (quality 92), as a network camera sends."""
     cap = cv2.VideoCapture(str(APPROACH / "approach.mp4"))
     jpegs = []
     while True:
@@ -264,6 +262,75 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
             break
         jpegs.append(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes())
     cap.release()
+    return jpegs
+
+
+def _run_command(camera_url: str, port: int, send_held: bool,
+                 extra_sinks: tuple[str, ...]) -> list[str]:
+    """``drovisio run`` on the camera, its MAVLink sink to ``port`` on loopback."""
+    cmd = [sys.executable, "-m", "drovisio", "run", "--source", camera_url,
+           "--camera", str(SAMPLE / "camera.yaml"), "--mount", str(APPROACH / "mount.json"),
+           *[x for lay in LAYOUTS for x in ("--layout", str(lay))],
+           "--sink", f"mavlink:udpout:127.0.0.1:{port}", "--quiet"]
+    if send_held:
+        cmd.append("--send-held-targets")
+    for extra in extra_sinks:
+        cmd += ["--sink", extra]
+    return cmd
+
+
+@dataclass
+class _WireMatches:
+    """Each LANDING_TARGET matched to the frame it describes."""
+
+    latency_ms: list[float] = field(default_factory=list)
+    """Last byte of the frame sent → message received, ms."""
+    stamp_gaps: list[float] = field(default_factory=list)
+    """Message's stamp − the frame's send time, s."""
+    stale: int = 0
+    stale_gaps_ms: list[float] = field(default_factory=list)
+    one_off: int = 0
+
+
+def _match_messages(got: list[tuple[float, Any]], sent: list[tuple[int, float]],
+                    truth: list[np.ndarray], fps: float) -> _WireMatches:
+    """Match each message (after the warm-up) to the sent frame whose true body-frame brick
+    positions its x, y, z fit best."""
+    warm = 3.0                                   # start-up of the process and its kernels
+    t_first = sent[0][1] + warm if sent else 0.0
+    out = _WireMatches()
+    for t_rx, m in got:
+        if t_rx < t_first:
+            continue
+        pos = np.array([m.x, m.y, m.z])
+        cands = [(i, t) for i, t in sent if t_rx - 0.5 <= t <= t_rx]
+        if not cands:
+            continue
+        err = [float(np.min(np.linalg.norm(truth[i] - pos, axis=1))) for i, _ in cands]
+        k = int(np.argmin(err))
+        i, t_sent = cands[k]
+        out.latency_ms.append((t_rx - t_sent) * 1e3)
+        gap = m.time_usec / 1e6 - t_sent
+        out.stamp_gaps.append(gap)
+        # the stamp is the capture time of the frame the message describes: read a moment
+        # after its last byte left the camera; a message more than one and a half frame
+        # intervals older than its stamp describes an earlier frame (a held-over target).
+        # Exactly one interval off is the match confusing two frames closer than the
+        # detector's own error (counted apart)
+        if gap > 1.5 / fps or gap < -0.002:
+            out.stale += 1
+            out.stale_gaps_ms.append(round(gap * 1e3, 1))
+        elif gap > 0.5 / fps:
+            out.one_off += 1
+    return out
+
+
+def bench_wire(fps: float, seconds: float, send_held: bool = False,
+               extra_sinks: tuple[str, ...] = ()) -> dict:
+    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
+    ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
+    flight controller's path must not change)."""
+    jpegs = _sample_jpegs()
     truth = _body_truth()
     mavutil = mavutil2()
     rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
@@ -282,15 +349,8 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
     # every third frame: consecutive frames ≥ 6 mm apart, so that the match of a message to
     # its frame is not confused by the detector's own error; a frame recurs only 1.7 s later
     cam = MjpegCamera(jpegs, fps, order=list(range(0, len(jpegs), 3)))
-    cmd = [sys.executable, "-m", "drovisio", "run", "--source", cam.url,
-           "--camera", str(SAMPLE / "camera.yaml"), "--mount", str(APPROACH / "mount.json"),
-           *[x for lay in LAYOUTS for x in ("--layout", str(lay))],
-           "--sink", f"mavlink:udpout:127.0.0.1:{port}", "--quiet"]
-    if send_held:
-        cmd.append("--send-held-targets")
-    for extra in extra_sinks:
-        cmd += ["--sink", extra]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(_run_command(cam.url, port, send_held, extra_sinks),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             stdin=subprocess.DEVNULL)
     try:
         time.sleep(seconds)
@@ -305,45 +365,21 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
         th.join(1)
         rx.close()
     sent = cam.sent
-    warm = 3.0                                   # start-up of the process and its kernels
-    t_first = sent[0][1] + warm if sent else 0.0
-    lat, mismatch, stamped_gap, mismatch_gaps, one_off = [], 0, [], [], 0
-    for t_rx, m in got:
-        if t_rx < t_first:
-            continue
-        pos = np.array([m.x, m.y, m.z])
-        cands = [(i, t) for i, t in sent if t_rx - 0.5 <= t <= t_rx]
-        if not cands:
-            continue
-        err = [float(np.min(np.linalg.norm(truth[i] - pos, axis=1))) for i, _ in cands]
-        k = int(np.argmin(err))
-        i, t_sent = cands[k]
-        lat.append((t_rx - t_sent) * 1e3)
-        gap = m.time_usec / 1e6 - t_sent
-        stamped_gap.append(gap)
-        # the stamp is the capture time of the frame the message describes: read a moment
-        # after its last byte left the camera; a message more than one and a half frame
-        # intervals older than its stamp describes an earlier frame (a held-over target).
-        # Exactly one interval off is the match confusing two frames closer than the
-        # detector's own error (counted apart)
-        if gap > 1.5 / fps or gap < -0.002:
-            mismatch += 1
-            mismatch_gaps.append(round(gap * 1e3, 1))
-        elif gap > 0.5 / fps:
-            one_off += 1
-    lat_a = np.array(lat)
+    w = _match_messages(got, sent, truth, fps)
+    lat_a = np.array(w.latency_ms)
+    gaps_ms = np.array(w.stamp_gaps) * 1e3
     return {
-        "fps": fps, "seconds": seconds, "frames_sent": len(sent), "messages": len(lat),
+        "fps": fps, "seconds": seconds, "frames_sent": len(sent), "messages": len(lat_a),
         "send_held": send_held,
         "wire_to_message_ms": {"median": round(_pct(lat_a, 50), 2),
                                "p90": round(_pct(lat_a, 90), 2),
                                "max": round(float(lat_a.max()) if len(lat_a) else float("nan"),
                                             2)},
-        "stale_messages": mismatch,
-        "stale_stamp_minus_sent_ms": mismatch_gaps[:20],
-        "one_frame_off_matches": one_off,
-        "stamp_minus_sent_ms": {"median": round(_pct(np.array(stamped_gap) * 1e3, 50), 2),
-                                "p90": round(_pct(np.array(stamped_gap) * 1e3, 90), 2)},
+        "stale_messages": w.stale,
+        "stale_stamp_minus_sent_ms": w.stale_gaps_ms[:20],
+        "one_frame_off_matches": w.one_off,
+        "stamp_minus_sent_ms": {"median": round(_pct(gaps_ms, 50), 2),
+                                "p90": round(_pct(gaps_ms, 90), 2)},
         "run_stderr_tail": proc.stderr.read().decode(errors="replace")[-300:]
         if proc.stderr else "",
         "pass": bool(len(lat_a) and _pct(lat_a, 90) <= 50.0),

@@ -46,6 +46,41 @@ def _err(msg: str) -> None:
 
 
 # ----------------------------------------------------------------------------- gravity
+def _gravity_line(line: str, where: str) -> tuple[str, int | None, np.ndarray]:
+    """(file, frame or None, unit gravity in the camera frame) of one gravity-file line."""
+    rec = parse_json(line, where)
+    if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
+        raise InputError(f'{where}: expected an object with "file" and "gravity"')
+    f = rec["file"]
+    if not isinstance(f, str) or not f:
+        raise InputError(f'{where}: file: must be a non-empty string')
+    g = _unit_gravity(rec["gravity"], where)   # said before a bad frame, as always
+    return f, _frame_of(rec.get("frame"), where), g
+
+
+def _unit_gravity(g: object, where: str) -> np.ndarray:
+    """A gravity file's ``gravity``: 3 numbers of length 1 (within 5 %), made exactly 1."""
+    if not (isinstance(g, list) and len(g) == 3 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
+        raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
+    gv = np.asarray(g, np.float64)
+    n = float(np.linalg.norm(gv))
+    if not np.all(np.isfinite(gv)) or n < 1e-9:
+        raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
+    if abs(n - 1.0) > 0.05:
+        raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
+                         "(pointing down, camera frame)")
+    return gv / n
+
+
+def _frame_of(frame: object, where: str) -> int | None:
+    """A gravity file's optional ``frame``: a whole number ≥ 0, or None."""
+    if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)
+                              or frame < 0):
+        raise InputError(f'{where}: frame: must be a whole number >= 0')
+    return frame
+
+
 class GravityTable:
     """Gravity per frame from a ``--gravity-file``."""
 
@@ -58,6 +93,11 @@ class GravityTable:
 
     @classmethod
     def load(cls, path: str) -> GravityTable:
+        """The table of a gravity file (JSON Lines ``{"file", "frame"?, "gravity"}``).
+
+        Raises:
+            InputError: a line that is not such an object, naming the line and the field.
+        """
         text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
         t = cls()
         for ln, line in enumerate(text.splitlines(), 1):
@@ -65,29 +105,7 @@ class GravityTable:
                 continue
             if ln > cls.MAX_LINES:
                 raise InputError(f"{path}: more than {cls.MAX_LINES} lines; split the run")
-            where = f"{path}, line {ln}"
-            rec = parse_json(line, where)
-            if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
-                raise InputError(f'{where}: expected an object with "file" and "gravity"')
-            f = rec["file"]
-            if not isinstance(f, str) or not f:
-                raise InputError(f'{where}: file: must be a non-empty string')
-            g = rec["gravity"]
-            if not (isinstance(g, list) and len(g) == 3 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
-                raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
-            gv = np.asarray(g, np.float64)
-            n = float(np.linalg.norm(gv))
-            if not np.all(np.isfinite(gv)) or n < 1e-9:
-                raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
-            if abs(n - 1.0) > 0.05:
-                raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
-                                 "(pointing down, camera frame)")
-            frame = rec.get("frame")
-            if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)
-                                      or frame < 0):
-                raise InputError(f'{where}: frame: must be a whole number >= 0')
-            t.add(f, frame, gv / n)
+            t.add(*_gravity_line(line, f"{path}, line {ln}"))
         return t
 
     def add(self, file: str, frame: int | None, g: np.ndarray) -> None:

@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from drovisio.arguments import (
     Command,
     bounded,
@@ -30,6 +32,7 @@ from drovisio.arguments import (
     supersampling,
     whole_in,
 )
+from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text
 
 __all__ = ["COMMAND", "add_arguments", "run"]
@@ -94,19 +97,38 @@ def _check(args: argparse.Namespace) -> int:
     results = run_fault_table(scn, cases, _params(args), progress=_err)
     print(format_table(results))
     bad = [r for r in results if not r.all_held or not r.as_expected]
+    _print_failures(results)
+    if args.json:
+        _write_table(args.json, results)
+    _print_landings(scn, results, args.seed)
+    _err(f"{len(results)} case(s) in {time.perf_counter() - t0:.1f} s: "
+         + ("every safety rule held, every outcome as expected" if not bad else
+            f"{len(bad)} case(s) FAILED"))
+    return 1 if bad else 0
+
+
+def _print_failures(results: list) -> None:
+    """Every broken rule and every outcome that was not the expected one."""
     for r in results:
         for x in r.rules:
             if not x.held:
                 print(f"  rule {x.rule} broken in '{r.case.name}': {x.detail}")
         if not r.as_expected:
             print(f"  '{r.case.name}': expected {r.case.expect}, got {r.outcome}")
-    if args.json:
-        atomic_write_text(args.json, json.dumps([{
-            "fault": r.case.name, "did": r.narrative, "outcome": r.outcome,
-            "expected": r.case.expect,
-            "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
-            "placements": r.trace.placements, "landings": r.trace.landings}
-            for r in results], indent=1))
+
+
+def _write_table(path: str, results: list) -> None:
+    """The fault table as JSON (``--json``)."""
+    atomic_write_text(path, json.dumps([{
+        "fault": r.case.name, "did": r.narrative, "outcome": r.outcome,
+        "expected": r.case.expect,
+        "rules": {x.rule: {"held": x.held, "detail": x.detail} for x in r.rules},
+        "placements": r.trace.placements, "landings": r.trace.landings}
+        for r in results], indent=1))
+
+
+def _print_landings(scn, results: list, seed: int) -> None:
+    """The landings of the run without faults, then the precision-landing model's."""
     from drovisio.mission.check import landing_lines
 
     clean = next((r for r in results if not r.case.faults), None)
@@ -117,12 +139,8 @@ def _check(args: argparse.Namespace) -> int:
                  if scn.autopilot.precision_landing else "") + ":")
         for line in landing_lines(clean.trace):
             print("  " + line)
-    for line in _landing_lines(scn, args.seed):
+    for line in _landing_lines(scn, seed):
         print(line)
-    _err(f"{len(results)} case(s) in {time.perf_counter() - t0:.1f} s: "
-         + ("every safety rule held, every outcome as expected" if not bad else
-            f"{len(bad)} case(s) FAILED"))
-    return 1 if bad else 0
 
 
 def _landing_lines(scn, seed: int, runs: int = 10) -> list[str]:
@@ -155,8 +173,6 @@ def _landing(args: argparse.Namespace) -> int:
 
     camera = load_camera(args.camera) if args.camera else Camera.drone_webcam()
     if not camera.size_known:
-        from drovisio.errors import InputError
-
         raise InputError(f"{args.camera}: image_width/image_height: the landing model needs "
                          "the image size; add it to the camera file")
     if args.mount:
@@ -173,8 +189,6 @@ def _landing(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from drovisio.mission.check import check_rules, narrate
     from drovisio.mission.faults import preset
     from drovisio.mission.record import write_recording
@@ -212,20 +226,25 @@ def _simulate(args: argparse.Namespace) -> int:
     for line in landing_lines(tr):
         print(line)
     if tr.placements:
-        print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
-        for b, p in tr.placements.items():
-            print(f"{b:6} {p['error_m'] * 100:6.2f}cm {p['error_along_m'] * 100:6.2f}cm "
-                  f"{p['yaw_error_deg']:6.2f}°  {p['verified']}")
-        pos, yaw = tr.placement_errors()
-        print(f"placement error: max {pos.max() * 100:.2f} cm, p95 "
-              f"{np.percentile(pos, 95) * 100:.2f} cm; yaw max {yaw.max():.2f}°, p95 "
-              f"{np.percentile(yaw, 95):.2f}° (tolerance "
-              f"{scn.placement_tolerance.position_m * 100:.0f} cm, "
-              f"{scn.placement_tolerance.yaw_deg:g}°)")
+        _print_placements(tr, scn)
     for r in rules:
         print(f"rule {r.rule}: {'held' if r.held else 'BROKEN'} ({r.detail})")
     print(f"recorded {out / 'manifest.json'}")
     return 0 if all(r.held for r in rules) else 1
+
+
+def _print_placements(tr, scn) -> None:
+    """Each brick's placement error against the plan, and their worst and 95th percentile."""
+    print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
+    for b, p in tr.placements.items():
+        print(f"{b:6} {p['error_m'] * 100:6.2f}cm {p['error_along_m'] * 100:6.2f}cm "
+              f"{p['yaw_error_deg']:6.2f}°  {p['verified']}")
+    pos, yaw = tr.placement_errors()
+    print(f"placement error: max {pos.max() * 100:.2f} cm, p95 "
+          f"{np.percentile(pos, 95) * 100:.2f} cm; yaw max {yaw.max():.2f}°, p95 "
+          f"{np.percentile(yaw, 95):.2f}° (tolerance "
+          f"{scn.placement_tolerance.position_m * 100:.0f} cm, "
+          f"{scn.placement_tolerance.yaw_deg:g}°)")
 
 
 def _diagram(args: argparse.Namespace) -> int:
