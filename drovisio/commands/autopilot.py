@@ -23,6 +23,9 @@ from drovisio.pipeline_config import PipelineConfig
 
 __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 
+# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must not load them.
+
 
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
     """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,

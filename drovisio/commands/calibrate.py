@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -35,6 +36,9 @@ from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 __all__ = ["BOARD_COMMAND", "COMMAND", "MOUNT_COMMAND", "add_arguments", "add_board_arguments",
            "add_mount_arguments", "collect_images", "measure_mount_command", "print_board",
            "run"]
+
+# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must not load them.
 
 PROG = "drovisio calibrate"
 
@@ -84,26 +88,31 @@ def _write_json_atomic(path: Path, data: dict) -> None:
         tmp.read_text(encoding="utf-8")))
 
 
-def _probe_board_size(images: list[Path], board) -> str | None:
-    """On a few readable images, try nearby chessboard sizes; say which one is there
-    (at most ~2 s: the detector is slow on cluttered images)."""
-    import time
-
-    import cv2
-
-    from drovisio.calibration.board import to_gray
-
+def _nearby_sizes(cols: int, rows: int) -> list[tuple[int, int]]:
+    """Chessboard sizes (inner corners) a person may have miscounted ``cols x rows`` for:
+    the nearest first, then the common boards."""
     cands = []
     for dc in (-1, 0, 1, -2, 2):
         for dr in (-1, 0, 1, -2, 2):
-            c, r = board.cols + dc, board.rows + dr
+            c, r = cols + dc, rows + dr
             if (dc or dr) and c >= 3 and r >= 3:
                 cands.append((c, r))
     cands += [(9, 6), (7, 6), (8, 6), (7, 5), (6, 4), (10, 7), (11, 8), (8, 5)]
     seen_c = []
     for c in cands:
-        if c not in seen_c and c != (board.cols, board.rows):
+        if c not in seen_c and c != (cols, rows):
             seen_c.append(c)
+    return seen_c
+
+
+def _probe_board_size(images: list[Path], board) -> str | None:
+    """On a few readable images, try nearby chessboard sizes; say which one is there
+    (at most ~2 s: the detector is slow on cluttered images)."""
+    import cv2
+
+    from drovisio.calibration.board import to_gray
+
+    seen_c = _nearby_sizes(board.cols, board.rows)
     deadline = time.monotonic() + 2.0
     for path in images[:3]:
         if time.monotonic() > deadline:

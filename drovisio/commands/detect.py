@@ -38,6 +38,11 @@ from drovisio.errors import InputError, WriteError
 from drovisio.fileio import atomic_write, check_output_path
 from drovisio.textfile import parse_json, read_text
 
+__all__ = ["COMMAND", "GravityTable", "add_arguments", "run"]
+
+# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must not load them.
+
 PROG = "drovisio detect"
 
 
@@ -359,8 +364,6 @@ def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: in
         _err("warning: no frame matched a line of the gravity file (match is by the file "
              "name as given)")
 
-
-__all__ = ["COMMAND", "GravityTable", "add_arguments", "run"]
 
 
 # --------------------------------------------------------------------------------------------

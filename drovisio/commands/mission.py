@@ -37,6 +37,9 @@ from drovisio.fileio import atomic_write_text
 
 __all__ = ["COMMAND", "add_arguments", "run"]
 
+# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must not load them.
+
 
 def _err(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)

@@ -34,6 +34,9 @@ if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must no
 __all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
            "run", "sink_failures", "status_line"]
 
+# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must not load them.
+
 
 def _err(msg: str) -> None:
     try:

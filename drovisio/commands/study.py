@@ -8,8 +8,12 @@ import sys
 from pathlib import Path
 
 from drovisio.arguments import Command, bounded, whole_in
+from drovisio.fileio import output_folder
 
 __all__ = ["COMMAND", "add_arguments", "run"]
+
+# The study's own modules are imported inside the functions that run it: `drovisio --help`
+# imports every command module and must not load OpenCV.
 
 
 _last = [-1]
@@ -32,13 +36,11 @@ def run(args: argparse.Namespace) -> int:
     return _run(args)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _protocol(args: argparse.Namespace):
+    """(the protocol, the folder its paths are relative to, its text for the report)."""
     import yaml
 
-    from drovisio.fileio import output_folder
     from drovisio.study.protocol import default_protocol, load_protocol
-    from drovisio.study.report import write_report
-    from drovisio.study.run import run_study
 
     if args.protocol:
         protocol = load_protocol(args.protocol)
@@ -52,6 +54,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.frames and args.protocol:
         protocol = protocol.model_copy(update={"steps": [
             s.model_copy(update={"frames": args.frames}) for s in protocol.steps]})
+    return protocol, base, text
+
+
+def _run(args: argparse.Namespace) -> int:
+    from drovisio.study.report import write_report
+    from drovisio.study.run import run_study
+
+    protocol, base, text = _protocol(args)
     out = output_folder(args.out, "--out")
     memory = args.memory_seconds if args.memory_seconds is not None else (
         3.0 if args.quick else 20.0)
@@ -77,7 +87,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _example(args: argparse.Namespace) -> int:
-    from drovisio.fileio import output_folder
     from drovisio.study.example import write_recorded_example
 
     out = output_folder(args.out, "--out")
