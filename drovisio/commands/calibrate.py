@@ -91,17 +91,17 @@ def _write_json_atomic(path: Path, data: dict) -> None:
 def _nearby_sizes(cols: int, rows: int) -> list[tuple[int, int]]:
     """Chessboard sizes (inner corners) a person may have miscounted ``cols x rows`` for:
     the nearest first, then the common boards."""
-    cands = []
+    cands: list[tuple[int, int]] = []
     for dc in (-1, 0, 1, -2, 2):
         for dr in (-1, 0, 1, -2, 2):
             c, r = cols + dc, rows + dr
             if (dc or dr) and c >= 3 and r >= 3:
                 cands.append((c, r))
     cands += [(9, 6), (7, 6), (8, 6), (7, 5), (6, 4), (10, 7), (11, 8), (8, 5)]
-    seen_c = []
-    for c in cands:
-        if c not in seen_c and c != (cols, rows):
-            seen_c.append(c)
+    seen_c: list[tuple[int, int]] = []
+    for size in cands:
+        if size not in seen_c and size != (cols, rows):
+            seen_c.append(size)
     return seen_c
 
 
