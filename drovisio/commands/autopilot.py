@@ -17,19 +17,23 @@ import threading
 import time
 
 from drovisio.arguments import Command, nonnegative_float, positive_float
-from drovisio.commands.run import build_pipeline
+from drovisio.autopilot.check import evaluate, plnd_lag_for, verdict
+from drovisio.autopilot.session import read_vehicle
 from drovisio.errors import InputError
-from drovisio.pipeline_config import PipelineConfig
 
 __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 
-# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
-# functions that run it: `drovisio --help` imports every command module and must not load them.
+# The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
+# inside the functions that run it: `drovisio --help` imports every command module and must
+# stay light.
 
 
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
     """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
     target measurements per second)."""
+    from drovisio.commands.run import build_pipeline
+    from drovisio.pipeline_config import PipelineConfig
+
     config = PipelineConfig(source=args.source, camera=args.camera, layouts=args.layout or [],
                             mount=args.mount, target=args.target, autopilot=args.autopilot)
     pipeline = build_pipeline(config, default_sinks=())
@@ -90,9 +94,6 @@ def _blind(args: argparse.Namespace) -> tuple[float | None, list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drovisio.autopilot.check import evaluate, plnd_lag_for, verdict
-    from drovisio.autopilot.session import read_vehicle
-
     if args.autopilot_action != "check":
         raise InputError("expected an action: check")
     if (args.source is None) != (args.camera is None) or (args.source and not args.layout):

@@ -31,14 +31,13 @@ from pathlib import Path
 from drovisio.arguments import Command, board_square, mount_offset
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text, check_output_path
-from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 
 __all__ = ["BOARD_COMMAND", "COMMAND", "MOUNT_COMMAND", "add_arguments", "add_board_arguments",
            "add_mount_arguments", "collect_images", "measure_mount_command", "print_board",
            "run"]
 
-# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
-# functions that run it: `drovisio --help` imports every command module and must not load them.
+# The command's own modules (OpenCV, the calibration; numpy too) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must stay light.
 
 PROG = "drovisio calibrate"
 
@@ -53,6 +52,8 @@ def collect_images(inputs: list[str]) -> list[Path]:
     Raises:
         InputError: a path is missing, or no image at all.
     """
+    from drovisio.images import IMAGE_SUFFIXES
+
     files: list[Path] = []
     for raw in inputs:
         p = Path(raw)
@@ -152,6 +153,8 @@ def _outputs(args: argparse.Namespace, images: list[Path]) -> tuple[Path, Path, 
 def _evaluate_images(session, images: list[Path]) -> tuple[list, int]:
     """Find the board in every image, saying one line per image: (the evaluated frames, how
     many images could be read)."""
+    from drovisio.images import ImageError, read_image
+
     n = len(images)
     width = len(str(n))
     frames = []  # FrameResult per readable image
@@ -328,6 +331,7 @@ def measure_mount_command(args: argparse.Namespace) -> int:
     """``drovisio calibrate mount``: the mount from a code lying flat, the drone level."""
     from drovisio.calibration.mount import measure_from_images
     from drovisio.camera_file import load_camera
+    from drovisio.images import ImageError, read_image
     from drovisio.layout import load_layout, shipped_layouts_dir
     from drovisio.mount import Mount, body_from_camera_angles, load_mount
 

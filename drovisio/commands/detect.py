@@ -29,19 +29,19 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, TextIO
 
 from drovisio.arguments import Command
 from drovisio.errors import InputError, WriteError
 from drovisio.fileio import atomic_write, check_output_path
-from drovisio.textfile import parse_json, read_text
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["COMMAND", "GravityTable", "add_arguments", "run"]
 
-# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
-# functions that run it: `drovisio --help` imports every command module and must not load them.
+# The command's own modules (OpenCV, the detectors; numpy and YAML too) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must stay light.
 
 PROG = "drovisio detect"
 
@@ -53,6 +53,8 @@ def _err(msg: str) -> None:
 # ----------------------------------------------------------------------------- gravity
 def _gravity_line(line: str, where: str) -> tuple[str, int | None, np.ndarray]:
     """(file, frame or None, unit gravity in the camera frame) of one gravity-file line."""
+    from drovisio.textfile import parse_json
+
     rec = parse_json(line, where)
     if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
         raise InputError(f'{where}: expected an object with "file" and "gravity"')
@@ -65,6 +67,8 @@ def _gravity_line(line: str, where: str) -> tuple[str, int | None, np.ndarray]:
 
 def _unit_gravity(g: object, where: str) -> np.ndarray:
     """A gravity file's ``gravity``: 3 numbers of length 1 (within 5 %), made exactly 1."""
+    import numpy as np
+
     if not (isinstance(g, list) and len(g) == 3 and all(
             isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
         raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
@@ -103,6 +107,8 @@ class GravityTable:
         Raises:
             InputError: a line that is not such an object, naming the line and the field.
         """
+        from drovisio.textfile import read_text
+
         text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
         t = cls()
         for ln, line in enumerate(text.splitlines(), 1):
@@ -347,6 +353,8 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
 
 def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: int,
              times: list[float]) -> None:
+    import numpy as np
+
     def plural(n: int, word: str) -> str:
         return f"{n} {word}{'s' if n != 1 else ''}"
 

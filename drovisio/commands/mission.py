@@ -19,8 +19,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from drovisio.arguments import (
     Command,
     bounded,
@@ -34,11 +32,13 @@ from drovisio.arguments import (
 )
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text
+from drovisio.mission.faults import CHECK_FAULTS, preset
 
 __all__ = ["COMMAND", "add_arguments", "run"]
 
-# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
-# functions that run it: `drovisio --help` imports every command module and must not load them.
+# The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
+# inside the functions that run it: `drovisio --help` imports every command module and must
+# stay light.
 
 
 def _err(msg: str) -> None:
@@ -84,7 +84,6 @@ def _params(args: argparse.Namespace):
 
 def _check(args: argparse.Namespace) -> int:
     from drovisio.mission.check import format_table, run_fault_table
-    from drovisio.mission.faults import CHECK_FAULTS, preset
 
     scn = _load(args.scenario)
     cases = CHECK_FAULTS
@@ -193,7 +192,6 @@ def _landing(args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace) -> int:
     from drovisio.mission.check import check_rules, narrate
-    from drovisio.mission.faults import preset
     from drovisio.mission.record import write_recording
     from drovisio.mission.sim import simulate
 
@@ -238,6 +236,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 def _print_placements(tr, scn) -> None:
     """Each brick's placement error against the plan, and their worst and 95th percentile."""
+    import numpy as np
+
     print(f"{'brick':6} {'error':>8} {'along':>8} {'yaw':>7}  verified")
     for b, p in tr.placements.items():
         print(f"{b:6} {p['error_m'] * 100:6.2f}cm {p['error_along_m'] * 100:6.2f}cm "

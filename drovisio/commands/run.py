@@ -24,18 +24,19 @@ from typing import TYPE_CHECKING, Any
 
 from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
-from drovisio.pipeline_config import PipelineConfig
 
 if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must not
     from drovisio.pipeline import Pipeline
+    from drovisio.pipeline_config import PipelineConfig
     from drovisio.pipeline_status import PipelineStatus
     from drovisio.sources import SourceStatus
 
 __all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
            "run", "sink_failures", "status_line"]
 
-# The command's own modules (OpenCV, the detectors, the calibration) are imported inside the
-# functions that run it: `drovisio --help` imports every command module and must not load them.
+# The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
+# inside the functions that run it: `drovisio --help` imports every command module and must
+# stay light.
 
 
 def _err(msg: str) -> None:
@@ -114,6 +115,7 @@ def build_pipeline(args: argparse.Namespace | PipelineConfig, loop: bool = False
     """The pipeline a ``drovisio run`` command line (or its configuration) describes: see
     :func:`drovisio.startup.build_pipeline`."""
     # deferred: the pipeline loads OpenCV and the detectors, which `drovisio --help` must not
+    from drovisio.pipeline_config import PipelineConfig
     from drovisio.startup import build_pipeline as build
 
     config = args if isinstance(args, PipelineConfig) else PipelineConfig.from_args(args)
@@ -194,6 +196,8 @@ def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """``drovisio run`` (see the module doc): its exit status."""
+    from drovisio.pipeline_config import PipelineConfig
+
     config = PipelineConfig.from_args(args)
     pipeline = _started(config)
     t0 = time.monotonic()
