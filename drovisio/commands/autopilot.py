@@ -31,8 +31,8 @@ __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
     """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
     target measurements per second)."""
-    from drovisio.commands.run import build_pipeline
     from drovisio.pipeline_config import PipelineConfig
+    from drovisio.startup import build_pipeline
 
     config = PipelineConfig(source=args.source, camera=args.camera, layouts=args.layout or [],
                             mount=args.mount, target=args.target, autopilot=args.autopilot)
