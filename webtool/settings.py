@@ -39,7 +39,6 @@ def new_token() -> str:
 _PIPELINE_FIELDS = frozenset(PipelineConfig.model_fields)
 """The options of ``drovisio run`` a server takes too, given flat (``Settings(sinks=[...])``)
 or as ``pipeline``."""
-_PATH_FIELDS = frozenset({"camera", "mount", "record"})
 
 
 def _as_text(value: object) -> object:
@@ -56,6 +55,11 @@ def _path(value: str | None) -> Path | None:
 
 
 class Settings(BaseModel):
+    """What one server was asked to do. The pipeline's options (``source``, ``camera``,
+    ``layouts``, ``mount``, ``sinks``, ...) may be given flat, as ``drovisio serve`` passes
+    them; they live in :attr:`pipeline`, and read back as the server's own (paths as
+    :class:`~pathlib.Path`)."""
+
     host: str = "127.0.0.1"
     port: int = 8080
     pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
@@ -77,7 +81,8 @@ class Settings(BaseModel):
     # With no source, the sample calibration views play as if live, this many seconds each.
     sample_seconds_per_view: float = 1.5
     # Marker designer (webtool.designer_scene): designs are saved into this folder (None: the
-    # data folder's layouts/; the shipped marker_layouts/ are read-only); mesh uploads larger than this are refused before reading.
+    # data folder's layouts/; the shipped marker_layouts/ are read-only); mesh uploads larger
+    # than this are refused before reading.
     designer_layouts_dir: Path | None = None
     designer_max_upload_mb: float = 50.0
     # Camera mount page (webtool.mount_service): with no --mount, the mount set there is saved
