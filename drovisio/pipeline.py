@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -35,7 +36,10 @@ from drovisio.camera import Camera
 from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
 from drovisio.fusion import dots_half_turn_symmetric, fuse_frame
+from drovisio.layout import MarkerLayout
+from drovisio.mount import Mount
 from drovisio.pipeline_status import PipelineStats, PipelineStatus, TargetBrickStatus
+from drovisio.sinks.base import Sink
 from drovisio.sinks.target import TargetSelector
 from drovisio.sources import Frame, FrameSource, SourceState
 from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
@@ -43,6 +47,7 @@ from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
 __all__ = [
     "Detector",
     "FrameOutput",
+    "FrameRecorder",
     "Pipeline",
     "PipelineStats",
     "PipelineStatus",
@@ -71,6 +76,17 @@ def detectors_for(camera, layouts, stream: bool = True) -> list[Detector]:
     if any(getattr(lay, "has_dots", False) for lay in layouts):
         out.append(DotDetector(camera, layouts, stream=stream))
     return out
+
+
+class FrameRecorder(Protocol):
+    """Where the frames and their outputs are recorded (:class:`drovisio.recording.Recorder`,
+    the ROS 2 ``.mcap`` recorder)."""
+
+    def add(self, frame: Frame, output: FrameOutput) -> None: ...
+
+    def status(self) -> dict: ...
+
+    def close(self) -> None: ...
 
 
 @dataclass
@@ -128,11 +144,12 @@ class Pipeline:
     """
 
     def __init__(self, source: FrameSource, detectors: Sequence[Detector],
-                 sinks: Sequence = (), tracker: BrickTracker | None = None, mount=None,
-                 target: TargetSelector | None = None,
+                 sinks: Sequence[Sink] = (), tracker: BrickTracker | None = None,
+                 mount: Mount | None = None, target: TargetSelector | None = None,
                  gravity: Callable[[float], np.ndarray | None] | None = None,
-                 recorder=None, max_age: float = 0.5, parallel: bool = True,
-                 fuse: bool = True, layouts: Sequence = (), camera=None,
+                 recorder: FrameRecorder | None = None, max_age: float = 0.5,
+                 parallel: bool = True, fuse: bool = True,
+                 layouts: Sequence[MarkerLayout] = (), camera: Camera | None = None,
                  detector_factory: Callable[[Camera], list[Detector]] | None = None):
         self.source = source
         self.detectors = list(detectors)
