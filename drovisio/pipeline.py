@@ -57,7 +57,8 @@ __all__ = [
 log = logging.getLogger("drovisio.pipeline")
 
 
-def detectors_for(camera, layouts, stream: bool = True) -> list[Detector]:
+def detectors_for(camera: Camera, layouts: Sequence[MarkerLayout], stream: bool = True
+                  ) -> list[Detector]:
     """The detectors the layouts need: ArUco if any has codes, dots if any has dots.
 
     Args:
@@ -185,7 +186,7 @@ class Pipeline:
         fast: it runs in the pipeline thread."""
         self._listeners.append(fn)
 
-    def remove_listener(self, fn) -> None:
+    def remove_listener(self, fn: Callable[[Frame | None, FrameOutput | None], None]) -> None:
         if fn in self._listeners:
             self._listeners.remove(fn)
 

@@ -44,6 +44,7 @@ from drovisio.fusion import (
     tangent_cov_to_rvec,
 )
 from drovisio.geometry import from_rvec_tvec
+from drovisio.mount import Mount
 
 __all__ = ["BrickTracker", "Track", "TrackedBrick", "TrackerConfig"]
 
@@ -240,7 +241,7 @@ class BrickTracker:
         mount: Optional :class:`drovisio.mount.Mount` to fill ``body_from_brick``.
     """
 
-    def __init__(self, config: TrackerConfig | None = None, mount=None):
+    def __init__(self, config: TrackerConfig | None = None, mount: Mount | None = None):
         self.config = config or TrackerConfig()
         self.mount = mount
         self.tracks: list[Track] = []
