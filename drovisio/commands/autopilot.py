@@ -130,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio autopilot check``."""
     sub = p.add_subparsers(dest="autopilot_action", metavar="ACTION", required=True)
     c = sub.add_parser(
         "check", help="compare the flight controller's precision-landing set-up with what "

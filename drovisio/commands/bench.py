@@ -11,6 +11,8 @@ import importlib
 from drovisio.arguments import Command
 from drovisio.errors import InputError
 
+__all__ = ["BENCHMARKS", "COMMAND", "add_arguments", "run"]
+
 #: benchmark name → what it measures (``drovisio bench --help``)
 BENCHMARKS = {
     "aruco": "code bricks: corners, recall, pose accuracy, speed against plain OpenCV",
@@ -37,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio bench``: the benchmark's name, then its own options."""
     p.add_argument("benchmark", metavar="NAME",
                    help="which benchmark: " + "; ".join(f"{k} ({v})"
                                                         for k, v in BENCHMARKS.items()))

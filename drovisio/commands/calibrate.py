@@ -383,6 +383,7 @@ def measure_mount_command(args: argparse.Namespace) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio calibrate``'s arguments."""
     p.add_argument("--board", required=True, metavar="KIND:COLSxROWS",
                    help="calibration target, e.g. chessboard:9x6 (inner corners, columns x rows)")
     p.add_argument("--square", required=True, type=board_square, metavar="METRES",
@@ -407,6 +408,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_board_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio calibrate board``'s arguments."""
     p.add_argument("--pdf", required=True, metavar="BOARD.pdf", help="PDF file to write")
     p.add_argument("--board", default="chessboard:9x6", metavar="KIND:COLSxROWS",
                    help="chessboard:9x6 (default) or charuco:7x5 (inner corners)")
@@ -417,6 +419,7 @@ def add_board_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_mount_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio calibrate mount``'s arguments."""
     p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
     p.add_argument("--layout", action="append", metavar="LAYOUT.json",
                    help="layout of the code lying flat (default: the shipped landing pad and "

@@ -380,6 +380,7 @@ def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: in
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio detect``'s arguments (the contract of DESIGN.md)."""
     p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
                    help="camera file (OpenCV FileStorage YAML/XML/JSON or ROS camera_info YAML)")
     p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",

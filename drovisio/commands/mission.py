@@ -388,6 +388,7 @@ def _add_diagram(sub: argparse._SubParsersAction) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio mission check|simulate|landing|diagram``."""
     sub = p.add_subparsers(dest="mission_action", metavar="ACTION")
     _add_check(sub)
     _add_simulate(sub)

@@ -217,7 +217,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_pipeline_arguments(p: argparse.ArgumentParser, serving: bool) -> None:
-    """The pipeline's options, shared by ``run`` and ``serve`` (one process on the drone)."""
+    """The pipeline's options (:class:`~drovisio.pipeline_config.PipelineConfig`), shared by
+    ``run`` and ``serve`` (one process on the drone)."""
     p.add_argument("--layout", required=not serving, action="append", metavar="LAYOUT.json",
                    help="marker layout file; repeat for several brick types"
                         + (" (default: the shipped layouts)" if serving else ""))
@@ -260,6 +261,7 @@ def add_pipeline_arguments(p: argparse.ArgumentParser, serving: bool) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio run``'s arguments: the source and camera, the pipeline's, the run's own."""
     p.add_argument("--source", required=True, metavar="SOURCE",
                    help="camera index (0), video file, folder of images (name order) or stream URL")
     p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")

@@ -16,6 +16,7 @@ __all__ = ["COMMAND", "add_arguments"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio serve``'s arguments: the server's, then the pipeline of its live page."""
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default: 127.0.0.1, this machine only; any other "
                         "address turns on token access)")

@@ -102,6 +102,7 @@ def _example(args: argparse.Namespace) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio study run|example``."""
     sub = p.add_subparsers(dest="study_action", metavar="ACTION", required=True)
     fmt = argparse.RawDescriptionHelpFormatter
     r = sub.add_parser(

@@ -24,6 +24,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio synth samples``."""
     sub = p.add_subparsers(dest="synth_action", metavar="ACTION", required=True)
     samples = sub.add_parser(
         "samples",
