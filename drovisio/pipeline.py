@@ -25,16 +25,21 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
+from drovisio.camera import Camera
 from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
-from drovisio.fusion import fuse_frame
+from drovisio.fusion import dots_half_turn_symmetric, fuse_frame
+from drovisio.layout import MarkerLayout
+from drovisio.mount import Mount
+from drovisio.pipeline_status import PipelineStats, PipelineStatus, TargetBrickStatus
+from drovisio.sinks.base import Sink
 from drovisio.sinks.target import TargetSelector
 from drovisio.sources import Frame, FrameSource, SourceState
 from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
@@ -42,15 +47,18 @@ from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
 __all__ = [
     "Detector",
     "FrameOutput",
+    "FrameRecorder",
     "Pipeline",
     "PipelineStats",
+    "PipelineStatus",
     "detectors_for",
 ]
 
 log = logging.getLogger("drovisio.pipeline")
 
 
-def detectors_for(camera, layouts, stream: bool = True) -> list[Detector]:
+def detectors_for(camera: Camera, layouts: Sequence[MarkerLayout], stream: bool = True
+                  ) -> list[Detector]:
     """The detectors the layouts need: ArUco if any has codes, dots if any has dots.
 
     Args:
@@ -69,6 +77,17 @@ def detectors_for(camera, layouts, stream: bool = True) -> list[Detector]:
     if any(getattr(lay, "has_dots", False) for lay in layouts):
         out.append(DotDetector(camera, layouts, stream=stream))
     return out
+
+
+class FrameRecorder(Protocol):
+    """Where the frames and their outputs are recorded (:class:`drovisio.recording.Recorder`,
+    the ROS 2 ``.mcap`` recorder)."""
+
+    def add(self, frame: Frame, output: FrameOutput) -> None: ...
+
+    def status(self) -> dict: ...
+
+    def close(self) -> None: ...
 
 
 @dataclass
@@ -102,48 +121,6 @@ class FrameOutput:
         return out
 
 
-class PipelineStats:
-    """Rolling figures (bounded memory: fixed-size windows)."""
-
-    def __init__(self, window: int = 90):
-        self.detect_ms: deque[float] = deque(maxlen=window)
-        self.latency_ms: deque[float] = deque(maxlen=window)
-        self.frame_times: deque[float] = deque(maxlen=window)
-        self.frames = 0
-        self.detector_errors = 0
-        self.sink_errors = 0
-        self.bricks = 0
-        self.held = 0
-        """Bricks of the last frame held over by the tracker (not measured in it)."""
-        self.last_error: str | None = None
-        self.duplicates: dict[str, int] = {}
-        """``layout:instance`` -> frames in which its code id was read on several codes (those
-        copies are not tracked: which one is the brick is unknown); at most 16 names."""
-
-    def fps(self, now: float | None = None) -> float:
-        ft = list(self.frame_times)
-        if len(ft) < 2:
-            return 0.0
-        now = time.monotonic() if now is None else now
-        recent = [t for t in ft if now - t <= 2.0]
-        if len(recent) < 2:
-            return 0.0
-        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
-
-    @staticmethod
-    def _median(d: deque) -> float:
-        return float(np.median(list(d))) if d else 0.0
-
-    def snapshot(self) -> dict:
-        return {"frames": self.frames, "fps": round(self.fps(), 2),
-                "detect_ms": round(self._median(self.detect_ms), 2),
-                "latency_ms": round(self._median(self.latency_ms), 2),
-                "bricks": self.bricks, "held": self.held,
-                "detector_errors": self.detector_errors,
-                "sink_errors": self.sink_errors, "last_error": self.last_error,
-                "duplicates": dict(self.duplicates)}
-
-
 class Pipeline:
     """Runs the stages on a source until it ends or :meth:`stop` is called.
 
@@ -168,12 +145,13 @@ class Pipeline:
     """
 
     def __init__(self, source: FrameSource, detectors: Sequence[Detector],
-                 sinks: Sequence = (), tracker: BrickTracker | None = None, mount=None,
-                 target: TargetSelector | None = None,
+                 sinks: Sequence[Sink] = (), tracker: BrickTracker | None = None,
+                 mount: Mount | None = None, target: TargetSelector | None = None,
                  gravity: Callable[[float], np.ndarray | None] | None = None,
-                 recorder=None, max_age: float = 0.5, parallel: bool = True,
-                 fuse: bool = True, layouts: Sequence = (), camera=None,
-                 detector_factory: Callable[[object], list[Detector]] | None = None):
+                 recorder: FrameRecorder | None = None, max_age: float = 0.5,
+                 parallel: bool = True, fuse: bool = True,
+                 layouts: Sequence[MarkerLayout] = (), camera: Camera | None = None,
+                 detector_factory: Callable[[Camera], list[Detector]] | None = None):
         self.source = source
         self.detectors = list(detectors)
         self.camera = camera
@@ -190,8 +168,6 @@ class Pipeline:
         self.recorder = recorder
         self.fuse = fuse
         self.layouts = list(layouts)
-        from drovisio.fusion import dots_half_turn_symmetric
-
         self._symmetric_dots = {lay.name for lay in self.layouts
                                 if getattr(lay, "has_codes", False)
                                 and dots_half_turn_symmetric(lay)}
@@ -213,7 +189,7 @@ class Pipeline:
         fast: it runs in the pipeline thread."""
         self._listeners.append(fn)
 
-    def remove_listener(self, fn) -> None:
+    def remove_listener(self, fn: Callable[[Frame | None, FrameOutput | None], None]) -> None:
         if fn in self._listeners:
             self._listeners.remove(fn)
 
@@ -246,45 +222,35 @@ class Pipeline:
             results = [one(d) for d in self.detectors]
         return [p for r in results for p in r], errors
 
-    def process(self, frame: Frame) -> FrameOutput:
-        """All stages for one frame; sends the output to the sinks and returns it."""
-        g = None
-        if self.gravity is not None:
-            try:
-                g = self.gravity(frame.t_mono)
-            except Exception:  # noqa: BLE001
-                g = None
-        t0 = time.perf_counter()
+    def _gravity_at(self, t_mono: float) -> np.ndarray | None:
+        """Gravity in the camera frame at ``t_mono`` (None when unknown or it failed)."""
+        if self.gravity is None:
+            return None
+        try:
+            return self.gravity(t_mono)
+        except Exception:  # noqa: BLE001
+            return None
+
+    def _measure(self, frame: Frame, g: np.ndarray | None
+                 ) -> tuple[list[BrickPose], list[str]]:
+        """The frame's detections and errors (an undecodable frame or one of another size
+        is said, not detected)."""
         mismatch = self._fit_camera(frame.image) if frame.image is not None else None
-        poses: list[BrickPose]
         if frame.image is None:   # a frame the source could not decode: said, not detected
-            poses, errors = [], [frame.error or "frame could not be decoded"]
-        elif mismatch is not None:
-            poses, errors = [], [mismatch]
-        else:
-            poses, errors = self._detect(frame, g)
-        detect_ms = (time.perf_counter() - t0) * 1e3
-        if self.fuse:
-            poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
-        # codes whose id was read several times in the frame: posed and flagged by the
-        # detector, but never tracked (one track would jump between the copies)
-        tracked = [p for p in poses if not p.duplicate]
-        if len(tracked) != len(poses):
-            for name in sorted({f"{p.layout}:{p.instance}" for p in poses if p.duplicate}):
-                if name in self.stats.duplicates or len(self.stats.duplicates) < 16:
-                    self.stats.duplicates[name] = self.stats.duplicates.get(name, 0) + 1
-        bricks = self.tracker.update(tracked, frame.t_mono, frame.t_wall)
-        target = self.target.choose(bricks)
-        out = FrameOutput(source=self.source.label, frame=frame.index, seq=frame.seq,
-                          t=frame.t_wall, t_mono=frame.t_mono, bricks=bricks, target=target,
-                          detections=poses, detect_ms=detect_ms,
-                          source_state=self.source.state.value, gravity=g, errors=errors)
+            return [], [frame.error or "frame could not be decoded"]
+        if mismatch is not None:
+            return [], [mismatch]
+        return self._detect(frame, g)
+
+    def _send(self, out: FrameOutput) -> None:
         for s in self.sinks:
             try:
                 s.send(out)
             except Exception as e:  # noqa: BLE001
                 self.stats.sink_errors += 1
                 self.stats.last_error = f"{getattr(s, 'name', s)}: {e}"
+
+    def _count(self, frame: Frame, bricks: list[TrackedBrick], detect_ms: float) -> None:
         now = time.monotonic()
         st = self.stats
         st.latency_ms.append((now - (frame.t_read or frame.t_mono)) * 1e3)
@@ -293,6 +259,29 @@ class Pipeline:
         st.frames += 1
         st.bricks = len(bricks)
         st.held = sum(not b.measured for b in bricks)
+
+    def process(self, frame: Frame) -> FrameOutput:
+        """All stages for one frame; sends the output to the sinks and returns it."""
+        g = self._gravity_at(frame.t_mono)
+        t0 = time.perf_counter()
+        poses, errors = self._measure(frame, g)
+        detect_ms = (time.perf_counter() - t0) * 1e3
+        if self.fuse:
+            poses = fuse_frame(poses, symmetric_dots=self._symmetric_dots)
+        # codes whose id was read several times in the frame: posed and flagged by the
+        # detector, but never tracked (one track would jump between the copies)
+        tracked = [p for p in poses if not p.duplicate]
+        if len(tracked) != len(poses):
+            self.stats.count_duplicates({f"{p.layout}:{p.instance}" for p in poses
+                                         if p.duplicate})
+        bricks = self.tracker.update(tracked, frame.t_mono, frame.t_wall)
+        target = self.target.choose(bricks)
+        out = FrameOutput(source=self.source.label, frame=frame.index, seq=frame.seq,
+                          t=frame.t_wall, t_mono=frame.t_mono, bricks=bricks, target=target,
+                          detections=poses, detect_ms=detect_ms,
+                          source_state=self.source.state.value, gravity=g, errors=errors)
+        self._send(out)
+        self._count(frame, bricks, detect_ms)
         if self.recorder is not None and frame.image is not None:
             self.recorder.add(frame, out)
         self.last_output = out
@@ -347,11 +336,11 @@ class Pipeline:
 
     # ------------------------------------------------------------------ loop
     def run(self, max_frames: int | None = None,
-            on_status: Callable[[dict], None] | None = None, status_period: float = 1.0
-            ) -> int:
+            on_status: Callable[[PipelineStatus], None] | None = None,
+            status_period: float = 1.0) -> int:
         """Loop until the source ends, :meth:`stop` is called or ``max_frames`` were done.
 
-        ``on_status(status_dict)`` is called every ``status_period`` seconds.
+        ``on_status(snapshot)`` is called every ``status_period`` seconds.
         Returns the number of frames processed.
         """
         self.source.start()
@@ -369,27 +358,29 @@ class Pipeline:
                 next_status += status_period
                 if time.monotonic() > next_status:
                     next_status = time.monotonic() + status_period
-                on_status(self.status())
+                on_status(self.snapshot())
         return n
 
     def stop(self) -> None:
         self._stop.set()
 
-    def status(self) -> dict:
+    def snapshot(self) -> PipelineStatus:
         """Figures for status lines and the live page."""
-        s = self.stats.snapshot()
-        src = self.source.status()
-        s["source"] = src.to_json()
-        s["target"] = self.target.spec.to_json()
-        t = self.last_output.target if self.last_output is not None else None
-        s["target_brick"] = None if t is None or self.last_output is None or \
-            self.source.now() - self.last_output.t_mono > self.tracker.config.max_age else \
-            {"layout": t.layout, "instance": t.instance, "track": t.track,
-             "distance": round(t.distance, 3)}
-        s["sinks"] = [x.status() for x in self.sinks if hasattr(x, "status")]
-        if self.recorder is not None:
-            s["recording"] = self.recorder.status()
-        return s
+        out = self.last_output
+        t = out.target if out is not None else None
+        fresh = (t is not None and out is not None
+                 and self.source.now() - out.t_mono <= self.tracker.config.max_age)
+        brick = (TargetBrickStatus(t.layout, t.instance, t.track, round(t.distance, 3))
+                 if fresh and t is not None else None)
+        return PipelineStatus.of(
+            self.stats, source=self.source.status(), target=self.target.spec,
+            target_brick=brick,
+            sinks=[x.status() for x in self.sinks if hasattr(x, "status")],
+            recording=self.recorder.status() if self.recorder is not None else None)
+
+    def status(self) -> dict:
+        """:meth:`snapshot`'s JSON form."""
+        return self.snapshot().to_json()
 
     def close(self) -> None:
         """Stop the source, close the sinks and the recorder."""

@@ -1,12 +1,14 @@
-"""The one start-up check of the pipeline's options, shared by ``drovisio run`` and
-``drovisio serve`` (which runs it before the server starts): bad set-up is said in one line,
-exit 2, before anything runs — never as a traceback from the server's lifespan, never only on
-a page later.
+"""From a :class:`~drovisio.pipeline_config.PipelineConfig` to a running pipeline: the one
+start-up check of the pipeline's options, shared by ``drovisio run`` and ``drovisio serve``
+(which runs it before the server starts), the sinks, and the assembly (:func:`build_pipeline`,
+also used by the web tool's live page and the benchmarks).
 
-It checks, in this order: the camera file, the layouts, the mount file, the source (opened as
-``run`` opens it), the target, the recording folder, and every sink — each opened and closed
-again (a file sink's folder, a UDP or WebSocket address, a MAVLink link: a ``tcp:`` peer must
-answer within :attr:`~drovisio.errors.Limits.connect_timeout_s`).
+Bad set-up is said in one line, exit 2, before anything runs — never as a traceback from the
+server's lifespan, never only on a page later. The check takes, in this order: the camera
+file, the layouts, the mount file, the source (opened as ``run`` opens it), the target, the
+recording folder, and every sink — each opened and closed again (a file sink's folder, a UDP
+or WebSocket address, a MAVLink link: a ``tcp:`` peer must answer within
+:attr:`~drovisio.errors.Limits.connect_timeout_s`).
 """
 
 from __future__ import annotations
@@ -14,11 +16,55 @@ from __future__ import annotations
 import argparse
 import os
 import stat
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from drovisio.errors import InputError, one_line
+import numpy as np
 
-__all__ = ["check_pipeline_options", "check_record_folder", "check_source", "open_sinks_of"]
+from drovisio.autopilot.blind import blind_height
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
+from drovisio.errors import InputError, WriteError, one_line
+from drovisio.fileio import check_output_name
+from drovisio.layout import MarkerLayout, load_layouts
+from drovisio.mount import Mount, load_mount
+from drovisio.pipeline import Detector, Pipeline, detectors_for
+from drovisio.pipeline_config import PipelineConfig
+from drovisio.recording import Recorder, holds_recording
+from drovisio.ros.mcap_recorder import McapRecorder
+from drovisio.ros.messages import RosMessages, namespace_for
+from drovisio.sinks import Sink, open_sink
+from drovisio.sinks.base import SinkError
+from drovisio.sinks.mavlink import MavlinkSink
+from drovisio.sinks.target import TargetSelector
+from drovisio.sources import FrameSource, reader_for
+
+__all__ = ["build_pipeline", "check_pipeline_options", "check_record_folder", "check_source",
+           "open_sinks_of"]
+
+
+def _stat(p: Path) -> os.stat_result | None:
+    """``p``'s status, None when it does not exist yet."""
+    try:
+        return p.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as e:
+        raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
+
+
+def _check_existing(p: Path, st: os.stat_result, mcap: bool) -> None:
+    """A recording is never written over: an existing ``.mcap``, a file or device given as
+    the folder, a folder that holds a recording are refused."""
+    if mcap:
+        raise InputError(f"{p}: --record: the file exists (a recording is never written "
+                         "over); give a new FILE.mcap")
+    if not stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
+                         "missing)")
+    if holds_recording(p):
+        raise InputError(f"{p}: --record: the folder already holds a recording (a "
+                         "recording is never written over); give a new folder")
 
 
 def check_record_folder(path: str | os.PathLike) -> Path:
@@ -28,32 +74,14 @@ def check_record_folder(path: str | os.PathLike) -> Path:
     Raises:
         InputError: one line naming ``--record`` and what to do.
     """
-    from drovisio.errors import WriteError
-    from drovisio.fileio import check_output_name
-
     try:
         p = check_output_name(path, "--record")
     except WriteError as e:
         raise InputError(str(e)) from None
-    try:
-        st = p.stat()
-    except FileNotFoundError:
-        st = None
-    except OSError as e:
-        raise InputError(f"{p}: --record: {e.strerror or e}; choose another folder") from None
+    st = _stat(p)
     mcap = p.suffix.lower() == ".mcap"
-    if mcap and st is not None:
-        raise InputError(f"{p}: --record: the file exists (a recording is never written "
-                         "over); give a new FILE.mcap")
-    if not mcap and st is not None and not stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{p}: --record is a file or a device; give a folder (made if "
-                         "missing)")
-    if not mcap and st is not None:
-        from drovisio.recording import holds_recording
-
-        if holds_recording(p):
-            raise InputError(f"{p}: --record: the folder already holds a recording (a "
-                             "recording is never written over); give a new folder")
+    if st is not None:
+        _check_existing(p, st, mcap)
     # the nearest folder that exists must be writable: the recording is made inside it
     q = p if (st is not None and not mcap) else p.absolute().parent
     while not q.exists() and q != q.parent:
@@ -71,8 +99,6 @@ def check_source(source: str) -> None:
     Raises:
         InputError: naming ``--source`` and what is wrong.
     """
-    from drovisio.sources import reader_for
-
     reader = reader_for(source)
     if not getattr(reader, "finite", False):
         return
@@ -92,74 +118,66 @@ def check_source(source: str) -> None:
             pass
 
 
-def _target(spec: str | None):
-    from drovisio.sinks.target import TargetSelector
-
+def _target(spec: str | None) -> TargetSelector:
     try:
         return TargetSelector(spec or "nearest")
     except ValueError as e:
         raise InputError(f"--target {one_line(spec, 80)}: {e}") from None
 
 
-def check_pipeline_options(args: argparse.Namespace, *, open_sinks: bool = True) -> None:
-    """Check every pipeline option of ``args`` before anything runs (see the module doc).
+def _config(options: PipelineConfig | argparse.Namespace) -> PipelineConfig:
+    """A parsed command line as the typed configuration (the check takes either)."""
+    if isinstance(options, PipelineConfig):
+        return options
+    return PipelineConfig.from_args(options)
+
+
+def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
+                           open_sinks: bool = True) -> None:
+    """Check every pipeline option before anything runs (see the module doc).
 
     Args:
-        args: The parsed ``run`` or ``serve`` command line (``camera``, ``layout``, ``mount``,
-            ``source``, ``target``, ``record``, ``sink``, ``autopilot``).
+        options: The configuration, or the parsed ``run`` or ``serve`` command line.
         open_sinks: Open (and close) the sinks too; ``run`` opens them right after, through
             the same :func:`open_sinks_of`.
 
     Raises:
         InputError: one line naming the option (or file) and what to do.
     """
-    camera = None
-    if getattr(args, "camera", None):
-        from drovisio.camera_file import load_camera
-
-        camera = load_camera(args.camera)
-    layouts = None
-    if getattr(args, "layout", None):
-        from drovisio.layout import load_layouts
-
-        layouts = load_layouts(args.layout)
-    mount = None
-    if getattr(args, "mount", None):
-        from drovisio.mount import load_mount
-
-        mount = load_mount(args.mount)
-    if getattr(args, "source", None):
-        check_source(args.source)
-    target = _target(getattr(args, "target", None))
-    if getattr(args, "record", None):
-        check_record_folder(args.record)
+    config = _config(options)
+    camera = load_camera(config.camera) if config.camera else None
+    layouts = load_layouts(config.layouts) if config.layouts else None
+    mount = load_mount(config.mount) if config.mount else None
+    if config.source:
+        check_source(config.source)
+    target = _target(config.target)
+    if config.record:
+        check_record_folder(config.record)
     if open_sinks:
-        for sink in open_sinks_of(args, target, mount, layouts, camera=camera):
+        for sink in open_sinks_of(config, target, mount, layouts, camera=camera):
             try:
                 sink.close()
             except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
                 pass
 
 
-def open_sinks_of(args: argparse.Namespace, target, mount=None, layouts=None,
-                  default_sinks: tuple[str, ...] = (), camera=None) -> list:
-    """Open every ``--sink`` of ``args`` (``default_sinks`` when none); on a failure the ones
+def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount | None = None,
+                  layouts: Sequence[MarkerLayout] | None = None,
+                  default_sinks: tuple[str, ...] = (), camera: Camera | None = None
+                  ) -> list[Sink]:
+    """Open every sink of ``config`` (``default_sinks`` when none); on a failure the ones
     opened are closed and one line names the sink and what to do.
 
     Raises:
         InputError: the sink that could not be opened, and why.
     """
-    from drovisio.sinks import open_sink
-    from drovisio.sinks.base import SinkError
-
-    sinks: list = []
-    for spec in (getattr(args, "sink", None) or list(default_sinks)):
+    sinks: list[Sink] = []
+    for spec in (config.sinks or list(default_sinks)):
         try:
-            sinks.append(open_sink(spec, target=target,
-                                   autopilot=getattr(args, "autopilot", "ardupilot"),
+            sinks.append(open_sink(spec, target=target, autopilot=config.autopilot,
                                    mount=mount, layouts=layouts,
-                                   send_held=getattr(args, "send_held_targets", False),
-                                   camera=camera, drone_id=getattr(args, "drone_id", None)))
+                                   send_held=config.send_held_targets,
+                                   camera=camera, drone_id=config.drone_id))
         except (SinkError, OSError, ValueError) as e:  # a spec's parts, parsed: one line too
             for s in sinks:
                 s.close()
@@ -170,3 +188,89 @@ def open_sinks_of(args: argparse.Namespace, target, mount=None, layouts=None,
                 s.close()
             raise
     return sinks
+
+
+def _blind_height(mav: MavlinkSink | None, camera: Camera, mount: Mount | None,
+                  layouts: Sequence[MarkerLayout]) -> None:
+    """Tell a MAVLink sink the height below which the bricks leave the picture: the highest
+    over the layouts (PX4's final-approach altitude must cover it)."""
+    if mav is None or mount is None or not camera.size_known:
+        return
+    heights = [b.leaves_at_m for b in (blind_height(camera, mount, lay) for lay in layouts)
+               if b.leaves_at_m is not None]
+    mav.blind_height_m = max(heights) if heights else None
+
+
+def _gravity(mav: MavlinkSink | None, mount: Mount | None
+             ) -> Callable[[float], np.ndarray | None] | None:
+    """``t_mono -> gravity in the camera frame``: the autopilot's roll and pitch when the link
+    gives them, else level flight; None without a mount."""
+    if mount is None:
+        return None
+    level = mount.gravity_in_camera()
+
+    def attitude_gravity(t_mono: float) -> np.ndarray | None:
+        if mav is not None:
+            att = mav.attitude_at(t_mono)
+            if att is not None:
+                return mount.gravity_in_camera(att[0], att[1])
+        return level
+
+    return attitude_gravity
+
+
+def _recorder(config: PipelineConfig, source: str, camera: Camera, mount: Mount | None,
+              layouts: Sequence[MarkerLayout]) -> Recorder | McapRecorder | None:
+    """The recording ``config.record`` asks for: an ``.mcap`` file (ROS 2 messages) or a
+    folder (Drovisio's own form); None without one."""
+    if not config.record:
+        return None
+    if config.record.lower().endswith(".mcap"):
+        ns, prefix = namespace_for(config.drone_id)
+        return McapRecorder(config.record, RosMessages(camera, mount, layouts, namespace=ns,
+                                                       frame_prefix=prefix),
+                            source=source, image_format=config.record_images)
+    return Recorder(config.record, source=source, camera_file=config.camera,
+                    mount_file=config.mount)
+
+
+def build_pipeline(config: PipelineConfig, loop: bool = False,
+                   default_sinks: tuple[str, ...] = ("jsonl:-",)) -> Pipeline:
+    """The pipeline ``config`` describes, warmed up (``drovisio run``, the web tool's live
+    page, the benchmarks).
+
+    Args:
+        config: Its ``source`` and ``camera`` must be given.
+        loop: Play a file source in a loop (the web tool's sample session).
+        default_sinks: The sinks when ``config.sinks`` is empty.
+
+    Raises:
+        InputError: a bad option, in one line (the check of :func:`check_pipeline_options`,
+            sinks aside: they are opened here).
+    """
+    check_pipeline_options(config, open_sinks=False)   # the same check as `serve`'s
+    if config.source is None or config.camera is None:
+        raise InputError("the pipeline needs a --source and a --camera")
+    camera = load_camera(config.camera)
+    layouts = load_layouts(config.layouts)
+    if not any(lay.has_codes or lay.has_dots for lay in layouts):
+        raise InputError("the layouts have neither codes nor dots: nothing to detect")
+    mount = load_mount(config.mount) if config.mount else None
+    reader = reader_for(config.source, loop=loop)
+    target = TargetSelector(config.target or "nearest")  # checked above
+    sinks = open_sinks_of(config, target, mount, layouts, default_sinks, camera=camera)
+    mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
+    _blind_height(mav, camera, mount, layouts)
+    source = FrameSource(reader, pace=config.pace)
+    recorder = _recorder(config, config.source, camera, mount, layouts)
+
+    def make_detectors(cam: Camera) -> list[Detector]:
+        return detectors_for(cam, layouts)
+
+    pipeline = Pipeline(source, make_detectors(camera) if camera.size_known else [],
+                        sinks=sinks, mount=mount, target=target, gravity=_gravity(mav, mount),
+                        recorder=recorder, max_age=config.max_age,
+                        layouts=layouts, camera=camera, detector_factory=make_detectors)
+    if camera.size_known:
+        pipeline.warm_up(camera.width, camera.height)
+    return pipeline

@@ -38,12 +38,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drovisio.calibration.board import parse_board
+from drovisio.calibration.geometry import fit_board
 from drovisio.camera import Camera
 from drovisio.camera_file import save_camera
 from drovisio.fileio import atomic_write_bytes, atomic_write_text, write_image
 from drovisio.layout import load_layout, shipped_layouts_dir
+from drovisio.mission.check import check_rules
+from drovisio.mission.record import write_recording
+from drovisio.mission.scenario import load_scenario, shipped_scenario
+from drovisio.mission.sim import SimParams, simulate
+from drovisio.mount import Mount
 from drovisio.resources import sample_sessions_dir
-from drovisio.scenes import gravity_in_camera
+from drovisio.scenes import gravity_in_camera, level_drone_over_code
+from drovisio.study.example import write_recorded_example
 from drovisio.synth import (
     BrickInstance,
     Effects,
@@ -68,9 +76,6 @@ def _progress(msg: str) -> None:
 def calibration_poses(camera: Camera, square: float = 0.025) -> list[np.ndarray]:
     """20 board poses in the order a person would take them: centre first, then outward,
     each board filling about half the image width and kept wholly inside it."""
-    from drovisio.calibration.board import parse_board
-    from drovisio.calibration.geometry import fit_board
-
     board = parse_board("chessboard:9x6", square)
     # (x, y) image position as fractions, tilt (deg) and the direction of its axis (deg)
     spots = [(0.5, 0.5, 0, 0), (0.5, 0.5, 35, 0), (0.5, 0.5, 35, 90),
@@ -122,9 +127,11 @@ def approach_scene() -> tuple[list[BrickInstance], dict]:
         yaw = math.radians((-4, 3, 0, -2, 5)[i])
         bricks.append(BrickInstance(lay, transform(rot_z(yaw), [(i - 2) * 0.4, 0.0, 0.10]),
                                     instance=inst))
-    meta = {"layouts": sorted({b.layout.name for b in bricks}),
-            "bricks": [{"layout": b.layout.name, "instance": b.instance,
-                        "world_from_brick": b.world_from_brick.tolist()} for b in bricks]}
+    # the names from the loaded layouts (a placed brick keeps its layout untyped)
+    meta = {"layouts": sorted({lay.name for lay, _ in row}),
+            "bricks": [{"layout": lay.name, "instance": b.instance,
+                        "world_from_brick": b.world_from_brick.tolist()}
+                       for b, (lay, _) in zip(bricks, row, strict=True)]}
     return bricks, meta
 
 
@@ -161,7 +168,7 @@ def write_approach_session(out: Path, camera: Camera) -> None:
     n = FPS * SECONDS
     with tempfile.TemporaryDirectory() as tmp:
         video_tmp = Path(tmp) / "approach.mp4"
-        writer = cv2.VideoWriter(str(video_tmp), cv2.VideoWriter_fourcc(*"mp4v"), FPS,
+        writer = cv2.VideoWriter(str(video_tmp), cv2.VideoWriter.fourcc(*"mp4v"), FPS,
                                  camera.size)
         if not writer.isOpened():
             raise RuntimeError("OpenCV cannot write MP4 (mp4v) video on this machine")
@@ -190,7 +197,6 @@ def write_approach_session(out: Path, camera: Camera) -> None:
         atomic_write_bytes(out / "approach.mp4", video_tmp.read_bytes())
     atomic_write_text(out / "truth.jsonl", "\n".join(truth_lines) + "\n")
     atomic_write_text(out / "gravity.jsonl", "\n".join(gravity_lines) + "\n")
-    from drovisio.mount import Mount
 
     note = "camera 20° tilted forward, 8 cm ahead and 5 cm below the body origin"
     atomic_write_text(out / "mount.json", json.dumps(Mount(mount, note=note).to_file(),
@@ -205,9 +211,6 @@ PAD_SHOTS = ((0.0, 1.0), (120.0, 1.2), (240.0, 1.4))
 
 def write_pad_session(out: Path, camera: Camera) -> None:
     """Pictures of the landing pad for measuring the mount (see the module docstring)."""
-    from drovisio.mount import Mount
-    from drovisio.scenes import level_drone_over_code
-
     out.mkdir(parents=True, exist_ok=True)
     pad = load_layout(shipped_layouts_dir() / "landing-pad.json")
     mount = body_from_camera()
@@ -224,11 +227,6 @@ def write_pad_session(out: Path, camera: Camera) -> None:
 def write_demo_mission(out: Path) -> None:
     """A short simulated mission (the shipped wall, first three bricks), recorded for the
     live page's replay panel (``drovisio serve`` lists ``missions/`` by default)."""
-    from drovisio.mission.check import check_rules
-    from drovisio.mission.record import write_recording
-    from drovisio.mission.scenario import load_scenario, shipped_scenario
-    from drovisio.mission.sim import SimParams, simulate
-
     scn = load_scenario(shipped_scenario("wall-2-courses"))
     scn = scn.subset(scn.order[:3])
     tr = simulate(scn, (), SimParams(seed=0))
@@ -255,7 +253,6 @@ def main(out_dir: str | Path | None = None, only: str | None = None) -> int:
     if only in (None, "missions"):
         write_demo_mission(out / "missions")
     if only in (None, "study"):
-        from drovisio.study.example import write_recorded_example
 
         write_recorded_example(out / "study", frames=6)
     if only in (None, "pad"):

@@ -44,6 +44,7 @@ from drovisio.fusion import (
     tangent_cov_to_rvec,
 )
 from drovisio.geometry import from_rvec_tvec
+from drovisio.mount import Mount
 
 __all__ = ["BrickTracker", "Track", "TrackedBrick", "TrackerConfig"]
 
@@ -240,7 +241,7 @@ class BrickTracker:
         mount: Optional :class:`drovisio.mount.Mount` to fill ``body_from_brick``.
     """
 
-    def __init__(self, config: TrackerConfig | None = None, mount=None):
+    def __init__(self, config: TrackerConfig | None = None, mount: Mount | None = None):
         self.config = config or TrackerConfig()
         self.mount = mount
         self.tracks: list[Track] = []
@@ -272,13 +273,22 @@ class BrickTracker:
         return tr
 
     def _associate(self, poses: Sequence[BrickPose]) -> list[tuple[BrickPose, Track | None]]:
+        """Each pose with its track (None: a new brick): by id when the brick has one, else
+        by :meth:`_match_anonymous`."""
         by_key = {(t.layout, t.instance): t for t in self.tracks if t.instance is not None}
         out: list[tuple[BrickPose, Track | None]] = []
         anon = [p for p in poses if p.instance is None]
         for p in poses:
             if p.instance is not None:
                 out.append((p, by_key.get((p.layout, p.instance))))
-        # bricks without id: greedy nearest neighbour on predicted positions, gated
+        match = self._match_anonymous(anon)
+        for i, p in enumerate(anon):
+            out.append((p, match.get(i)))
+        return out
+
+    def _match_anonymous(self, anon: Sequence[BrickPose]) -> dict[int, Track]:
+        """Bricks without id: greedy nearest neighbour on the tracks' predicted positions,
+        within :attr:`TrackerConfig.assoc_distance` (index into ``anon`` -> track)."""
         free = [t for t in self.tracks if t.instance is None]
         cands = []
         for i, p in enumerate(anon):
@@ -298,9 +308,7 @@ class BrickTracker:
             used_i.add(i)
             used_j.add(j)
             match[i] = free[j]
-        for i, p in enumerate(anon):
-            out.append((p, match.get(i)))
-        return out
+        return match
 
     # ------------------------------------------------------------------ API
     def prune(self, t_mono: float) -> None:

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import ipaddress
+import os
 import secrets
 from pathlib import Path
-from typing import Literal
+from typing import Any
 
 from pydantic import BaseModel, Field, model_validator
 
+from drovisio.pipeline_config import PipelineConfig
 from drovisio.resources import sample_sessions_dir, user_data_dir
 
 DEFAULT_SAMPLE_SESSION = sample_sessions_dir()
@@ -34,24 +36,37 @@ def new_token() -> str:
     return secrets.token_urlsafe(16)
 
 
+_PIPELINE_FIELDS = frozenset(PipelineConfig.model_fields)
+"""The options of ``drovisio run`` a server takes too, given flat (``Settings(sinks=[...])``)
+or as ``pipeline``."""
+
+
+def _as_text(value: object) -> object:
+    """A path as the configuration keeps it (text); anything else as it is."""
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (list, tuple)):
+        return [os.fspath(v) if isinstance(v, os.PathLike) else v for v in value]
+    return value
+
+
+def _path(value: str | None) -> Path | None:
+    return None if value is None else Path(value)
+
+
 class Settings(BaseModel):
+    """What one server was asked to do. The pipeline's options (``source``, ``camera``,
+    ``layouts``, ``mount``, ``sinks``, ...) may be given flat, as ``drovisio serve`` passes
+    them; they live in :attr:`pipeline`, and read back as the server's own (paths as
+    :class:`~pathlib.Path`)."""
+
     host: str = "127.0.0.1"
     port: int = 8080
-    source: str | None = None  # None: run on the sample session
-    camera: Path | None = None
-    # The pipeline of the live page, as `drovisio run` takes it (one process on the drone:
-    # what the page shows is what the flight controller is sent). Empty layouts: the shipped
-    # ones (the sample session's with no source); with sinks, the pipeline runs from the start.
-    layouts: list[Path] = []
-    mount: Path | None = None
-    sinks: list[str] = []
-    target: str = "nearest"
-    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
-    record: Path | None = None
-    record_images: Literal["jpeg", "png"] = "jpeg"
-    drone_id: str | None = None
-    send_held_targets: bool = False
-    max_age: float = Field(default=0.5, gt=0)
+    pipeline: PipelineConfig = Field(default_factory=PipelineConfig)
+    """The pipeline of the live page, as `drovisio run` takes it (one process on the drone:
+    what the page shows is what the flight controller is sent). No source: the sample
+    session; empty layouts: the shipped ones (the sample session's with no source); with
+    sinks, the pipeline runs from the start."""
     sample_session: Path = DEFAULT_SAMPLE_SESSION
     # The user's data folder of this server (`drovisio serve --data DIR`): calibration,
     # mount, saved layouts and study reports live in its sub-folders unless one of the
@@ -66,7 +81,8 @@ class Settings(BaseModel):
     # With no source, the sample calibration views play as if live, this many seconds each.
     sample_seconds_per_view: float = 1.5
     # Marker designer (webtool.designer_scene): designs are saved into this folder (None: the
-    # data folder's layouts/; the shipped marker_layouts/ are read-only); mesh uploads larger than this are refused before reading.
+    # data folder's layouts/; the shipped marker_layouts/ are read-only); mesh uploads larger
+    # than this are refused before reading.
     designer_layouts_dir: Path | None = None
     designer_max_upload_mb: float = 50.0
     # Camera mount page (webtool.mount_service): with no --mount, the mount set there is saved
@@ -92,6 +108,23 @@ class Settings(BaseModel):
     # anything (writes answer 403). Made together with `token` when token access is on.
     viewer_token: str | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _pipeline_options(cls, data: Any) -> Any:
+        """The pipeline's options given flat (``source=``, ``sinks=``, ...) go into
+        ``pipeline``."""
+        if not isinstance(data, dict) or not _PIPELINE_FIELDS & data.keys():
+            return data
+        data = dict(data)
+        given = data.pop("pipeline", None)
+        if isinstance(given, PipelineConfig):
+            given = given.model_dump()
+        options = dict(given or {})
+        for name in _PIPELINE_FIELDS & data.keys():
+            options[name] = _as_text(data.pop(name))
+        data["pipeline"] = options
+        return data
+
     @model_validator(mode="after")
     def _token_when_exposed(self) -> Settings:
         if self.token is None and not is_loopback(self.host):
@@ -113,6 +146,48 @@ class Settings(BaseModel):
         if self.data_dir is not None:
             return Path(self.data_dir) / area
         return user_data_dir(area)
+
+    # The pipeline's options read (and, for the camera and the mount the pages set, written)
+    # as the server's own, as paths.
+    @property
+    def source(self) -> str | None:
+        return self.pipeline.source
+
+    @property
+    def camera(self) -> Path | None:
+        return _path(self.pipeline.camera)
+
+    @camera.setter
+    def camera(self, value: str | os.PathLike | None) -> None:
+        self.pipeline.camera = None if value is None else os.fspath(value)
+
+    @property
+    def layouts(self) -> list[Path]:
+        return [Path(x) for x in self.pipeline.layouts]
+
+    @property
+    def mount(self) -> Path | None:
+        return _path(self.pipeline.mount)
+
+    @mount.setter
+    def mount(self, value: str | os.PathLike | None) -> None:
+        self.pipeline.mount = None if value is None else os.fspath(value)
+
+    @property
+    def sinks(self) -> list[str]:
+        return self.pipeline.sinks
+
+    @property
+    def record(self) -> Path | None:
+        return _path(self.pipeline.record)
+
+    @property
+    def record_images(self) -> str:
+        return self.pipeline.record_images
+
+    @property
+    def drone_id(self) -> str | None:
+        return self.pipeline.drone_id
 
     @property
     def is_station(self) -> bool:

@@ -22,9 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drovisio.arguments import plain_help
 from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
 from drovisio.camera import Camera
-from drovisio.cli import plain_help
 from drovisio.errors import InputError
 
 __all__ = ["FISHEYE_150", "detection_errors", "calibration_errors", "main"]

@@ -44,18 +44,29 @@ import argparse
 import gc
 import json
 import os
+import socket
+import subprocess
 import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from drovisio.bounds import ArgumentParser, number
+from drovisio.fileio import atomic_write_text
+from drovisio.geometry import from_rvec_tvec
+from drovisio.mount import load_mount
+from drovisio.pipeline import Pipeline
+from drovisio.pipeline_config import PipelineConfig
 from drovisio.resources import layouts_dir, sample_sessions_dir
-from drovisio.sources import Pace
+from drovisio.sinks.mavlink import mavutil2
+from drovisio.sources import FrameSource, Pace, VideoFileReader
+from drovisio.startup import build_pipeline
 
 __all__ = ["main", "rss_mb"]
 
@@ -99,19 +110,17 @@ class _AtFps:
         self.r.close()
 
 
-def _args(sinks: list[str]) -> argparse.Namespace:
-    return argparse.Namespace(source=str(APPROACH / "approach.mp4"),
-                              camera=str(SAMPLE / "camera.yaml"),
-                              layout=[str(x) for x in LAYOUTS], mount=str(APPROACH / "mount.json"),
-                              sink=sinks, record=None, target="nearest",
-                              autopilot="ardupilot", max_age=0.5, pace="realtime")
+def _config(sinks: list[str]) -> PipelineConfig:
+    """``drovisio run`` on the sample approach video with the three drick layouts."""
+    return PipelineConfig(source=str(APPROACH / "approach.mp4"),
+                          camera=str(SAMPLE / "camera.yaml"),
+                          layouts=[str(x) for x in LAYOUTS], mount=str(APPROACH / "mount.json"),
+                          sinks=sinks, record=None, target="nearest",
+                          autopilot="ardupilot", max_age=0.5, pace="realtime")
 
 
-def _pipeline(sinks: list[str], fps: float, pace: Pace):
-    from drovisio.commands.run import build_pipeline
-    from drovisio.sources import FrameSource, VideoFileReader
-
-    p = build_pipeline(_args(sinks))
+def _pipeline(sinks: list[str], fps: float, pace: Pace) -> Pipeline:
+    p = build_pipeline(_config(sinks))
     p.source = FrameSource(_AtFps(VideoFileReader(APPROACH / "approach.mp4", loop=True), fps),
                            pace=pace)
     return p
@@ -122,8 +131,6 @@ def _pct(a, q: float) -> float:
 
 
 def bench_latency(fps: float, seconds: float) -> dict:
-    from drovisio.sinks.mavlink import mavutil2
-
     mavutil = mavutil2()
     rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
     port = rx.port.getsockname()[1]
@@ -155,18 +162,18 @@ def bench_latency(fps: float, seconds: float) -> dict:
         time.sleep(seconds)
         p.stop()
         th_run.join(5)
-        st = p.status()
+        st = p.snapshot()
         p.close()
     stop.set()
     th.join(1)
     rx.close()
     lat_a = np.array(lat[int(fps):])  # first second: warm-up
     rx_a = np.array(got[int(fps):]) * 1e3
-    frames_offered = st["source"]["frames"]
+    frames_offered = st.source.frames
     return {
         "fps_camera": fps, "seconds": seconds, "frames_offered": frames_offered,
-        "frames_processed": st["frames"], "frames_dropped": st["source"]["dropped"],
-        "processed_fps": round(st["frames"] / seconds, 2),
+        "frames_processed": st.frames, "frames_dropped": st.source.dropped,
+        "processed_fps": round(st.frames / seconds, 2),
         "latency_ms": {"median": round(_pct(lat_a, 50), 2), "p90": round(_pct(lat_a, 90), 2),
                        "max": round(float(lat_a.max()) if len(lat_a) else float("nan"), 2)},
         "capture_to_received_ms": {"median": round(_pct(rx_a, 50), 2),
@@ -183,8 +190,6 @@ class MjpegCamera:
     the socket is recorded per frame index."""
 
     def __init__(self, jpegs: list[bytes], fps: float, order: list[int] | None = None):
-        import socket
-
         self.jpegs = jpegs
         self.order = order or list(range(len(jpegs)))
         self.fps = fps
@@ -203,8 +208,6 @@ class MjpegCamera:
         return f"http://127.0.0.1:{self.port}/stream.mjpg"
 
     def _serve(self) -> None:
-        import socket
-
         self.sock.settimeout(0.5)
         while not self.stop.is_set():
             try:
@@ -240,9 +243,6 @@ class MjpegCamera:
 
 def _body_truth() -> list[np.ndarray]:
     """Per frame of the sample video: the true body-frame positions (B, 3) of its bricks."""
-    from drovisio.geometry import from_rvec_tvec
-    from drovisio.mount import load_mount
-
     mount = load_mount(APPROACH / "mount.json")
     out = []
     for line in (APPROACH / "truth.jsonl").read_text().splitlines():
@@ -252,17 +252,8 @@ def _body_truth() -> list[np.ndarray]:
     return out
 
 
-def bench_wire(fps: float, seconds: float, send_held: bool = False,
-               extra_sinks: tuple[str, ...] = ()) -> dict:
-    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
-    ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
-    flight controller's path must not change)."""
-    import subprocess
-
-    import cv2
-
-    from drovisio.sinks.mavlink import mavutil2
-
+def _sample_jpegs() -> list[bytes]:
+    """The sample approach video's frames as JPEG (quality 92), as a network camera sends."""
     cap = cv2.VideoCapture(str(APPROACH / "approach.mp4"))
     jpegs = []
     while True:
@@ -271,6 +262,75 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
             break
         jpegs.append(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 92])[1].tobytes())
     cap.release()
+    return jpegs
+
+
+def _run_command(camera_url: str, port: int, send_held: bool,
+                 extra_sinks: tuple[str, ...]) -> list[str]:
+    """``drovisio run`` on the camera, its MAVLink sink to ``port`` on loopback."""
+    cmd = [sys.executable, "-m", "drovisio", "run", "--source", camera_url,
+           "--camera", str(SAMPLE / "camera.yaml"), "--mount", str(APPROACH / "mount.json"),
+           *[x for lay in LAYOUTS for x in ("--layout", str(lay))],
+           "--sink", f"mavlink:udpout:127.0.0.1:{port}", "--quiet"]
+    if send_held:
+        cmd.append("--send-held-targets")
+    for extra in extra_sinks:
+        cmd += ["--sink", extra]
+    return cmd
+
+
+@dataclass
+class _WireMatches:
+    """Each LANDING_TARGET matched to the frame it describes."""
+
+    latency_ms: list[float] = field(default_factory=list)
+    """Last byte of the frame sent → message received, ms."""
+    stamp_gaps: list[float] = field(default_factory=list)
+    """Message's stamp − the frame's send time, s."""
+    stale: int = 0
+    stale_gaps_ms: list[float] = field(default_factory=list)
+    one_off: int = 0
+
+
+def _match_messages(got: list[tuple[float, Any]], sent: list[tuple[int, float]],
+                    truth: list[np.ndarray], fps: float) -> _WireMatches:
+    """Match each message (after the warm-up) to the sent frame whose true body-frame brick
+    positions its x, y, z fit best."""
+    warm = 3.0                                   # start-up of the process and its kernels
+    t_first = sent[0][1] + warm if sent else 0.0
+    out = _WireMatches()
+    for t_rx, m in got:
+        if t_rx < t_first:
+            continue
+        pos = np.array([m.x, m.y, m.z])
+        cands = [(i, t) for i, t in sent if t_rx - 0.5 <= t <= t_rx]
+        if not cands:
+            continue
+        err = [float(np.min(np.linalg.norm(truth[i] - pos, axis=1))) for i, _ in cands]
+        k = int(np.argmin(err))
+        i, t_sent = cands[k]
+        out.latency_ms.append((t_rx - t_sent) * 1e3)
+        gap = m.time_usec / 1e6 - t_sent
+        out.stamp_gaps.append(gap)
+        # the stamp is the capture time of the frame the message describes: read a moment
+        # after its last byte left the camera; a message more than one and a half frame
+        # intervals older than its stamp describes an earlier frame (a held-over target).
+        # Exactly one interval off is the match confusing two frames closer than the
+        # detector's own error (counted apart)
+        if gap > 1.5 / fps or gap < -0.002:
+            out.stale += 1
+            out.stale_gaps_ms.append(round(gap * 1e3, 1))
+        elif gap > 0.5 / fps:
+            out.one_off += 1
+    return out
+
+
+def bench_wire(fps: float, seconds: float, send_held: bool = False,
+               extra_sinks: tuple[str, ...] = ()) -> dict:
+    """Wire-to-message latency of a separate ``drovisio run`` process (see the module doc);
+    ``extra_sinks`` run beside the MAVLink one (e.g. a Zenoh sink that cannot connect: the
+    flight controller's path must not change)."""
+    jpegs = _sample_jpegs()
     truth = _body_truth()
     mavutil = mavutil2()
     rx = mavutil.mavlink_connection("udpin:127.0.0.1:0")
@@ -289,15 +349,8 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
     # every third frame: consecutive frames ≥ 6 mm apart, so that the match of a message to
     # its frame is not confused by the detector's own error; a frame recurs only 1.7 s later
     cam = MjpegCamera(jpegs, fps, order=list(range(0, len(jpegs), 3)))
-    cmd = [sys.executable, "-m", "drovisio", "run", "--source", cam.url,
-           "--camera", str(SAMPLE / "camera.yaml"), "--mount", str(APPROACH / "mount.json"),
-           *[x for lay in LAYOUTS for x in ("--layout", str(lay))],
-           "--sink", f"mavlink:udpout:127.0.0.1:{port}", "--quiet"]
-    if send_held:
-        cmd.append("--send-held-targets")
-    for extra in extra_sinks:
-        cmd += ["--sink", extra]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(_run_command(cam.url, port, send_held, extra_sinks),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             stdin=subprocess.DEVNULL)
     try:
         time.sleep(seconds)
@@ -312,45 +365,21 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
         th.join(1)
         rx.close()
     sent = cam.sent
-    warm = 3.0                                   # start-up of the process and its kernels
-    t_first = sent[0][1] + warm if sent else 0.0
-    lat, mismatch, stamped_gap, mismatch_gaps, one_off = [], 0, [], [], 0
-    for t_rx, m in got:
-        if t_rx < t_first:
-            continue
-        pos = np.array([m.x, m.y, m.z])
-        cands = [(i, t) for i, t in sent if t_rx - 0.5 <= t <= t_rx]
-        if not cands:
-            continue
-        err = [float(np.min(np.linalg.norm(truth[i] - pos, axis=1))) for i, _ in cands]
-        k = int(np.argmin(err))
-        i, t_sent = cands[k]
-        lat.append((t_rx - t_sent) * 1e3)
-        gap = m.time_usec / 1e6 - t_sent
-        stamped_gap.append(gap)
-        # the stamp is the capture time of the frame the message describes: read a moment
-        # after its last byte left the camera; a message more than one and a half frame
-        # intervals older than its stamp describes an earlier frame (a held-over target).
-        # Exactly one interval off is the match confusing two frames closer than the
-        # detector's own error (counted apart)
-        if gap > 1.5 / fps or gap < -0.002:
-            mismatch += 1
-            mismatch_gaps.append(round(gap * 1e3, 1))
-        elif gap > 0.5 / fps:
-            one_off += 1
-    lat_a = np.array(lat)
+    w = _match_messages(got, sent, truth, fps)
+    lat_a = np.array(w.latency_ms)
+    gaps_ms = np.array(w.stamp_gaps) * 1e3
     return {
-        "fps": fps, "seconds": seconds, "frames_sent": len(sent), "messages": len(lat),
+        "fps": fps, "seconds": seconds, "frames_sent": len(sent), "messages": len(lat_a),
         "send_held": send_held,
         "wire_to_message_ms": {"median": round(_pct(lat_a, 50), 2),
                                "p90": round(_pct(lat_a, 90), 2),
                                "max": round(float(lat_a.max()) if len(lat_a) else float("nan"),
                                             2)},
-        "stale_messages": mismatch,
-        "stale_stamp_minus_sent_ms": mismatch_gaps[:20],
-        "one_frame_off_matches": one_off,
-        "stamp_minus_sent_ms": {"median": round(_pct(np.array(stamped_gap) * 1e3, 50), 2),
-                                "p90": round(_pct(np.array(stamped_gap) * 1e3, 90), 2)},
+        "stale_messages": w.stale,
+        "stale_stamp_minus_sent_ms": w.stale_gaps_ms[:20],
+        "one_frame_off_matches": w.one_off,
+        "stamp_minus_sent_ms": {"median": round(_pct(gaps_ms, 50), 2),
+                                "p90": round(_pct(gaps_ms, 90), 2)},
         "run_stderr_tail": proc.stderr.read().decode(errors="replace")[-300:]
         if proc.stderr else "",
         "pass": bool(len(lat_a) and _pct(lat_a, 90) <= 50.0),
@@ -380,7 +409,7 @@ def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bo
     gc.collect()
     n = p.run(max_frames=frames_total)
     wall = time.monotonic() - t0
-    st = p.status()
+    st = p.snapshot()
     p.close()
     a = np.array(samples)
     post = a[a[:, 0] >= warmup_minutes]
@@ -397,7 +426,7 @@ def bench_memory(fps: float, minutes: float, warmup_minutes: float, progress: bo
                    "end_median": round(float(np.median(last)), 2),
                    "max": round(float(a[:, 1].max()), 2)},
         "growth_mb": round(growth, 3), "slope_mb_per_hour": round(slope * 60, 3),
-        "detector_errors": st["detector_errors"], "pass": bool(growth <= 1.0),
+        "detector_errors": st.detector_errors, "pass": bool(growth <= 1.0),
     }
 
 
@@ -458,7 +487,5 @@ def main(argv: list[str]) -> int:
               f"{r['rss_mb']['end_median']} MB at the end, growth {r['growth_mb']} MB "
               f"(slope {r['slope_mb_per_hour']} MB/h) — {'PASS' if r['pass'] else 'FAIL'}")
     if a.json:
-        from drovisio.fileio import atomic_write_text
-
         atomic_write_text(a.json, json.dumps(res, indent=1))
     return 0 if ok else 1

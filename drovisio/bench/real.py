@@ -674,8 +674,8 @@ def _print(rep: dict) -> None:
 
 
 def main(argv: list[str]) -> int:
+    from drovisio.arguments import positive_float
     from drovisio.bounds import ArgumentParser
-    from drovisio.cli import positive_float
 
     p = ArgumentParser(prog="drovisio bench real", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

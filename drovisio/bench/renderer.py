@@ -124,8 +124,8 @@ def calibration_check(camera: Camera | None = None, square: float = 0.025) -> di
 
 
 def main(argv: list[str]) -> int:
+    from drovisio.arguments import plain_help
     from drovisio.bounds import ArgumentParser
-    from drovisio.cli import plain_help
 
     parser = ArgumentParser(
         prog="drovisio bench renderer", description=plain_help(__doc__),

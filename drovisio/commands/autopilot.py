@@ -16,20 +16,27 @@ import sys
 import threading
 import time
 
+from drovisio.arguments import Command, nonnegative_float, positive_float
+from drovisio.autopilot.check import evaluate, plnd_lag_for, verdict
+from drovisio.autopilot.session import read_vehicle
 from drovisio.errors import InputError
 
-__all__ = ["measure_pipeline", "run"]
+__all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
+
+# The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
+# inside the functions that run it: `drovisio --help` imports every command module and must
+# stay light.
 
 
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
     """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
     target measurements per second)."""
-    from drovisio.commands.run import build_pipeline
+    from drovisio.pipeline_config import PipelineConfig
+    from drovisio.startup import build_pipeline
 
-    ns = argparse.Namespace(source=args.source, camera=args.camera, layout=args.layout,
-                            mount=args.mount, sink=[], record=None, target=args.target,
-                            autopilot=args.autopilot, max_age=0.5, pace="realtime")
-    pipeline = build_pipeline(ns, default_sinks=())
+    config = PipelineConfig(source=args.source, camera=args.camera, layouts=args.layout or [],
+                            mount=args.mount, target=args.target, autopilot=args.autopilot)
+    pipeline = build_pipeline(config, default_sinks=())
     measured: list[float] = []
     latency: list[float] = []
 
@@ -87,9 +94,6 @@ def _blind(args: argparse.Namespace) -> tuple[float | None, list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drovisio.autopilot.check import evaluate, plnd_lag_for, verdict
-    from drovisio.autopilot.session import read_vehicle
-
     if args.autopilot_action != "check":
         raise InputError("expected an action: check")
     if (args.source is None) != (args.camera is None) or (args.source and not args.layout):
@@ -118,3 +122,60 @@ def run(args: argparse.Namespace) -> int:
            f"{sum(f.status in ('wrong', 'warn') for f in findings)} item(s) to fix or watch"),
           file=sys.stderr)
     return code
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio autopilot check``."""
+    sub = p.add_subparsers(dest="autopilot_action", metavar="ACTION", required=True)
+    c = sub.add_parser(
+        "check", help="compare the flight controller's precision-landing set-up with what "
+                      "Drovisio sends",
+        description="Connect to the flight controller as the mavlink: sink would, read its type "
+                    "and precision-landing parameters (ArduPilot PLND_*, the serial port's "
+                    "protocol; PX4 LTEST_*/PLD_*), ask for the streams Drovisio needs and "
+                    "measure them; with --source/--camera/--layout also measure the "
+                    "capture-to-send latency (PLND_LAG) and how often the target is seen (the "
+                    "landing filter needs 2 Hz). One line per item: ok, or wrong -> the value "
+                    "to set and why. Exit 0 all ok, 1 something to fix, 2 bad input or no "
+                    "autopilot on the connection.",
+        epilog="Example:\n  drovisio autopilot check udpin:0.0.0.0:14550\n"
+               "  drovisio autopilot check /dev/ttyAMA0,921600 --source 0 --camera camera.yaml "
+               "\\\n      --layout marker_layouts/drick-aruco-centre.json --mount mount.json",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    c.add_argument("connection", metavar="CONNECTION",
+                   help="pymavlink connection, as after mavlink: in --sink (udpin:0.0.0.0:14550, "
+                        "tcp:127.0.0.1:5760, /dev/ttyAMA0,921600; ?sysid=N&compid=M)")
+    c.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="the LANDING_TARGET flavour Drovisio will send (as run --autopilot)")
+    c.add_argument("--timeout", type=positive_float, default=5.0, metavar="SECONDS",
+                   help="wait this long for the vehicle, then for its parameters (default 5)")
+    c.add_argument("--source", metavar="SOURCE", help="camera or video to measure latency and "
+                   "detection rate on (with --camera and --layout)")
+    c.add_argument("--camera", metavar="CAMERA_FILE", help="camera file")
+    c.add_argument("--layout", action="append", metavar="LAYOUT.json", help="layout; repeatable")
+    c.add_argument("--mount", metavar="MOUNT_FILE",
+                   help="camera mount (also gives the height at which the brick leaves the "
+                        "picture)")
+    c.add_argument("--target", default="nearest", metavar="TARGET", help="as run --target")
+    c.add_argument("--seconds", type=positive_float, default=5.0,
+                   help="how long to measure the pipeline (default 5)")
+    c.add_argument("--latency-ms", type=nonnegative_float, metavar="MS",
+                   help="capture-to-send latency measured elsewhere (instead of --source)")
+
+
+COMMAND = Command(
+    name="autopilot",
+    summary="check the flight controller's precision-landing set-up over MAVLink",
+    description="Before the first flight: is the autopilot (ArduPilot or PX4) set up "
+                "for the LANDING_TARGET messages Drovisio sends?",
+    example="drovisio autopilot check udpin:0.0.0.0:14550\n"
+            "  drovisio autopilot check /dev/ttyAMA0,921600 --source 0 "
+            "--camera camera.yaml \\\n"
+            "      --layout marker_layouts/drick-aruco-centre.json --mount mount.json",
+    add_arguments=add_arguments,
+)

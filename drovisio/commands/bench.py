@@ -8,7 +8,10 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from drovisio.arguments import Command
 from drovisio.errors import InputError
+
+__all__ = ["BENCHMARKS", "COMMAND", "add_arguments", "run"]
 
 #: benchmark name → what it measures (``drovisio bench --help``)
 BENCHMARKS = {
@@ -29,3 +32,27 @@ def run(args: argparse.Namespace) -> int:
                          f"{', '.join(sorted(BENCHMARKS))}")
     main = importlib.import_module(f"drovisio.bench.{name}").main
     return int(main(list(args.bench_args)) or 0)
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio bench``: the benchmark's name, then its own options."""
+    p.add_argument("benchmark", metavar="NAME",
+                   help="which benchmark: " + "; ".join(f"{k} ({v})"
+                                                        for k, v in BENCHMARKS.items()))
+    p.add_argument("bench_args", nargs=argparse.REMAINDER, metavar="...",
+                   help="options of that benchmark (drovisio bench NAME --help)")
+
+
+COMMAND = Command(
+    name="bench",
+    summary="benchmarks and the evaluation study",
+    description="Measure detection accuracy and speed on synthetic and recorded sessions "
+                "(the evaluation study).",
+    example="drovisio bench aruco --frames 50\n  drovisio bench dots --help",
+    add_arguments=add_arguments,
+)

@@ -27,12 +27,21 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
-import numpy as np
-
+from drovisio.arguments import Command
 from drovisio.errors import InputError, WriteError
+from drovisio.fileio import atomic_write, check_output_path
+
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["COMMAND", "GravityTable", "add_arguments", "run"]
+
+# The command's own modules (OpenCV, the detectors; numpy and YAML too) are imported inside the
+# functions that run it: `drovisio --help` imports every command module and must stay light.
 
 PROG = "drovisio detect"
 
@@ -42,6 +51,45 @@ def _err(msg: str) -> None:
 
 
 # ----------------------------------------------------------------------------- gravity
+def _gravity_line(line: str, where: str) -> tuple[str, int | None, np.ndarray]:
+    """(file, frame or None, unit gravity in the camera frame) of one gravity-file line."""
+    from drovisio.textfile import parse_json
+
+    rec = parse_json(line, where)
+    if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
+        raise InputError(f'{where}: expected an object with "file" and "gravity"')
+    f = rec["file"]
+    if not isinstance(f, str) or not f:
+        raise InputError(f'{where}: file: must be a non-empty string')
+    g = _unit_gravity(rec["gravity"], where)   # said before a bad frame, as always
+    return f, _frame_of(rec.get("frame"), where), g
+
+
+def _unit_gravity(g: object, where: str) -> np.ndarray:
+    """A gravity file's ``gravity``: 3 numbers of length 1 (within 5 %), made exactly 1."""
+    import numpy as np
+
+    if not (isinstance(g, list) and len(g) == 3 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
+        raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
+    gv = np.asarray(g, np.float64)
+    n = float(np.linalg.norm(gv))
+    if not np.all(np.isfinite(gv)) or n < 1e-9:
+        raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
+    if abs(n - 1.0) > 0.05:
+        raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
+                         "(pointing down, camera frame)")
+    return gv / n
+
+
+def _frame_of(frame: object, where: str) -> int | None:
+    """A gravity file's optional ``frame``: a whole number ≥ 0, or None."""
+    if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)
+                              or frame < 0):
+        raise InputError(f'{where}: frame: must be a whole number >= 0')
+    return frame
+
+
 class GravityTable:
     """Gravity per frame from a ``--gravity-file``."""
 
@@ -54,7 +102,12 @@ class GravityTable:
 
     @classmethod
     def load(cls, path: str) -> GravityTable:
-        from drovisio.textfile import parse_json, read_text
+        """The table of a gravity file (JSON Lines ``{"file", "frame"?, "gravity"}``).
+
+        Raises:
+            InputError: a line that is not such an object, naming the line and the field.
+        """
+        from drovisio.textfile import read_text
 
         text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
         t = cls()
@@ -63,29 +116,7 @@ class GravityTable:
                 continue
             if ln > cls.MAX_LINES:
                 raise InputError(f"{path}: more than {cls.MAX_LINES} lines; split the run")
-            where = f"{path}, line {ln}"
-            rec = parse_json(line, where)
-            if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
-                raise InputError(f'{where}: expected an object with "file" and "gravity"')
-            f = rec["file"]
-            if not isinstance(f, str) or not f:
-                raise InputError(f'{where}: file: must be a non-empty string')
-            g = rec["gravity"]
-            if not (isinstance(g, list) and len(g) == 3 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
-                raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
-            gv = np.asarray(g, np.float64)
-            n = float(np.linalg.norm(gv))
-            if not np.all(np.isfinite(gv)) or n < 1e-9:
-                raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
-            if abs(n - 1.0) > 0.05:
-                raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
-                                 "(pointing down, camera frame)")
-            frame = rec.get("frame")
-            if frame is not None and (not isinstance(frame, int) or isinstance(frame, bool)
-                                      or frame < 0):
-                raise InputError(f'{where}: frame: must be a whole number >= 0')
-            t.add(f, frame, gv / n)
+            t.add(*_gravity_line(line, f"{path}, line {ln}"))
         return t
 
     def add(self, file: str, frame: int | None, g: np.ndarray) -> None:
@@ -133,8 +164,6 @@ def _output(args: argparse.Namespace) -> tuple[TextIO, Path | None, Path | None]
     """(stream to write, temporary file, final path) for ``--out`` (stdout without it)."""
     if not args.out:
         return sys.stdout, None, None
-    from drovisio.fileio import check_output_path
-
     others: dict[str, str] = {"the camera file": args.camera}
     others.update({f"layout {lay}": lay for lay in args.layout})
     if args.gravity_file:
@@ -151,8 +180,6 @@ def _output(args: argparse.Namespace) -> tuple[TextIO, Path | None, Path | None]
 
 
 def _finish_output(stream: TextIO, tmp: Path, out: Path) -> None:
-    from drovisio.fileio import atomic_write
-
     try:
         stream.flush()
         os.fsync(stream.fileno())
@@ -208,7 +235,8 @@ def run(args: argparse.Namespace) -> int:
     gravity = GravityTable.load(args.gravity_file) if args.gravity_file else None
     stream, tmp, out = _output(args)
     try:
-        code = _run_frames(args, _Streams(args.camera, camera, aruco_layouts, dots_layouts), gravity, stream)
+        code = _run_frames(args, _Streams(args.camera, camera, aruco_layouts, dots_layouts),
+                           gravity, stream)
     except BaseException:
         if tmp is not None:
             stream.close()
@@ -219,89 +247,114 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
+@dataclass
+class _Tally:
+    """What the run counted, for its summary, and what it said once per input."""
+
+    frames: int = 0
+    bricks: int = 0
+    errors: int = 0
+    gravity: int = 0
+    dup_frames: int = 0
+    times: list[float] = field(default_factory=list)
+    """Detection and pose time of each frame, seconds."""
+    noted: set[str] = field(default_factory=set)
+
+    def say_once(self, key: str, message: str) -> None:
+        if key not in self.noted:
+            self.noted.add(key)
+            _err(message)
+
+
+def _detect(item, res, streams: _Streams, gravity: GravityTable | None,
+            tally: _Tally) -> None:
+    """Detect the bricks of one readable frame into ``res`` (a failure is its error)."""
+    for note in item.notes:
+        tally.say_once(f"{item.source}: {note}", f"{item.file}: {note}")
+    img = item.image
+    assert img is not None
+    stream = item.is_video or item.source != item.file   # a video or a folder
+    try:
+        dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
+    except ValueError as e:
+        res.error = str(e)
+        dets = []
+    g = gravity.lookup(item.file, item.frame, item.is_video) if gravity else None
+    tally.gravity += g is not None
+    t0 = time.perf_counter()
+    for det in dets:
+        try:
+            res.bricks.extend(det.detect(img, gravity=g))
+        except Exception as e:  # noqa: BLE001 - a frame must never stop the run
+            res.bricks = []
+            res.error = f"detection failed: {type(e).__name__}: {e}"
+            break
+    if dets:
+        tally.times.append(time.perf_counter() - t0)
+
+
+def _say_duplicates(item, res, where: str, tally: _Tally) -> None:
+    """Codes of one brick whose id was read several times: said once per input."""
+    dup = sorted({(b.layout, b.instance) for b in res.bricks if b.duplicate}, key=str)
+    tally.dup_frames += bool(dup)
+    for lay_name, inst in dup:
+        n = sum(1 for b in res.bricks if b.duplicate and b.layout == lay_name
+                and b.instance == inst)
+        tally.say_once(f"{item.source}: {lay_name}:{inst}",
+                       f"{where}: {n} codes of {lay_name} instance {inst} share their id: each "
+                       "is posed on its own and flagged \"duplicate\" (give each brick its own "
+                       "ids: the layout's first_id, ids_per_instance, instances)")
+
+
+def _say_messages(messages: list[str], tally: _Tally) -> None:
+    """The inputs' own messages (a file that could not be read), counted as errors."""
+    for m in messages:
+        _err(m)
+    tally.errors += len(messages)
+    messages.clear()
+
+
 def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: TextIO) -> int:
+    # deferred: the detectors and the readers load OpenCV, which `drovisio --help` must not
+    from drovisio.detect.corners import normalized_grid
     from drovisio.detect.result import FrameResult
     from drovisio.sources import iter_inputs
 
-    if streams.aruco_layouts:  # the per-camera undistortion table, once, outside the timing
-        from drovisio.detect.corners import normalized_grid
-
-        if streams.camera.size_known:
-            normalized_grid(streams.camera)
-
+    if streams.aruco_layouts and streams.camera.size_known:
+        normalized_grid(streams.camera)  # the undistortion table, once, outside the timing
     messages: list[str] = []
-    n_frames = n_bricks = n_errors = n_gravity = n_dup_frames = 0
-    times: list[float] = []   # detection + pose time of each frame
-    noted: set[str] = set()
+    tally = _Tally()
     for item in iter_inputs(args.inputs, messages):
-        for m in messages:
-            _err(m)
-        n_errors += len(messages)
-        messages.clear()
-        n_frames += 1
+        _say_messages(messages, tally)
+        tally.frames += 1
         res = FrameResult(file=item.file, frame=item.frame)
         where = f"{item.file}" + (f" frame {item.frame}" if item.is_video else "")
         if item.error is not None:
             res.error = item.error
         else:
-            for note in item.notes:
-                key = f"{item.source}: {note}"
-                if key not in noted:
-                    noted.add(key)
-                    _err(f"{item.file}: {note}")
-            img = item.image
-            assert img is not None
-            stream = item.is_video or item.source != item.file   # a video or a folder
-            try:
-                dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
-            except ValueError as e:
-                res.error = str(e)
-                dets = []
-            g = gravity.lookup(item.file, item.frame, item.is_video) if gravity else None
-            n_gravity += g is not None
-            t0 = time.perf_counter()
-            for det in dets:
-                try:
-                    res.bricks.extend(det.detect(img, gravity=g))
-                except Exception as e:  # noqa: BLE001 - a frame must never stop the run
-                    res.bricks = []
-                    res.error = f"detection failed: {type(e).__name__}: {e}"
-                    break
-            if dets:
-                times.append(time.perf_counter() - t0)
-        dup = sorted({(b.layout, b.instance) for b in res.bricks if b.duplicate},
-                     key=str)
-        n_dup_frames += bool(dup)
-        for lay_name, inst in dup:
-            key = f"{item.source}: {lay_name}:{inst}"
-            if key not in noted:   # said once per input, not once per frame
-                noted.add(key)
-                n = sum(1 for b in res.bricks if b.duplicate and b.layout == lay_name
-                        and b.instance == inst)
-                _err(f"{where}: {n} codes of {lay_name} instance {inst} share their id: each "
-                     "is posed on its own and flagged \"duplicate\" (give each brick its own "
-                     "ids: the layout's first_id, ids_per_instance, instances)")
+            _detect(item, res, streams, gravity, tally)
+        _say_duplicates(item, res, where, tally)
         if res.error is not None:
-            n_errors += 1
+            tally.errors += 1
             _err(f"{where}: {res.error}")
-        n_bricks += len(res.bricks)
+        tally.bricks += len(res.bricks)
         out.write(json.dumps(res.to_json(), allow_nan=False) + "\n")
         out.flush()
-    for m in messages:
-        _err(m)
-    n_errors += len(messages)
-    if n_frames == 0:
+    _say_messages(messages, tally)
+    if tally.frames == 0:
         _err("no frames to process")
         return 1
-    _summary(n_frames, n_bricks, n_errors, gravity, n_gravity, times)
-    if n_dup_frames:
-        _err(f"{n_dup_frames} of {n_frames} frames had codes sharing one id (flagged "
+    _summary(tally.frames, tally.bricks, tally.errors, gravity, tally.gravity, tally.times)
+    if tally.dup_frames:
+        _err(f"{tally.dup_frames} of {tally.frames} frames had codes sharing one id (flagged "
              "\"duplicate\")")
-    return 1 if n_errors else 0
+    return 1 if tally.errors else 0
 
 
 def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: int,
              times: list[float]) -> None:
+    import numpy as np
+
     def plural(n: int, word: str) -> str:
         return f"{n} {word}{'s' if n != 1 else ''}"
 
@@ -320,4 +373,36 @@ def _summary(n_frames: int, n_bricks: int, n_errors: int, gravity, n_gravity: in
              "name as given)")
 
 
-__all__ = ["GravityTable", "run"]
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio detect``'s arguments (the contract of DESIGN.md)."""
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
+                   help="camera file (OpenCV FileStorage YAML/XML/JSON or ROS camera_info YAML)")
+    p.add_argument("--layout", required=True, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types")
+    p.add_argument("--method", choices=("auto", "aruco", "dots"), default="auto",
+                   help="detector to use (default: auto, i.e. whatever the layouts need)")
+    p.add_argument("--gravity-file", metavar="FILE",
+                   help='JSON Lines {"file": ..., "gravity": [gx, gy, gz]} per frame, unit vector '
+                        "pointing down in the camera frame; resolves flip ambiguities")
+    p.add_argument("--out", metavar="FILE", help="write JSON Lines here instead of stdout")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="image files, folders of images, or video files")
+
+
+COMMAND = Command(
+    name="detect",
+    summary="find bricks in images or videos and print their poses (JSON Lines)",
+    description="Detect bricks by their ArUco codes or colour dots and estimate each "
+                "brick's pose relative to the camera (camera_from_brick: rvec, tvec in "
+                "metres). One JSON object per frame, in input order, on stdout unless "
+                "--out is given; timings and summaries go to stderr.",
+    example="drovisio detect --camera camera.yaml \\\n"
+            "    --layout marker_layouts/drick-aruco-pyramids.json frames/ > poses.jsonl",
+    add_arguments=add_arguments,
+)

@@ -19,10 +19,24 @@ import argparse
 import signal
 import sys
 import time
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
+from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
 
-__all__ = ["build_pipeline", "new_notes", "run", "sink_failures", "status_line"]
+if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must not
+    from drovisio.pipeline import Pipeline
+    from drovisio.pipeline_config import PipelineConfig
+    from drovisio.pipeline_status import PipelineStatus
+    from drovisio.sources import SourceStatus
+
+__all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
+           "run", "sink_failures", "status_line"]
+
+# The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
+# inside the functions that run it: `drovisio --help` imports every command module and must
+# stay light.
 
 
 def _err(msg: str) -> None:
@@ -32,49 +46,63 @@ def _err(msg: str) -> None:
         pass
 
 
-def sink_failures(st: dict) -> list[tuple[str, int, str | None]]:
+def _sinks_of(st: PipelineStatus | Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Each sink's own status, from the snapshot or its JSON form."""
+    return list(st.get("sinks", [])) if isinstance(st, Mapping) else st.sinks
+
+
+def sink_failures(st: PipelineStatus | Mapping[str, Any]) -> list[tuple[str, int, str | None]]:
     """(sink, failures, last error) for every sink that failed at least once."""
     out = []
-    for s in st.get("sinks", []):
+    for s in _sinks_of(st):
         n = int(s.get("errors") or 0)
         if n:
             out.append((s.get("sink", "?"), n, s.get("last_error")))
     return out
 
 
-def status_line(st: dict, elapsed: float) -> str:
-    src = st["source"]
-    state = src["state"] + (f" ({src['error']})" if src["state"] in ("lost", "failed")
-                            and src["error"] else "")
-    if src.get("frame_errors"):
-        state += f", {src['frame_errors']} undecodable frames"
-    tb = st.get("target_brick")
-    if tb:
-        name = tb["layout"] + (f":{tb['instance']}" if tb["instance"] is not None
-                               else f" track {tb['track']}")
-        target = f"target {name} at {tb['distance']:.2f} m"
-    else:
-        target = f"target ({st['target']['spec']}) none"
-    extra = f" | {st['detector_errors']} detector errors" if st["detector_errors"] else ""
+def _source_words(src: SourceStatus) -> str:
+    state = src.state + (f" ({src.error})" if src.state in ("lost", "failed")
+                         and src.error else "")
+    if src.frame_errors:
+        state += f", {src.frame_errors} undecodable frames"
+    return state
+
+
+def _target_words(st: PipelineStatus) -> str:
+    tb = st.target_brick
+    if tb is None:
+        return f"target ({st.target}) none"
+    name = tb.layout + (f":{tb.instance}" if tb.instance is not None else f" track {tb.track}")
+    return f"target {name} at {tb.distance_m:.2f} m"
+
+
+def _trouble_words(st: PipelineStatus) -> str:
+    extra = f" | {st.detector_errors} detector errors" if st.detector_errors else ""
     for name, n, last in sink_failures(st):
         extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
-    if st.get("sink_errors"):
-        extra += f" | {st['sink_errors']} sink exceptions"
-    if st.get("duplicates"):
+    if st.sink_errors:
+        extra += f" | {st.sink_errors} sink exceptions"
+    if st.duplicates:
         extra += (" | id read on several codes, not tracked (give each brick its own ids): "
-                  + ", ".join(sorted(st["duplicates"])))
-    return (f"{elapsed:7.1f} s | {st['fps']:5.1f} fps | detect {st['detect_ms']:6.1f} ms | "
-            f"latency {st['latency_ms']:6.1f} ms | {st['bricks']} bricks"
-            + (f" ({st['held']} held over, not sent)" if st.get("held") else "")
-            + f" | source {state} | "
-            f"{target}{extra}")
+                  + ", ".join(sorted(st.duplicates)))
+    return extra
 
 
-def new_notes(st: dict, said: set[str]) -> str:
+def status_line(st: PipelineStatus, elapsed: float) -> str:
+    """The status line printed every second (``elapsed``: seconds since the start)."""
+    return (f"{elapsed:7.1f} s | {st.fps:5.1f} fps | detect {st.detect_ms:6.1f} ms | "
+            f"latency {st.latency_ms:6.1f} ms | {st.bricks} bricks"
+            + (f" ({st.held} held over, not sent)" if st.held else "")
+            + f" | source {_source_words(st.source)} | "
+            f"{_target_words(st)}{_trouble_words(st)}")
+
+
+def new_notes(st: PipelineStatus | Mapping[str, Any], said: set[str]) -> str:
     """The sinks' notes not yet said (each is said once: the MAVLink link's missing
     streams), as `` | sink: note`` for the status line."""
     out = ""
-    for s in st.get("sinks", []):
+    for s in _sinks_of(st):
         note = s.get("note")
         if note and note not in said:
             said.add(note)
@@ -82,141 +110,178 @@ def new_notes(st: dict, said: set[str]) -> str:
     return out
 
 
-def build_pipeline(args: argparse.Namespace, loop: bool = False,
-                   default_sinks: tuple[str, ...] = ("jsonl:-",)):
-    """The pipeline a ``drovisio run`` namespace describes (also used by ``drovisio serve``
-    and the benchmarks).
+def build_pipeline(args: argparse.Namespace | PipelineConfig, loop: bool = False,
+                   default_sinks: tuple[str, ...] = ("jsonl:-",)) -> Pipeline:
+    """The pipeline a ``drovisio run`` command line (or its configuration) describes: see
+    :func:`drovisio.startup.build_pipeline`."""
+    # deferred: the pipeline loads OpenCV and the detectors, which `drovisio --help` must not
+    from drovisio.pipeline_config import PipelineConfig
+    from drovisio.startup import build_pipeline as build
 
-    Args:
-        args: ``source``, ``camera``, ``layout``, ``mount``, ``sink``, ``record``, ``target``,
-            ``autopilot``, ``send_held_targets``, ``max_age``, ``pace``.
-        loop: Play a file source in a loop (the web tool's sample session).
-        default_sinks: The sinks when ``args.sink`` is empty.
-    """
-    from drovisio.camera_file import load_camera
-    from drovisio.layout import load_layouts
-    from drovisio.mount import load_mount
-    from drovisio.pipeline import Pipeline, detectors_for
-    from drovisio.recording import Recorder
-    from drovisio.sinks.mavlink import MavlinkSink
-    from drovisio.sinks.target import TargetSelector
-    from drovisio.sources import FrameSource, reader_for
-    from drovisio.startup import check_pipeline_options, open_sinks_of
-
-    check_pipeline_options(args, open_sinks=False)   # the same check as `serve`'s
-    camera = load_camera(args.camera)
-    layouts = load_layouts(args.layout)
-    if not any(lay.has_codes or lay.has_dots for lay in layouts):
-        raise InputError("the layouts have neither codes nor dots: nothing to detect")
-    mount = load_mount(args.mount) if getattr(args, "mount", None) else None
-    reader = reader_for(args.source, loop=loop)
-    target = TargetSelector(getattr(args, "target", None) or "nearest")  # checked above
-    sinks = open_sinks_of(args, target, mount, layouts, default_sinks, camera=camera)
-    mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
-    if mav is not None and mount is not None and camera.size_known:
-        from drovisio.autopilot.blind import blind_height
-
-        # the highest over the layouts: PX4's final-approach altitude must cover it
-        heights = [b.leaves_at_m for b in (blind_height(camera, mount, lay) for lay in layouts)
-                   if b.leaves_at_m is not None]
-        mav.blind_height_m = max(heights) if heights else None
-
-    def attitude_gravity(t_mono: float):
-        """Gravity in the camera frame: the autopilot's roll/pitch if the link gives them,
-        else level flight."""
-        if mav is not None and mount is not None:
-            att = mav.attitude_at(t_mono)
-            if att is not None:
-                return mount.gravity_in_camera(att[0], att[1])
-        return level
-
-    level = mount.gravity_in_camera() if mount is not None else None
-    gravity = attitude_gravity if mount is not None else None
-
-    source = FrameSource(reader, pace=getattr(args, "pace", "realtime"))
-    recorder: object | None = None
-    if getattr(args, "record", None) and str(args.record).lower().endswith(".mcap"):
-        from drovisio.ros.mcap_recorder import McapRecorder
-        from drovisio.ros.messages import RosMessages, namespace_for
-
-        ns, prefix = namespace_for(getattr(args, "drone_id", None))
-        recorder = McapRecorder(args.record, RosMessages(camera, mount, layouts, namespace=ns,
-                                                         frame_prefix=prefix),
-                                source=args.source,
-                                image_format=getattr(args, "record_images", "jpeg"))
-    elif getattr(args, "record", None):
-        recorder = Recorder(args.record, source=args.source, camera_file=args.camera,
-                            mount_file=getattr(args, "mount", None))
-
-    def make_detectors(cam):
-        return detectors_for(cam, layouts)
-
-    pipeline = Pipeline(source, make_detectors(camera) if camera.size_known else [],
-                        sinks=sinks, mount=mount, target=target, gravity=gravity,
-                        recorder=recorder, max_age=getattr(args, "max_age", 0.5),
-                        layouts=layouts, camera=camera, detector_factory=make_detectors)
-    if camera.size_known:
-        pipeline.warm_up(camera.width, camera.height)
-    return pipeline
+    config = args if isinstance(args, PipelineConfig) else PipelineConfig.from_args(args)
+    return build(config, loop=loop, default_sinks=default_sinks)
 
 
-def run(args: argparse.Namespace) -> int:
-    from drovisio.sinks.base import SinkError
+def _started(config: PipelineConfig) -> Pipeline:
+    """The pipeline, or one line saying why not (exit 2)."""
+    from drovisio.sinks.base import SinkError  # deferred with build_pipeline's imports
 
     try:
-        pipeline = build_pipeline(args)
+        return build_pipeline(config)
     except SinkError as e:
         raise InputError(str(e)) from None
     except OSError as e:   # a recording folder that cannot be made
         raise InputError(f"--record: {e}") from None
 
+
+def _say_start(config: PipelineConfig, pipeline: Pipeline) -> None:
+    names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
+    _err(f"source {config.source}; detectors {names}; sinks "
+         f"{', '.join(s.name for s in pipeline.sinks)}; target {pipeline.target.spec}"
+         + ("" if pipeline.mount is not None else "; no --mount: poses in the camera frame "
+            "only (MAVLink assumes a camera looking straight down)"))
+
+
+def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0: float
+                    ) -> tuple[int, PipelineStatus]:
+    """Run until the source ends, ``max_frames``, Ctrl+C or SIGTERM; (frames processed, the
+    last status). The pipeline is closed after."""
     def _terminate(signum, _frame) -> None:
         pipeline.stop()
 
     old = signal.signal(signal.SIGTERM, _terminate) if hasattr(signal, "SIGTERM") else None
-    t0 = time.monotonic()
-    quiet = getattr(args, "quiet", False)
-
     said: set[str] = set()
 
-    def on_status(st: dict) -> None:
+    def on_status(st: PipelineStatus) -> None:
         if not quiet:
             print(status_line(st, time.monotonic() - t0) + new_notes(st, said), file=sys.stderr,
                   flush=True)
 
-    names = ", ".join(d.name for d in pipeline.detectors) or "chosen at the first frame"
-    _err(f"source {args.source}; detectors {names}; sinks "
-         f"{', '.join(s.name for s in pipeline.sinks)}; target {pipeline.target.spec}"
-         + ("" if pipeline.mount is not None else "; no --mount: poses in the camera frame "
-            "only (MAVLink assumes a camera looking straight down)"))
     n = 0
     try:
-        n = pipeline.run(max_frames=getattr(args, "frames", None), on_status=on_status)
+        n = pipeline.run(max_frames=max_frames, on_status=on_status)
     except KeyboardInterrupt:
         pass
     finally:
-        st = pipeline.status()
+        st = pipeline.snapshot()
         pipeline.close()
         if old is not None:
             signal.signal(signal.SIGTERM, old)
-    if not quiet:
-        print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
-    for note in pipeline.notes:
-        _err(f"{args.camera}: {note}")
-    src = st["source"]
-    if src["state"] == "failed":
-        raise InputError(f"{args.source}: --source: {src['error']}")
-    _err(f"done: {n} frames, source {src['state']}, {src['dropped']} frames dropped "
+    return n, st
+
+
+def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
+    """Say how the run ended: 1 when nothing could be read or a sink failed, else 0.
+
+    Raises:
+        InputError: the source failed (exit 2).
+    """
+    src = st.source
+    if src.state == "failed":
+        raise InputError(f"{config.source}: --source: {src.error}")
+    _err(f"done: {n} frames, source {src.state}, {src.dropped} frames dropped "
          "(newest-frame policy)"
-         + (f", {src['frame_errors']} frames could not be decoded" if src.get("frame_errors")
-            else ""))
+         + (f", {src.frame_errors} frames could not be decoded" if src.frame_errors else ""))
     code = 0
-    if src.get("finite") and src["frames"] == 0:
-        _err(f"{args.source}: nothing could be read from the source")
+    if src.finite and src.frames == 0:
+        _err(f"{config.source}: nothing could be read from the source")
         code = 1
     failures = sink_failures(st)
     for name, count, last in failures:
         _err(f"sink {name}: {count} sends failed" + (f" (last: {last})" if last else ""))
-    if failures or st.get("sink_errors"):
+    if failures or st.sink_errors:
         code = 1
     return code
+
+
+def run(args: argparse.Namespace) -> int:
+    """``drovisio run`` (see the module doc): its exit status."""
+    from drovisio.pipeline_config import PipelineConfig
+
+    config = PipelineConfig.from_args(args)
+    pipeline = _started(config)
+    t0 = time.monotonic()
+    quiet = getattr(args, "quiet", False)
+    _say_start(config, pipeline)
+    n, st = _run_until_done(pipeline, getattr(args, "frames", None), quiet, t0)
+    if not quiet:
+        print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
+    for note in pipeline.notes:
+        _err(f"{config.camera}: {note}")
+    return _exit_code(config, n, st)
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_pipeline_arguments(p: argparse.ArgumentParser, serving: bool) -> None:
+    """The pipeline's options (:class:`~drovisio.pipeline_config.PipelineConfig`), shared by
+    ``run`` and ``serve`` (one process on the drone)."""
+    p.add_argument("--layout", required=not serving, action="append", metavar="LAYOUT.json",
+                   help="marker layout file; repeat for several brick types"
+                        + (" (default: the shipped layouts)" if serving else ""))
+    p.add_argument("--mount", metavar="MOUNT_FILE",
+                   help="camera mount (tilt, pan, roll and offset, or body_from_camera) for "
+                        "poses in the drone's FRD body frame")
+    p.add_argument("--sink", action="append", metavar="SINK",
+                   help="jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION, ws://HOST:PORT "
+                        "(WebSocket feed) or zenoh:connect=tcp/HOST:PORT (ROS 2 messages over "
+                        "Zenoh, as rmw_zenoh); repeatable"
+                        + (" (with a sink, the pipeline runs from the start, watched or not)"
+                           if serving else " (default jsonl:-)"))
+    p.add_argument("--record", metavar="DIR|FILE.mcap",
+                   help="also record the frames and results here: a folder (Drovisio's own "
+                        "form) or an .mcap file (ROS 2 messages, for ros2 bag and Foxglove)")
+    p.add_argument("--drone-id", type=drone_id, metavar="ID",
+                   help="this drone's name on a site with several (letters, digits, _): ROS 2 "
+                        "topics under /drovisio/ID and frame ids ID/base_link (zenoh: sinks, "
+                        ".mcap recordings)")
+    p.add_argument("--record-images", choices=("jpeg", "png"), default="jpeg",
+                   help="images of an .mcap recording: jpeg (quality 95, default) or png "
+                        "(lossless: a replay sees exactly the frames the run saw; ~4x larger "
+                        "and slower to write)")
+    p.add_argument("--target", default="nearest", metavar="TARGET",
+                   help="brick sent to the flight controller: nearest (default), LAYOUT, "
+                        "LAYOUT:INSTANCE, track:N or none; changeable at run time"
+                        + (" on the live page" if serving else " through a ws:// sink"))
+    p.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot",
+                   help="LANDING_TARGET flavour of mavlink: sinks: ardupilot (BODY_FRD + "
+                        "distance, default) or px4 (LOCAL_NED from the link's attitude and "
+                        "position)")
+    p.add_argument("--send-held-targets", action="store_true",
+                   help="also send the flight controller a target not seen in the current frame "
+                        "(its last measurement, stamped with that measurement's time). Off by "
+                        "default: autopilots filter line-of-sight measurements and expect "
+                        "silence when the target is not seen")
+    p.add_argument("--max-age", type=bounded(0.0, 3600.0, above=True), default=0.5,
+                   metavar="SECONDS",
+                   help="drop a brick not seen for this long (default 0.5 s)")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio run``'s arguments: the source and camera, the pipeline's, the run's own."""
+    p.add_argument("--source", required=True, metavar="SOURCE",
+                   help="camera index (0), video file, folder of images (name order) or stream URL")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file")
+    add_pipeline_arguments(p, serving=False)
+    p.add_argument("--pace", choices=("realtime", "max"), default="realtime",
+                   help="files and recordings: play at their own frame rate like a camera "
+                        "(realtime, default) or process every frame as fast as possible (max)")
+    p.add_argument("--frames", type=positive_int, metavar="N",
+                   help="stop after N processed frames")
+    p.add_argument("--quiet", action="store_true", help="no status line every second")
+
+
+COMMAND = Command(
+    name="run",
+    summary="run the positioning pipeline headless (on the drone)",
+    description="Read frames from a source, detect bricks, estimate and track their "
+                "poses, and send the results to one or more sinks. A finite source (a "
+                "video, a folder) ends the run when it is exhausted.",
+    example="drovisio run --source 0 --camera camera.yaml \\\n"
+            "    --layout marker_layouts/drick-aruco-pyramids.json --mount mount.json \\\n"
+            "    --sink jsonl:- --sink mavlink:udpout:127.0.0.1:14550",
+    add_arguments=add_arguments,
+)

@@ -7,7 +7,13 @@ import shlex
 import sys
 from pathlib import Path
 
-__all__ = ["run"]
+from drovisio.arguments import Command, bounded, whole_in
+from drovisio.fileio import output_folder
+
+__all__ = ["COMMAND", "add_arguments", "run"]
+
+# The study's own modules are imported inside the functions that run it: `drovisio --help`
+# imports every command module and must not load OpenCV.
 
 
 _last = [-1]
@@ -30,13 +36,11 @@ def run(args: argparse.Namespace) -> int:
     return _run(args)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _protocol(args: argparse.Namespace):
+    """(the protocol, the folder its paths are relative to, its text for the report)."""
     import yaml
 
-    from drovisio.fileio import output_folder
     from drovisio.study.protocol import default_protocol, load_protocol
-    from drovisio.study.report import write_report
-    from drovisio.study.run import run_study
 
     if args.protocol:
         protocol = load_protocol(args.protocol)
@@ -50,6 +54,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.frames and args.protocol:
         protocol = protocol.model_copy(update={"steps": [
             s.model_copy(update={"frames": args.frames}) for s in protocol.steps]})
+    return protocol, base, text
+
+
+def _run(args: argparse.Namespace) -> int:
+    from drovisio.study.report import write_report
+    from drovisio.study.run import run_study
+
+    protocol, base, text = _protocol(args)
     out = output_folder(args.out, "--out")
     memory = args.memory_seconds if args.memory_seconds is not None else (
         3.0 if args.quick else 20.0)
@@ -75,7 +87,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _example(args: argparse.Namespace) -> int:
-    from drovisio.fileio import output_folder
     from drovisio.study.example import write_recorded_example
 
     out = output_folder(args.out, "--out")
@@ -83,3 +94,61 @@ def _example(args: argparse.Namespace) -> int:
     print(f"wrote {p} and its recordings; run: drovisio study run --protocol {p} --out "
           f"{out / 'report'}", file=sys.stderr)
     return 0
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+# --------------------------------------------------------------------------------------------
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``drovisio study run|example``."""
+    sub = p.add_subparsers(dest="study_action", metavar="ACTION", required=True)
+    fmt = argparse.RawDescriptionHelpFormatter
+    r = sub.add_parser(
+        "run", help="run a study and write its report",
+        description="Run the thesis's evaluation (chapter 6) on renders or recordings: every "
+                    "step through Drovisio, plain OpenCV and AprilTag 3 (if installed), the "
+                    "frame rate against the number of bricks, memory over a run; writes "
+                    "report.html (figures 6.2-6.11 embedded), frames.jsonl and summary.json.",
+        epilog="Example:\n  drovisio study run --out study/              # the thesis's "
+               "protocol, rendered\n  drovisio study run --quick --out study-quick/   # about 5 min "
+               "on a small laptop\n"
+               "  drovisio study run --protocol my_brick.yaml --out my_brick_study/",
+        formatter_class=fmt)
+    r.add_argument("--protocol", metavar="PROTOCOL.yaml",
+                   help="protocol file (default: the thesis's protocol, rendered)")
+    r.add_argument("--out", required=True, metavar="DIR", help="folder for the report")
+    r.add_argument("--quick", action="store_true",
+                   help="fewer steps and frames: about 5 minutes on a small laptop")
+    r.add_argument("--frames", type=whole_in(1, 100_000), metavar="N",
+                   help="frames per step (default: the protocol's; 8 rendered, 2 quick)")
+    r.add_argument("--methods", metavar="LIST",
+                   help="comma-separated: drovisio-codes, drovisio-codes-image, "
+                        "drovisio-dots, drovisio-dots-image, opencv, apriltag3 (default: all)")
+    r.add_argument("--memory-seconds", type=bounded(0.0, 86400.0), metavar="S",
+                   help="length of each method's memory run (default 20, quick 3; the "
+                        "thesis ran 1800)")
+    e = sub.add_parser(
+        "example", help="write a recorded-style example (videos, images, protocol)",
+        description="Write renders as recordings (videos and a folder of images) with the "
+                    "protocol that gives their truth: the shape of a study of your own "
+                    "recordings.",
+        epilog="Example:\n  drovisio study example --out my_study/\n"
+               "  drovisio study run --protocol my_study/protocol.yaml --out my_study/report",
+        formatter_class=fmt)
+    e.add_argument("--out", required=True, metavar="DIR", help="folder to write")
+    e.add_argument("--frames", type=whole_in(1, 10_000), metavar="N", help="frames per step (6)")
+
+
+COMMAND = Command(
+    name="study",
+    summary="is it accurate enough for my brick? the evaluation study and its report",
+    description="The thesis's evaluation (chapter 6) on renders or on your own "
+                "recordings, Drovisio beside plain OpenCV and AprilTag 3: box plots of "
+                "each pose error, frame rate against the number of bricks, memory "
+                "over a run, in one HTML report.",
+    example="drovisio study run --out study/\n  drovisio study run --quick --out "
+            "study-quick/\n  drovisio study example --out my_study/",
+    add_arguments=add_arguments,
+)

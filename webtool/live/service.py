@@ -133,20 +133,14 @@ class LiveService:
         mount, recording included): the page watches what the flight controller is fed."""
         if self.pipeline_factory is not None:
             return self.pipeline_factory(self)
-        import argparse
-
-        from drovisio.commands.run import build_pipeline
+        from drovisio.startup import build_pipeline
 
         c = self.config()
-        s = self.settings
-        args = argparse.Namespace(
-            source=c.source, camera=str(c.camera_file), layout=[str(x) for x in c.layout_files],
-            mount=str(c.mount_file) if c.mount_file else None, sink=list(s.sinks),
-            record=str(s.record) if s.record else None, target=s.target,
-            record_images=s.record_images, drone_id=s.drone_id,
-            autopilot=s.autopilot, send_held_targets=s.send_held_targets,
-            max_age=s.max_age, pace="realtime")
-        p = build_pipeline(args, loop=c.loop, default_sinks=())
+        config = self.settings.pipeline.model_copy(update={
+            "source": c.source, "camera": str(c.camera_file),
+            "layouts": [str(x) for x in c.layout_files],
+            "mount": str(c.mount_file) if c.mount_file else None, "pace": "realtime"})
+        p = build_pipeline(config, loop=c.loop, default_sinks=())
         self.camera, self.layouts, self.mount = p.camera, p.layouts, p.mount
         return p
 
