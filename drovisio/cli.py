@@ -43,7 +43,18 @@ from drovisio.arguments import (  # re-exported: the benches and tests used them
     supersampling,
 )
 from drovisio.bounds import ArgumentParser
-from drovisio.commands import autopilot, bench, calibrate, detect, mission, run, serve, study, synth
+from drovisio.commands import (
+    autopilot,
+    bench,
+    calibrate,
+    detect,
+    mission,
+    run,
+    serve,
+    station,
+    study,
+    synth,
+)
 from drovisio.errors import InputError, WriteError, limit_message, one_line
 from drovisio.fileio import atomic_write_text, guard_outputs
 
@@ -76,7 +87,7 @@ COMMANDS: dict[str, Command] = {
     c.name: c
     for c in [detect.COMMAND, calibrate.COMMAND, calibrate.BOARD_COMMAND,
               calibrate.MOUNT_COMMAND, run.COMMAND, serve.COMMAND, bench.COMMAND,
-              study.COMMAND, mission.COMMAND, autopilot.COMMAND, synth.COMMAND]
+              station.COMMAND, study.COMMAND, mission.COMMAND, autopilot.COMMAND, synth.COMMAND]
 }
 
 

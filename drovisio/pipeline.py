@@ -175,8 +175,9 @@ class Pipeline:
         self._parallel = parallel
         self._listeners: list[Callable[[Frame | None, FrameOutput | None], None]] = []
         for sink in self.sinks:   # a sink that also wants the images (a station's thumbnail)
-            if callable(getattr(sink, "on_frame", None)):
-                self._listeners.append(sink.on_frame)
+            on_frame = getattr(sink, "on_frame", None)
+            if callable(on_frame):
+                self._listeners.append(on_frame)
         self._stop = threading.Event()
         self._pool = (ThreadPoolExecutor(max_workers=len(self.detectors),
                                          thread_name_prefix="detect")

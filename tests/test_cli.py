@@ -12,8 +12,8 @@ import pytest
 
 from drovisio import cli
 
-ALL_COMMANDS = ["detect", "calibrate", "run", "serve", "bench", "study", "mission", "autopilot",
-                "synth"]
+ALL_COMMANDS = ["detect", "calibrate", "run", "serve", "bench", "station", "study", "mission",
+                "autopilot", "synth"]
 
 # Minimal valid arguments per command (what DESIGN.md requires), for dispatch tests.
 MINIMAL_ARGS = {

@@ -7,12 +7,16 @@ import socket
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drovisio.errors import InputError
 from drovisio.resources import sample_sessions_dir, user_data_dir
 from drovisio.startup import check_pipeline_options
 from webtool.access import access_lines, install_log_redaction
 from webtool.settings import Settings, is_loopback
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 
 def _url_host(host: str) -> str:
@@ -111,9 +115,7 @@ def settings_from(args: argparse.Namespace) -> Settings:
 
 
 def run(args: argparse.Namespace) -> int:
-    # deferred: the server and the app load only when serving (settings_from needs neither)
-    import uvicorn
-
+    # deferred: the app loads only when serving (settings_from does not need it)
     from webtool.app import create_app
 
     _check_inputs(args)
@@ -127,6 +129,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"  data folder: {settings.data_dir or user_data_dir()}", flush=True)
     print("  stop with Ctrl+C", flush=True)
     _warm_up_in_background()
+    return _serve(app, settings)
+
+
+def _serve(app: FastAPI, settings: Settings) -> int:
+    """Run the app with uvicorn until Ctrl+C or SIGTERM."""
+    import uvicorn  # deferred: the server loads only when serving
+
     install_log_redaction()
     # a request still running at SIGTERM (a client that stalls, a slow route) delays the end
     # by at most this many seconds: uvicorn's default waits for it for ever
@@ -138,6 +147,43 @@ def run(args: argparse.Namespace) -> int:
     if error:
         raise InputError(error)
     return 0
+
+
+def _check_zenoh_listen(endpoints: list[str]) -> None:
+    """Say in one line that a station's Zenoh port is taken (Zenoh would log and go on deaf)."""
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, _, port = addr.rpartition(":")
+        if proto not in ("tcp", "tls"):
+            continue
+        try:
+            _check_port(host.strip("[]"), int(port))
+        except InputError:
+            raise InputError(f"--listen {ep}: cannot listen there: is another station "
+                             "running? choose another port (the drones' zenoh:connect= "
+                             "must name it)") from None
+
+
+def run_station(args: argparse.Namespace) -> int:
+    """``drovisio station``: the web tool as a ground station (its Fleet page)."""
+    listen = list(args.listen or []) or (["tcp/0.0.0.0:7447"] if not args.connect else [])
+    settings = Settings(host=args.host, port=args.port,
+                        data_dir=Path(args.data) if args.data else None,
+                        station_listen=listen, station_connect=list(args.connect or []),
+                        station_domain=args.domain)
+    _check_port(settings.host, settings.port)
+    _check_zenoh_listen(listen)
+    from webtool.app import create_app  # deferred: the app loads only when serving
+
+    app = create_app(settings)
+    lines = open_lines(settings)
+    lines[0] = lines[0].replace("Drovisio web tool", "Drovisio station")
+    print("\n".join(lines), flush=True)
+    print(f"  the Fleet page: /fleet; drones connect to {', '.join(listen or args.connect)} "
+          "(drovisio run ... --drone-id ID --sink zenoh:connect=tcp/THIS-MACHINE:PORT)",
+          flush=True)
+    print("  stop with Ctrl+C", flush=True)
+    return _serve(app, settings)
 
 
 def _check_port(host: str, port: int) -> None:

@@ -1,0 +1,58 @@
+"""``drovisio station``: the ground station's arguments. Its code is
+:func:`webtool.serve.run_station` (the web stack is loaded only when the command runs)."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+from drovisio.arguments import Command, port_number
+from drovisio.bounds import whole
+
+__all__ = ["COMMAND", "add_arguments", "zenoh_endpoint"]
+
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/[A-Za-z0-9.\-\[\]:]{1,200}:[0-9]{1,5}$")
+
+
+def zenoh_endpoint(text: str) -> str:
+    """argparse type: a Zenoh endpoint ``tcp/HOST:PORT``."""
+    if not _ENDPOINT.match(text) or not 0 < int(text.rsplit(":", 1)[1]) < 65536:
+        raise argparse.ArgumentTypeError(
+            f"{text[:80]!r}: write a Zenoh endpoint as tcp/HOST:PORT, e.g. tcp/0.0.0.0:7447")
+    return text
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--listen", type=zenoh_endpoint, action="append", metavar="ENDPOINT",
+                   help="where drones connect (repeatable; default tcp/0.0.0.0:7447: every "
+                        "address of this machine)")
+    p.add_argument("--connect", type=zenoh_endpoint, action="append", metavar="ENDPOINT",
+                   help="also connect to a Zenoh router or to drones that listen "
+                        "(repeatable)")
+    p.add_argument("--domain", type=whole(0, 232), default=0, metavar="N",
+                   help="ROS domain id of the drones' keys (default 0)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address of the web tool (default: 127.0.0.1, this machine only; any "
+                        "other address turns on token access)")
+    p.add_argument("--port", type=port_number, default=8080,
+                   help="port of the web tool (default: 8080)")
+    p.add_argument("--data", metavar="DIR",
+                   help="this station's data folder (default: $DROVISIO_DATA, else "
+                        "~/.local/share/drovisio)")
+
+
+COMMAND = Command(
+    name="station",
+    summary="the ground station: every drone of the site on one Fleet page",
+    description="Listen for the drones of a site over Zenoh (each runs drovisio run or serve "
+                "with --drone-id ID --sink zenoh:connect=tcp/STATION:7447) and serve the web "
+                "tool with a Fleet page: every drone live or lost, its frame rate, latency, "
+                "bricks and target, a camera thumbnail, a link to its own web tool, and all "
+                "drones' bricks in one 3D view. Same access rules as drovisio serve.",
+    example="drovisio station\n"
+            "  drovisio station --host 0.0.0.0 --listen tcp/0.0.0.0:7447\n"
+            "  drovisio run --source 0 --camera camera.yaml --layout L.json --drone-id drone1 "
+            "\\\n      --sink zenoh:connect=tcp/192.168.1.10:7447   # on each drone",
+    add_arguments=add_arguments,
+    target="webtool.serve:run_station",
+)
