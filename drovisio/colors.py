@@ -140,7 +140,7 @@ def propose_color_report(image_bgr: np.ndarray, points_or_mask, radius: float = 
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     if clahe:
-        from drovisio.detect.dots_color import clahe_value
+        from drovisio.detect.dots.color import clahe_value
 
         hsv = clahe_value(hsv)
     sel = selection_mask(img.shape[:2], points_or_mask, radius)

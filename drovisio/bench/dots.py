@@ -118,7 +118,7 @@ def _visibility(scene, result, camera) -> list[DotTruth]:
     """Per brick and dot: fully visible? projected size (equivalent diameter, px)."""
     import trimesh
 
-    from drovisio.detect.dots_match import DotModel, occluded_dots
+    from drovisio.detect.dots.match import DotModel, occluded_dots
     from drovisio.synth import brick_mesh_for
 
     cfw = result.camera_from_world
@@ -534,7 +534,7 @@ def part_timing(src, det, args, n, repeats) -> dict:
     counts = (1, 5, 20)
     frames = {nb: _timing_frames(src, args, nb, n) for nb in counts}
     wall, cpu = time.perf_counter, time.process_time
-    from drovisio.detect import dots_kernels
+    from drovisio.detect.dots import kernels as dots_kernels
 
     compiled = dots_kernels.enabled()
     samples = {(nb, k): ([], [], [], [], []) for nb in counts for k in range(n)}
@@ -604,11 +604,12 @@ def part_kernels(src, det, args, n, repeats) -> dict:
     stages of the 20-brick timing frames), in this process."""
     import cv2
 
-    from drovisio.detect import dots_kernels as K
-    from drovisio.detect.dots import _STENCIL  # the detector's 5-point stencil
-    from drovisio.detect.dots_blobs import refine_centers
-    from drovisio.detect.dots_color import ClaheMap
-    from drovisio.detect.dots_match import BlobGeometry, generate_hypotheses
+    from drovisio.camera import PIXEL_STENCIL
+    from drovisio.camera_kernels import lens_coefficients
+    from drovisio.detect.dots import kernels as K
+    from drovisio.detect.dots.blobs import refine_centers
+    from drovisio.detect.dots.color import ClaheMap
+    from drovisio.detect.dots.match import BlobGeometry, generate_hypotheses
     from drovisio.pose import batch as dots_pose
 
     if not K.enabled():
@@ -672,11 +673,12 @@ def part_kernels(src, det, args, n, repeats) -> dict:
         both("Levenberg-Marquardt, all bricks", lm, off(lm))
         px = np.stack([blobs.x, blobs.y], axis=1)
         Kc, dist = det.camera.K, det.camera.dist
-        if det._dist12 is not None:
-            args12 = (Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2], det._dist12)
+        d12 = None if det.camera.is_fisheye else lens_coefficients(dist)
+        if d12 is not None:
+            args12 = (Kc[0, 0], Kc[1, 1], Kc[0, 2], Kc[1, 2], d12)
             both("undistortion + local Jacobian (vs cv2.undistortPoints, 5-point stencil)",
                  lambda: K.undistort(px, *args12),
-                 lambda: cv2.undistortPoints((px[None] + _STENCIL[:, None]).reshape(-1, 1, 2),
+                 lambda: cv2.undistortPoints((px[None] + PIXEL_STENCIL[:, None]).reshape(-1, 1, 2),
                                              Kc, dist, None, None, None,
                                              (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
                                               20, 1e-12)))

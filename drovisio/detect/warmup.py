@@ -94,9 +94,9 @@ def warm_up() -> dict:
     t0 = time.perf_counter()
     if not _numba.enabled():
         return {"seconds": 0.0, "dots": 0, "codes": 0, "compiled": False}
-    from drovisio.detect import dots_kernels as K
     from drovisio.detect.aruco import ArucoBrickDetector
     from drovisio.detect.dots import DotsState, detect_dots
+    from drovisio.detect.dots import kernels as K
 
     # kernels the frame may not reach (blob holes, a re-solve after a dropped dot), with the
     # argument types the detector passes

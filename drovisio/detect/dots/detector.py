@@ -38,23 +38,25 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from drovisio import _numba
 from drovisio.camera import Camera
-from drovisio.detect import dots_kernels as _k
 from drovisio.detect.base import decided_up, unit_gravity
-from drovisio.detect.dots_blobs import (
+from drovisio.detect.dots import color_kernels
+from drovisio.detect.dots.blobs import (
     BlobFilter,
     Blobs,
     find_blobs_multi,
     refine_centers,
 )
-from drovisio.detect.dots_color import (
+from drovisio.detect.dots.color import (
     ClaheMap,
     ColorClassifier,
     DotsInputError,
     check_image,
     clean_mask,
 )
-from drovisio.detect.dots_match import (
+from drovisio.detect.dots.kernels import notice_first_compile
+from drovisio.detect.dots.match import (
     BlobGeometry,
     Candidate,
     DotModel,
@@ -235,7 +237,7 @@ class DotDetector:
                     specs.append(spec)
                 mapping[name] = index[key]
             mappings.append(mapping)
-        _k.notice_first_compile(log)
+        notice_first_compile(log)
         if len(specs) > 8:
             raise LayoutNotSupported(f"the layouts use {len(specs)} distinct dot colours; the "
                                      "dot detector handles up to 8")
@@ -257,13 +259,6 @@ class DotDetector:
                 max_ellipse_err=cfg.max_ellipse_err, max_holes=cfg.max_holes)
         self._v_ranges = np.array([[s.hsv[0][2], s.hsv[1][2]] for s in specs], float) \
             if specs else np.zeros((0, 2))
-        # the distortion as 12 coefficients for the compiled undistortion (None: a model the
-        # kernels do not know: tilted sensor, fisheye; the camera's own methods serve then)
-        d = np.zeros(14)
-        self._dist12 = None
-        if not camera.is_fisheye:
-            d[:camera.dist.size] = camera.dist
-            self._dist12 = d[:12].copy() if not d[12:].any() else None
         self._hsv: np.ndarray | None = None    # frame buffers, reused (no allocation per frame)
 
     # ------------------------------------------------------------------------------ stages
@@ -307,8 +302,8 @@ class DotDetector:
         H, W = v.shape
         tx, ty = cfg.clahe_tiles
         rng = self._v_ranges[blobs.color]
-        if _k.enabled() and W % tx == 0 and H % ty == 0 and hsv.flags.c_contiguous:
-            eq = _k.clahe_at(hsv, np.ascontiguousarray(blobs.x, np.float64),
+        if _numba.enabled() and W % tx == 0 and H % ty == 0 and hsv.flags.c_contiguous:
+            eq = color_kernels.clahe_at(hsv, np.ascontiguousarray(blobs.x, np.float64),
                              np.ascontiguousarray(blobs.y, np.float64), int(tx), int(ty),
                              int(cfg.clahe_stride), float(cfg.clahe_clip))
             return (eq >= rng[:, 0] - 0.5) & (eq <= rng[:, 1] + 0.5)
@@ -321,50 +316,17 @@ class DotDetector:
         rng = self._v_ranges[blobs.color]
         return (eq >= rng[:, 0] - 0.5) & (eq <= rng[:, 1] + 0.5)
 
-    def _undistort_compiled(self, px: np.ndarray):
-        """(normalised points, d(normalised)/d(pixel)) with the compiled kernel, or None when
-        the kernels are off or the distortion model has a tilt."""
-        if self._dist12 is None or not _k.enabled():
-            return None
-        K = self.camera.K
-        return _k.undistort(np.ascontiguousarray(px, np.float64).reshape(-1, 2),
-                            float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                            self._dist12)
-
     def _normalize(self, px: np.ndarray) -> np.ndarray:
-        px = np.asarray(px, np.float64).reshape(-1, 1, 2)
-        if px.shape[0] == 0:
-            return np.zeros((0, 2))
-        got = self._undistort_compiled(px)
-        if got is not None:
-            return got[0]
-        return self.camera.normalize(px.reshape(-1, 2))
+        return self.camera.normalize_fast(px)
 
     def _project(self, Y: np.ndarray) -> np.ndarray:
         """Camera-frame points (..., 3) → distorted pixels (..., 2)."""
-        shp = Y.shape[:-1]
-        flat = Y.reshape(-1, 3)
-        if flat.shape[0] == 0:
-            return np.zeros(shp + (2,))
-        if self._dist12 is not None and _k.enabled():
-            K = self.camera.K
-            return _k.project(np.ascontiguousarray(flat, np.float64), float(K[0, 0]),
-                              float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                              self._dist12).reshape(shp + (2,))
-        return self.camera.project(flat).reshape(shp + (2,))
+        return self.camera.project_fast(Y)
 
     def _blob_geometry(self, blobs: Blobs) -> tuple[np.ndarray, np.ndarray]:
         """Normalised centres and second-moment matrices of blobs (local undistortion)."""
-        n = len(blobs)
-        c = np.stack([blobs.x, blobs.y], axis=1)
-        got = self._undistort_compiled(c)
-        if got is not None:
-            q, J = got
-            return q, J @ blobs.cov @ J.transpose(0, 2, 1)
-        pts = (c[None] + _STENCIL[:, None, :]).reshape(-1, 2)
-        qn = self._normalize(pts).reshape(5, n, 2)
-        J = np.stack([qn[1] - qn[2], qn[3] - qn[4]], axis=2) * 0.5        # (n, 2, 2)
-        return qn[0], J @ blobs.cov @ J.transpose(0, 2, 1)
+        q, J = self.camera.normalize_local(np.stack([blobs.x, blobs.y], axis=1))
+        return q, J @ blobs.cov @ J.transpose(0, 2, 1)
 
     # ------------------------------------------------------------------------------ detect
     def reset(self) -> None:
@@ -982,7 +944,6 @@ class DotDetector:
 
 _BITS = 1 << np.arange(16)
 _EYE3 = np.eye(3)
-_STENCIL = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
 
 class _CosTable(dict):

@@ -25,7 +25,8 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from drovisio.detect import dots_kernels as _k
+from drovisio import _numba
+from drovisio.detect.dots import blobs_kernels as _k
 
 __all__ = [
     "BlobFilter",
@@ -163,7 +164,7 @@ def _measure(contours: list[np.ndarray], color, shape: tuple[int, int],
     also measures the convexity of the contours that ``flt``'s shape filters may keep."""
     if not contours:
         return Blobs.empty()
-    if _k.enabled():
+    if _numba.enabled():
         return _measure_compiled(contours, color, shape, index, flt)
     n_pts = np.array(list(map(len, contours)), np.int64)
     pts = np.concatenate(contours).reshape(-1, 2).astype(np.float64)
@@ -336,7 +337,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         return Blobs.empty(), allc
     col = np.concatenate(colors)[keep]
     kept = [allc[i] for i in keep.tolist()]
-    if _k.enabled():
+    if _numba.enabled():
         blobs = _measure_compiled(kept, col, shape, keep, flt, n_pts[keep])
     else:
         blobs = _measure(kept, col, shape, index=keep, flt=flt)
@@ -348,7 +349,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         sel = owner >= 0
         if np.any(sel):
             hs = holes[sel]
-            if _k.enabled():
+            if _numba.enabled():
                 hc = [allc[h] for h in hs]
                 nh = n_pts[hs]
                 starts = np.zeros(hs.size, np.int64)
@@ -464,7 +465,7 @@ def refine_centers(image_bgr: np.ndarray, blobs: Blobs, index: np.ndarray | None
     """
     idx = np.arange(len(blobs)) if index is None else np.asarray(index, np.int64)
     n = idx.size
-    if _k.enabled() and n:
+    if _numba.enabled() and n:
         return _k.refine_centers(np.ascontiguousarray(image_bgr), blobs.x[idx], blobs.y[idx],
                                  blobs.a[idx], blobs.b[idx], blobs.cov[idx], float(margin_px),
                                  _WINDOW_SIZES[-1])

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drovisio.detect import dots_kernels as _k
+from drovisio import _numba
+from drovisio.detect.dots import match_kernels as _k
 from drovisio.layout import MarkerLayout
 
 __all__ = [
@@ -292,7 +293,7 @@ def occluded_dots(model: DotModel, R: np.ndarray, t: np.ndarray,
     Tpb = model.plane_from_brick
     C = -np.einsum("bji,bj->bi", R, t)                      # camera centre, brick frame
     Cp = C @ Tpb[:3, :3].T + Tpb[:3, 3]                      # ... plane frame (B, 3)
-    if _k.enabled():
+    if _numba.enabled():
         clear = _k.occlusion_clearance(model.occluders_plane, model.P, model.radii, Cp)
         return clear if clearance else clear < 1.0
     V = model.occluders_plane                                # (T, 3, 3): x, y, height
@@ -414,7 +415,7 @@ def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int 
     M = idx.size
     if M < min_dots:
         return Hypotheses.empty(model)
-    if _k.enabled():
+    if _numba.enabled():
         assign, score, scale, A, origin = _k.hypotheses(
             geo.q[idx], geo.color[idx], geo.S[idx], geo.Si[idx], geo.semi_major[idx],
             model.pairs, model.pair_color_match, model.pair_len, model.pair_vec,
@@ -578,7 +579,7 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
         which = np.concatenate([np.full(h.score.size, k) for k, h in enumerate(hyps)])
         row = np.concatenate([np.arange(h.score.size) for h in hyps])
     order = np.argsort(-scores, kind="stable")
-    if _k.enabled():
+    if _numba.enabled():
         A = np.ascontiguousarray(A[order])
         acc, rows_a = _k.assign_greedy(A, int(min_dots), taken)
         out = []
