@@ -307,7 +307,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
     allc: list[np.ndarray] = []
     colors: list[np.ndarray] = []
     parent: list[np.ndarray] = []
-    shape = tuple(shape) if shape is not None else None
+    shape = (shape[0], shape[1]) if shape is not None else None
     for k, entry in enumerate(masks):
         if entry is None:
             continue
@@ -316,7 +316,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
             if isinstance(mask, tuple):
                 mask, offset = mask
             else:
-                shape = shape or mask.shape
+                shape = shape or (mask.shape[0], mask.shape[1])
             cs, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE,
                                         offset=offset)
             if not cs:
@@ -337,6 +337,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         return Blobs.empty(), allc
     col = np.concatenate(colors)[keep]
     kept = [allc[i] for i in keep.tolist()]
+    assert shape is not None, "regions of a mask need the frame's shape"
     if _numba.enabled():
         blobs = _measure_compiled(kept, col, shape, keep, flt, n_pts[keep])
     else:

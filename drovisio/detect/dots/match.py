@@ -24,6 +24,7 @@ checked later (:mod:`drovisio.pose.batch`, :mod:`.dots`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -257,7 +258,7 @@ def _occluders(layout: MarkerLayout, X: np.ndarray, n: np.ndarray) -> np.ndarray
     try:
         import trimesh
 
-        mesh = trimesh.load(path, force="mesh")
+        mesh: Any = trimesh.load(path, force="mesh")
         V = np.asarray(mesh.vertices, np.float64) * float(layout.scale_to_m)
         F = np.asarray(mesh.faces, np.int64)
     except Exception:  # noqa: BLE001 - unreadable mesh: no occlusion model
@@ -582,13 +583,13 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
     if _numba.enabled():
         A = np.ascontiguousarray(A[order])
         acc, rows_a = _k.assign_greedy(A, int(min_dots), taken)
-        out = []
+        found = []
         for k, r in zip(acc.tolist(), rows_a):
             o = int(order[k])
             h = hyps[int(which[o])]
-            out.append(Candidate(h.model, r[:h.model.n], float(scores[o]),
-                                 float(h.scale[int(row[o])])))
-        return out
+            found.append(Candidate(h.model, r[:h.model.n], float(scores[o]),
+                                   float(h.scale[int(row[o])])))
+        return found
     if order.size > 64:     # many rows: merge duplicates first (few rows: the rounds do it)
         with np.errstate(over="ignore"):
             hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))
