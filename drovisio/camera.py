@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from types import ModuleType
 from typing import Literal
 
 import cv2
@@ -291,7 +292,7 @@ class Camera:
         return xy
 
     # -------------------------------------------------------------- compiled lens model
-    def _compiled_lens(self):
+    def _compiled_lens(self) -> tuple[ModuleType, np.ndarray] | None:
         """The compiled lens model's module and this lens's 12 coefficients, or None when it
         cannot serve (kernels off, fisheye, tilted sensor)."""
         if self.is_fisheye:

@@ -7,8 +7,8 @@ dot — a circle on a plane — projects to an exact ellipse).
 :func:`ippe_batch` gives each brick's two planar solutions (IPPE from a normalised-DLT
 homography; SQPnP and :func:`mirror_pose` serve where three of four points are in a line).
 Then, for all bricks and both solutions in one batch (numpy here; the same arithmetic
-compiled in :mod:`drovisio.pose.batch_kernels` when numba is there — the choice is made
-inside each function, never by a caller):
+compiled in :mod:`drovisio.pose.batch_kernels` and :mod:`drovisio.pose.ippe_kernels` when
+numba is there — the choice is made inside each function, never by a caller):
 
 * :func:`refine_poses`: Levenberg–Marquardt on the reprojection error (after a dot was
   dropped or added);
@@ -34,6 +34,7 @@ import numpy as np
 from drovisio import _numba
 from drovisio.geometry import skew, so3_exp, so3_log
 from drovisio.pose import batch_kernels as _k
+from drovisio.pose import ippe_kernels
 
 __all__ = [
     "conic_center_offsets",
@@ -124,7 +125,7 @@ def ippe_batch(P: np.ndarray, q: np.ndarray, w: np.ndarray, plane_from_brick: np
     Rpb = np.ascontiguousarray(plane_from_brick[:3, :3], np.float64)
     tpb = np.ascontiguousarray(plane_from_brick[:3, 3], np.float64)
     if _numba.enabled():
-        R, t, half_cost, ok = _k.ippe(*_f64(P, q, w), Rpb, tpb)
+        R, t, half_cost, ok = ippe_kernels.ippe(*_f64(P, q, w), Rpb, tpb)
         return R, t, 2.0 * half_cost, ok
     import cv2
 

@@ -48,16 +48,14 @@ class Frame:
 
 
 _MODELS: dict = {}
+_RIM = np.linspace(0, 2 * np.pi, 16, endpoint=False)
 
 
 def _visibility(scene, result, camera) -> list[DotTruth]:
     """Per brick and dot: fully visible? projected size (equivalent diameter, px)."""
-    import trimesh
+    import trimesh  # heavy: loaded only when a frame is rendered
 
-
-    cfw = result.camera_from_world
-    world_from_camera = np.linalg.inv(cfw)
-    cam_w = world_from_camera[:3, 3]
+    world_from_camera = np.linalg.inv(result.camera_from_world)
     meshes = []
     for prop in scene.props:
         m = prop.mesh.copy()
@@ -70,53 +68,74 @@ def _visibility(scene, result, camera) -> list[DotTruth]:
         bm.apply_transform(b.world_from_brick)
         brick_meshes.append(bm)
     out = []
-    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
     for k, (b, truth) in enumerate(zip(scene.bricks, result.bricks)):
-        lay = b.layout
-        cfb = truth.camera_from_brick
-        X = lay.dot_centers_m()
-        nrm = lay.dot_normals()
-        rad = lay.dot_diameters_m() / 2
-        dot_marker_index = [i for i, m in enumerate(lay.markers) if m.kind == "dot"]
-        model = _MODELS.get(id(lay))
-        if model is None:
-            colors = {c: i for i, c in enumerate(dict.fromkeys(lay.dot_colors()))}
-            model = _MODELS[id(lay)] = DotModel.from_layout(lay, colors)
-        own = occluded_dots(model, cfb[None, :3, :3], cfb[None, :3, 3])[0]
         others = [m for j, m in enumerate(brick_meshes) if j != k] + meshes
         other: Any = trimesh.util.concatenate(others) if others else None
-        vis, size = [], []
-        for d in range(len(X)):
-            u = np.cross(nrm[d], [1.0, 0, 0] if abs(nrm[d][0]) < 0.9 else [0, 1.0, 0])
-            u /= np.linalg.norm(u)
-            v = np.cross(nrm[d], u)
-            rim = X[d] + rad[d] * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * v)
-            px = camera.project_from(rim, cfb)
-            x, y = px[:, 0], px[:, 1]
-            x1, y1 = np.roll(x, -1), np.roll(y, -1)
-            area = abs(float((x * y1 - x1 * y).sum()) / 2)
-            size.append(2 * math.sqrt(area / math.pi))
-            ok = (dot_marker_index[d] not in b.hidden_markers) and not own[d]
-            ok = ok and bool(np.all((x >= 1) & (x <= camera.width - 2) & (y >= 1)
-                                    & (y <= camera.height - 2)))
-            Yc = rim @ cfb[:3, :3].T + cfb[:3, 3]
-            ok = ok and bool(np.all(Yc[:, 2] > 0)) and float(
-                -(cfb[:3, :3] @ nrm[d]) @ (cfb[:3, :3] @ X[d] + cfb[:3, 3])) > 0
-            if ok and other is not None:
-                rim_w = (world_from_camera[:3, :3] @ Yc.T).T + world_from_camera[:3, 3]
-                dirs = rim_w - cam_w
-                dist = np.linalg.norm(dirs, axis=1)
-                dirs /= dist[:, None]
-                locs, idx_ray, _ = other.ray.intersects_location(
-                    np.repeat(cam_w[None], len(dirs), 0), dirs, multiple_hits=False)
-                if len(idx_ray):
-                    hit_d = np.linalg.norm(locs - cam_w, axis=1)
-                    ok = not bool(np.any(hit_d < dist[idx_ray] - 1e-4))
-            vis.append(bool(ok))
+        cfb = truth.camera_from_brick
+        vis, size = _brick_dots(b, cfb, camera, other, world_from_camera)
         out.append(DotTruth(layout=truth.layout, camera_from_brick=cfb.tolist(),
                             centers_px=np.asarray(truth.dot_centers_px).tolist(), visible=vis,
                             size_px=size))
     return out
+
+
+def _dot_model(lay) -> DotModel:
+    """The layout's dot model (cached by layout)."""
+    model = _MODELS.get(id(lay))
+    if model is None:
+        colors = {c: i for i, c in enumerate(dict.fromkeys(lay.dot_colors()))}
+        model = _MODELS[id(lay)] = DotModel.from_layout(lay, colors)
+    return model
+
+
+def _brick_dots(b, cfb: np.ndarray, camera, other: Any, world_from_camera: np.ndarray
+                ) -> tuple[list[bool], list[float]]:
+    """Per dot of one brick (camera_from_brick ``cfb``): fully visible (inside the image,
+    painted, not hidden by its own relief or by ``other``, the scene's other meshes), and its
+    projected size (equivalent diameter, px)."""
+    lay = b.layout
+    X = lay.dot_centers_m()
+    nrm = lay.dot_normals()
+    rad = lay.dot_diameters_m() / 2
+    dot_marker_index = [i for i, m in enumerate(lay.markers) if m.kind == "dot"]
+    own = occluded_dots(_dot_model(lay), cfb[None, :3, :3], cfb[None, :3, 3])[0]
+    vis, size = [], []
+    for d in range(len(X)):
+        u = np.cross(nrm[d], [1.0, 0, 0] if abs(nrm[d][0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(nrm[d], u)
+        rim = X[d] + rad[d] * (np.cos(_RIM)[:, None] * u + np.sin(_RIM)[:, None] * v)
+        px = camera.project_from(rim, cfb)
+        x, y = px[:, 0], px[:, 1]
+        x1, y1 = np.roll(x, -1), np.roll(y, -1)
+        area = abs(float((x * y1 - x1 * y).sum()) / 2)
+        size.append(2 * math.sqrt(area / math.pi))
+        ok = (dot_marker_index[d] not in b.hidden_markers) and not own[d]
+        ok = ok and bool(np.all((x >= 1) & (x <= camera.width - 2) & (y >= 1)
+                                & (y <= camera.height - 2)))
+        Yc = rim @ cfb[:3, :3].T + cfb[:3, 3]
+        ok = ok and bool(np.all(Yc[:, 2] > 0)) and float(
+            -(cfb[:3, :3] @ nrm[d]) @ (cfb[:3, :3] @ X[d] + cfb[:3, 3])) > 0
+        if ok and other is not None:
+            ok = not _blocked(other, Yc, world_from_camera)
+        vis.append(bool(ok))
+    return vis, size
+
+
+def _blocked(other: Any, Yc: np.ndarray, world_from_camera: np.ndarray) -> bool:
+    """Whether a mesh lies between the camera and any of the rim points ``Yc`` (n, 3),
+    camera frame."""
+    cam_w = world_from_camera[:3, 3]
+    rim_w = (world_from_camera[:3, :3] @ Yc.T).T + world_from_camera[:3, 3]
+    dirs = rim_w - cam_w
+    dist = np.linalg.norm(dirs, axis=1)
+    dirs /= dist[:, None]
+    locs, idx_ray, _ = other.ray.intersects_location(
+        np.repeat(cam_w[None], len(dirs), 0), dirs, multiple_hits=False)
+    if len(idx_ray):
+        hit_d = np.linalg.norm(locs - cam_w, axis=1)
+        return bool(np.any(hit_d < dist[idx_ray] - 1e-4))
+    return False
 
 
 class FrameSource:

@@ -46,17 +46,13 @@ class Tally:
         self.missed: list[str] = []
 
     def add(self, frame: Frame, poses, symmetric_of, tag: str = "", perm_of=None) -> None:
+        """Score one frame's reported bricks against its true ones (``symmetric_of(layout
+        name)``: whether the layout is symmetric; ``perm_of(layout name)``: its dots' labels
+        after a half-turn, or None)."""
         self.frames += 1
-        matched = set()
+        matched: set[int] = set()
         for bi, b in enumerate(frame.bricks):
-            T = np.asarray(b.camera_from_brick)
-            best, bd = None, 0.08
-            for k, p in enumerate(poses):
-                if k in matched or p.layout != b.layout:
-                    continue
-                d = float(np.linalg.norm(np.asarray(p.tvec) - T[:3, 3]))
-                if d < bd:
-                    best, bd = k, d
+            best = _nearest(b, poses, matched)
             elig = _eligible(b)
             full = elig and all(b.visible)
             self.eligible += elig
@@ -70,7 +66,7 @@ class Tally:
             self.found += elig
             self.found_full += full
             e = truth_pose_errors(b, _rot(p.rvec), np.asarray(p.tvec, float),
-                             symmetric_of(p.layout))
+                                  symmetric_of(p.layout))
             e["eligible"] = elig
             e["ambiguous"] = bool(p.ambiguous)
             e["n_dots"] = len(p.markers)
@@ -79,14 +75,7 @@ class Tally:
             self.flips += flip
             self.unflagged_flips += flip and not p.ambiguous
             if p.image_points is not None and len(p.markers):
-                mk = np.asarray(p.markers)
-                err = np.asarray(p.image_points) - np.asarray(b.centers_px)[mk]
-                perm = perm_of(p.layout) if perm_of else None
-                if perm is not None:  # a half-turned report labels the dots the other way
-                    err2 = np.asarray(p.image_points) - np.asarray(b.centers_px)[perm[mk]]
-                    if np.abs(err2).sum() < np.abs(err).sum():
-                        err = err2
-                self.bias.append(err)
+                self.bias.append(_center_errors(b, p, perm_of(p.layout) if perm_of else None))
         for p in poses:
             self.reported += 1
             self.ambiguous += bool(p.ambiguous)
@@ -118,3 +107,29 @@ class Tally:
             float("nan"),
             "centers": len(b),
         }
+
+
+def _nearest(b: DotTruth, poses, matched: set[int]) -> int | None:
+    """The reported brick of the same layout nearest to a true one (within 8 cm) that no
+    other true brick took, or None."""
+    T = np.asarray(b.camera_from_brick)
+    best, bd = None, 0.08
+    for k, p in enumerate(poses):
+        if k in matched or p.layout != b.layout:
+            continue
+        d = float(np.linalg.norm(np.asarray(p.tvec) - T[:3, 3]))
+        if d < bd:
+            best, bd = k, d
+    return best
+
+
+def _center_errors(b: DotTruth, p, perm) -> np.ndarray:
+    """(n, 2) reported minus true dot centres, pixels; with ``perm`` (a half-turned report
+    labels the dots the other way) the labelling that fits better."""
+    mk = np.asarray(p.markers)
+    err = np.asarray(p.image_points) - np.asarray(b.centers_px)[mk]
+    if perm is not None:
+        err2 = np.asarray(p.image_points) - np.asarray(b.centers_px)[perm[mk]]
+        if np.abs(err2).sum() < np.abs(err).sum():
+            err = err2
+    return err

@@ -12,7 +12,7 @@ import tracemalloc
 import cv2
 import numpy as np
 
-from drovisio.bench.dots.frames import timing_frames
+from drovisio.bench.dots.frames import Frame, timing_frames
 from drovisio.camera import PIXEL_STENCIL
 from drovisio.camera_kernels import lens_coefficients
 from drovisio.detect.dots import DotsState, detect_dots
@@ -33,31 +33,53 @@ def _minimal_pass(palette_specs):
     return run
 
 
+_Samples = dict[tuple[int, int], tuple[list[float], ...]]
+"""(bricks in view, frame) -> wall times of the minimal pass, of the detector, CPU times of
+both, wall times of the numpy path (seconds)."""
+
+
 def part_timing(src, det, args, n, repeats) -> dict:
     """Per-frame time of the detector and of the minimal pass on the same frames, for 1, 5
     and 20 bricks in view. Every repeat visits every frame of every brick count once (minimal
     pass, then detector), so a change of the machine's load hits all counts alike; each
     figure is the median over a frame's repeats, then the median over frames."""
-
     if args.threads is not None:
         cv2.setNumThreads(args.threads)
     minimal = _minimal_pass(det.specs)
     counts = (1, 5, 20)
     frames = {nb: timing_frames(src, args, nb, n) for nb in counts}
-    wall, cpu = time.perf_counter, time.process_time
-
     compiled = K.enabled()
-    samples: dict[tuple[int, int], tuple[list[float], ...]] = {
-        (nb, k): ([], [], [], [], []) for nb in counts for k in range(n)}
-    found = {nb: [0] * n for nb in counts}
+    samples: _Samples = {(nb, k): ([], [], [], [], []) for nb in counts for k in range(n)}
+    found = _time_interleaved(det, minimal, frames, samples, repeats)
+    if compiled:
+        _time_numpy_path(det, frames, samples, repeats)
+    out = {"threads": cv2.getNumThreads(), "repeats": repeats, "frames_per_count": n,
+           "compiled_kernels": compiled}
+    base = None
+    for nb in counts:
+        row = _timing_row(frames[nb], samples, found[nb], nb, n, compiled)
+        if base is None:
+            base = row
+        row["vs_1_brick"] = row["detect_ms"] / base["detect_ms"]
+        row["vs_1_brick_cpu"] = row["detect_cpu_ms"] / base["detect_cpu_ms"]
+        out[f"{nb}_bricks"] = row
+    return out
+
+
+def _time_interleaved(det, minimal, frames: dict[int, list[Frame]], samples: _Samples,
+                      repeats: int) -> dict[int, list[int]]:
+    """The minimal pass and the detector on every frame, ``repeats`` times (after three
+    warm-up runs); returns the bricks found per frame."""
+    wall, cpu = time.perf_counter, time.process_time
+    found = {nb: [0] * len(fr_list) for nb, fr_list in frames.items()}
     for fr_list in frames.values():
         for fr in fr_list:
             for _ in range(3):  # warm-up
                 minimal(fr.image)
                 det.detect(fr.image, gravity=fr.gravity)
     for _ in range(repeats):
-        for nb in counts:
-            for k, fr in enumerate(frames[nb]):
+        for nb, fr_list in frames.items():
+            for k, fr in enumerate(fr_list):
                 a, b, ca, cb, _ = samples[(nb, k)]
                 t, c = wall(), cpu()
                 minimal(fr.image)
@@ -68,46 +90,46 @@ def part_timing(src, det, args, n, repeats) -> dict:
                 b.append(wall() - t)
                 cb.append(cpu() - c)
                 found[nb][k] = len(poses)
+    return found
+
+
+def _time_numpy_path(det, frames: dict[int, list[Frame]], samples: _Samples,
+                     repeats: int) -> None:
+    """The same detector on its numpy path, for comparison (a pass of its own: interleaved,
+    its larger working set would evict the compiled path's data between calls)."""
+    wall = time.perf_counter
+    K.set_enabled(False)
+    try:
+        for _ in range(max(3, repeats // 4)):
+            for nb, fr_list in frames.items():
+                for k, fr in enumerate(fr_list):
+                    t = wall()
+                    det.detect(fr.image, gravity=fr.gravity)
+                    samples[(nb, k)][4].append(wall() - t)
+    finally:
+        K.set_enabled(True)
+
+
+def _timing_row(fr_list: list[Frame], samples: _Samples, found: list[int], nb: int, n: int,
+                compiled: bool) -> dict:
+    """The figures of one brick count (medians over frames of the medians over repeats)."""
+    t_min, t_det, c_min, c_det = ([float(np.median(samples[(nb, k)][i])) for k in range(n)]
+                                  for i in range(4))
+    inview = [sum(int(np.sum(x.visible)) >= 4 for x in fr.bricks) for fr in fr_list]
+    row = {"frames": n, "bricks_in_view_median": float(np.median(inview)),
+           "bricks_found_median": float(np.median(found)),
+           "minimal_ms": 1e3 * float(np.median(t_min)),
+           "detect_ms": 1e3 * float(np.median(t_det)),
+           "ratio": float(np.median(np.asarray(t_det) / np.asarray(t_min))),
+           "minimal_cpu_ms": 1e3 * float(np.median(c_min)),
+           "detect_cpu_ms": 1e3 * float(np.median(c_det)),
+           "ratio_cpu": float(np.median(c_det) / max(np.median(c_min), 1e-9)),
+           "loadavg": os.getloadavg()[0]}
     if compiled:
-        # the same detector on its numpy path, for comparison (a pass of its own: interleaved,
-        # its larger working set would evict the compiled path's data between calls)
-        K.set_enabled(False)
-        try:
-            for _ in range(max(3, repeats // 4)):
-                for nb in counts:
-                    for k, fr in enumerate(frames[nb]):
-                        t = wall()
-                        det.detect(fr.image, gravity=fr.gravity)
-                        samples[(nb, k)][4].append(wall() - t)
-        finally:
-            K.set_enabled(True)
-    out = {"threads": cv2.getNumThreads(), "repeats": repeats, "frames_per_count": n,
-           "compiled_kernels": compiled}
-    base = None
-    for nb in counts:
-        t_min, t_det, c_min, c_det = ([float(np.median(samples[(nb, k)][i])) for k in range(n)]
-                                      for i in range(4))
-        inview = [sum(int(np.sum(x.visible)) >= 4 for x in fr.bricks) for fr in frames[nb]]
-        row = {"frames": n, "bricks_in_view_median": float(np.median(inview)),
-               "bricks_found_median": float(np.median(found[nb])),
-               "minimal_ms": 1e3 * float(np.median(t_min)),
-               "detect_ms": 1e3 * float(np.median(t_det)),
-               "ratio": float(np.median(np.asarray(t_det) / np.asarray(t_min))),
-               "minimal_cpu_ms": 1e3 * float(np.median(c_min)),
-               "detect_cpu_ms": 1e3 * float(np.median(c_det)),
-               "ratio_cpu": float(np.median(c_det) / max(np.median(c_min), 1e-9)),
-               "loadavg": os.getloadavg()[0]}
-        if compiled:
-            t_npy = [float(np.median(samples[(nb, k)][4])) for k in range(n)]
-            row["numpy_path_ms"] = 1e3 * float(np.median(t_npy))
-            row["numpy_path_vs_compiled"] = float(np.median(np.asarray(t_npy)
-                                                            / np.asarray(t_det)))
-        if base is None:
-            base = row
-        row["vs_1_brick"] = row["detect_ms"] / base["detect_ms"]
-        row["vs_1_brick_cpu"] = row["detect_cpu_ms"] / base["detect_cpu_ms"]
-        out[f"{nb}_bricks"] = row
-    return out
+        t_npy = [float(np.median(samples[(nb, k)][4])) for k in range(n)]
+        row["numpy_path_ms"] = 1e3 * float(np.median(t_npy))
+        row["numpy_path_vs_compiled"] = float(np.median(np.asarray(t_npy) / np.asarray(t_det)))
+    return row
 
 
 def part_kernels(src, det, args, n, repeats) -> dict:

@@ -16,7 +16,7 @@ import numpy as np
 from drovisio.detect.base import decided_up
 from drovisio.detect.dots.batch import Context, DotBatch
 from drovisio.detect.dots.poses import chi2
-from drovisio.detect.dots.stream import DotsState, previous_flip, previous_rotations
+from drovisio.detect.dots.stream import PreviousBrick, previous_flip, previous_rotations
 from drovisio.pose import HALF_TURN, canonical_half_turn, decide_flips
 
 __all__ = ["Decision", "decide"]
@@ -47,14 +47,15 @@ class Decision:
 
 
 def decide(ctx: Context, bt: DotBatch, rows: np.ndarray, gravity: np.ndarray | None,
-           state: DotsState | None) -> Decision:
-    """The planar ambiguity of the accepted bricks ``rows``, then the symmetric half-turn."""
+           previous: list[PreviousBrick] | None) -> Decision:
+    """The planar ambiguity of the accepted bricks ``rows``, then the symmetric half-turn
+    (``previous``: the previous frame's bricks in a stream, else None)."""
     B = rows.size
     ar = np.arange(B)
     R2, t2 = bt.R[rows], bt.t[rows]
-    choose, ambiguous = _choose(ctx, bt, rows, R2, t2, gravity, state)
+    choose, ambiguous = _choose(ctx, bt, rows, R2, t2, gravity, previous)
     Rc, tc = R2[ar, choose], t2[ar, choose]
-    sym, flip = _half_turns(bt, rows, Rc, tc, state)
+    sym, flip = _half_turns(bt, rows, Rc, tc, previous)
     if sym.any():
         Rc = np.where(flip[:, None, None], Rc * HALF_TURN, Rc)
     return Decision(rows=rows, R2=R2, t2=t2, choose=choose, ambiguous=ambiguous, R=Rc, t=tc,
@@ -62,14 +63,14 @@ def decide(ctx: Context, bt: DotBatch, rows: np.ndarray, gravity: np.ndarray | N
 
 
 def _choose(ctx: Context, bt: DotBatch, rows: np.ndarray, R2: np.ndarray, t2: np.ndarray,
-            gravity: np.ndarray | None, state: DotsState | None
+            gravity: np.ndarray | None, previous: list[PreviousBrick] | None
             ) -> tuple[np.ndarray, np.ndarray]:
     """(solution index (n,), ambiguous (n,)): the one rule, then the bricks still undecided
     with the up of the decided ones; undecided bricks get their better fit."""
     rule = ctx.config.ambiguity
     ar = np.arange(rows.size)
     c2, dof = chi2(ctx, bt, rows)
-    prev = previous_rotations(bt, rows, R2, t2, state)
+    prev = previous_rotations(bt, rows, R2, t2, previous)
     choose, why = decide_flips(R2, c2, dof, gravity=gravity, previous=prev, rule=rule)
     undecided = choose < 0
     up = decided_up(R2[ar, np.maximum(choose, 0)], why, undecided)
@@ -83,7 +84,7 @@ def _choose(ctx: Context, bt: DotBatch, rows: np.ndarray, R2: np.ndarray, t2: np
 
 
 def _half_turns(bt: DotBatch, rows: np.ndarray, Rc: np.ndarray, tc: np.ndarray,
-                state: DotsState | None) -> tuple[np.ndarray, np.ndarray]:
+                previous: list[PreviousBrick] | None) -> tuple[np.ndarray, np.ndarray]:
     """(symmetric (n,), flip (n,)): symmetric layouts in one canonical half-turn (the
     previous frame's, in a stream)."""
     B = rows.size
@@ -95,7 +96,7 @@ def _half_turns(bt: DotBatch, rows: np.ndarray, Rc: np.ndarray, tc: np.ndarray,
     if not sym.any():
         return sym, flip
     flip = sym & canonical_half_turn(Rc)
-    prev = state.previous if state is not None else []
+    prev = previous if previous is not None else []
     if prev:
         for k in np.flatnonzero(sym).tolist():
             f = previous_flip(bt.models[rows[k]], Rc[k], tc[k], prev)

@@ -289,21 +289,12 @@ def find_blobs(mask: np.ndarray, color: int = 0, flt: BlobFilter | None = None
     return blobs, contours
 
 
-def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
-                     shape: tuple[int, int] | None = None) -> tuple[Blobs, list[np.ndarray]]:
-    """:func:`find_blobs` for one mask per colour, measured in one pass (colour k = mask k;
-    None = no pixel of that colour; ``(roi_mask, (x0, y0))`` = a region of the frame's mask
-    whose top-left pixel is (x0, y0), with ``shape`` the frame's (H, W); a list of such
-    regions = separate regions of one colour's mask). ``extra(blobs) ->
-    bool mask`` is one more filter, applied with the convexity filter (e.g. the CLAHE V gate).
-
-    Outlines and holes come from ``cv2.findContours`` (two-level hierarchy); all outlines are
-    measured at once (:func:`_measure`), holes are subtracted from their outline's area.
-
-    Returns:
-        (blobs, contours of all masks in one list — ``Blobs.contour`` indexes it).
-    """
-    flt = flt or BlobFilter()
+def _all_contours(masks: list, shape: tuple[int, int] | None
+                  ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray],
+                             tuple[int, int] | None]:
+    """The contours of every mask (see :func:`find_blobs_multi`) in one list, per mask the
+    colour of its contours and each contour's outline index (-1 for an outline), and the
+    frame's shape (given, or that of the first whole mask)."""
     allc: list[np.ndarray] = []
     colors: list[np.ndarray] = []
     parent: list[np.ndarray] = []
@@ -326,6 +317,25 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
             colors.append(np.full(len(cs), k, np.int64))
             par = hier[0][:, 3].astype(np.int64)
             parent.append(np.where(par >= 0, par + base, -1))
+    return allc, colors, parent, shape
+
+
+def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
+                     shape: tuple[int, int] | None = None) -> tuple[Blobs, list[np.ndarray]]:
+    """:func:`find_blobs` for one mask per colour, measured in one pass (colour k = mask k;
+    None = no pixel of that colour; ``(roi_mask, (x0, y0))`` = a region of the frame's mask
+    whose top-left pixel is (x0, y0), with ``shape`` the frame's (H, W); a list of such
+    regions = separate regions of one colour's mask). ``extra(blobs) ->
+    bool mask`` is one more filter, applied with the convexity filter (e.g. the CLAHE V gate).
+
+    Outlines and holes come from ``cv2.findContours`` (two-level hierarchy); all outlines are
+    measured at once (:func:`_measure`), holes are subtracted from their outline's area.
+
+    Returns:
+        (blobs, contours of all masks in one list — ``Blobs.contour`` indexes it).
+    """
+    flt = flt or BlobFilter()
+    allc, colors, parent, shape = _all_contours(masks, shape)
     if not allc:
         return Blobs.empty(), []
     parent_a = np.concatenate(parent)
@@ -344,26 +354,35 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         blobs = _measure(kept, col, shape, index=keep, flt=flt)
     holes = np.nonzero(~outer)[0]
     if holes.size:
-        pos = np.full(len(allc), -1, np.int64)
-        pos[keep] = np.arange(keep.size)
-        owner = pos[parent_a[holes]]
-        sel = owner >= 0
-        if np.any(sel):
-            hs = holes[sel]
-            if _numba.enabled():
-                hc = [allc[h] for h in hs]
-                nh = n_pts[hs]
-                starts = np.zeros(hs.size, np.int64)
-                np.cumsum(nh[:-1], out=starts[1:])
-                hole_area = np.maximum(_k.polygon_areas(np.concatenate(hc).reshape(-1, 2),
-                                                        starts, nh) - nh / 2.0 + 1.0, 0.0)
-            else:
-                hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0,
-                                          0.0) for h in hs])
-            total = np.zeros(keep.size)
-            np.add.at(total, owner[sel], hole_area)
-            blobs.holes = total / np.maximum(blobs.area, 1.0)
+        _measure_holes(blobs, allc, holes, parent_a, keep, n_pts)
     return filter_blobs(blobs, flt, allc, extra), allc
+
+
+def _measure_holes(blobs: Blobs, allc: list[np.ndarray], holes: np.ndarray,
+                   parent_a: np.ndarray, keep: np.ndarray, n_pts: np.ndarray) -> None:
+    """Set ``blobs.holes``: the area of the holes of each kept outline (index ``keep`` into
+    ``allc``) over its area. ``holes``: indices of the hole contours, ``parent_a``: each
+    contour's outline (-1 for outlines), ``n_pts``: each contour's point count."""
+    pos = np.full(len(allc), -1, np.int64)
+    pos[keep] = np.arange(keep.size)
+    owner = pos[parent_a[holes]]
+    sel = owner >= 0
+    if not np.any(sel):
+        return
+    hs = holes[sel]
+    if _numba.enabled():
+        hc = [allc[h] for h in hs]
+        nh = n_pts[hs]
+        starts = np.zeros(hs.size, np.int64)
+        np.cumsum(nh[:-1], out=starts[1:])
+        hole_area = np.maximum(_k.polygon_areas(np.concatenate(hc).reshape(-1, 2),
+                                                starts, nh) - nh / 2.0 + 1.0, 0.0)
+    else:
+        hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0, 0.0)
+                              for h in hs])
+    total = np.zeros(keep.size)
+    np.add.at(total, owner[sel], hole_area)
+    blobs.holes = total / np.maximum(blobs.area, 1.0)
 
 
 def _shape_ok(blobs: Blobs, flt: BlobFilter) -> np.ndarray:

@@ -219,20 +219,10 @@ def measure_contours(pts, starts, npts, H, W, hull_gate):
 
 
 @_jit
-def refine_centers(img, bx, by, ba, bb, cov, margin, max_w):
-    """Colour-coverage centroids of blobs (the loops of :func:`.blobs.refine_centers`,
-    same windows, same estimates; float64 instead of float32)."""
-    n = bx.shape[0]
-    H = img.shape[0]
-    W = img.shape[1]
-    out = np.empty((n, 2))
-    contrast = np.zeros(n)
-    need = np.empty(n, np.int64)
-    for k in range(n):
-        out[k, 0] = bx[k]
-        out[k, 1] = by[k]
-        need[k] = int(2 * (math.ceil(ba[k] + margin) + 2) + 1)
-    # window sizes: blobs whose windows are within a factor 2 share the largest
+def _window_sizes(need):
+    """Window side per blob from the side each needs (n,): blobs whose windows are within a
+    factor 2 share the largest."""
+    n = need.shape[0]
     wsize = np.zeros(n, np.int64)
     left = n
     while left > 0:
@@ -248,14 +238,17 @@ def refine_centers(img, bx, by, ba, bb, cov, margin, max_w):
             if wsize[k] == 0 and need[k] <= 2 * lo:
                 wsize[k] = hi
                 left -= 1
-    sup_x = np.empty(max_w * max_w, np.int64)
-    sup_y = np.empty(max_w * max_w, np.int64)
-    # visit blobs band by band, left to right: neighbouring windows share cache lines
-    visit = np.argsort(np.floor(by / 16.0) * 1e5 + bx)
-    # touch every window row first: a new frame is seldom in the cache, and these loads are
-    # independent, so they overlap (-25 % with a cold cache); the windows then fit in L2
+    return wsize
+
+
+@_jit
+def _touch_windows(img, bx, by, wsize, max_w):
+    """Load the first and last pixel of every window row (a sum the caller checks, so the
+    loads stay)."""
+    H = img.shape[0]
+    W = img.shape[1]
     sink = 0
-    for k in range(n):
+    for k in range(bx.shape[0]):
         if wsize[k] > max_w:
             continue
         cx = int(np.rint(bx[k]))
@@ -265,7 +258,31 @@ def refine_centers(img, bx, by, ba, bb, cov, margin, max_w):
         xb = min(max(cx + half, 0), W - 1)
         for y in range(max(cy - half, 0), min(cy + half, H - 1) + 1):
             sink += img[y, xa, 0] + img[y, xb, 2]
-    if sink == 1234567891234:      # never: keeps the loads from being optimised away
+    return sink
+
+
+@_jit
+def refine_centers(img, bx, by, ba, bb, cov, margin, max_w):
+    """Colour-coverage centroids of blobs (the loops of :func:`.blobs.refine_centers`,
+    same windows, same estimates; float64 instead of float32)."""
+    n = bx.shape[0]
+    H = img.shape[0]
+    W = img.shape[1]
+    out = np.empty((n, 2))
+    contrast = np.zeros(n)
+    need = np.empty(n, np.int64)
+    for k in range(n):
+        out[k, 0] = bx[k]
+        out[k, 1] = by[k]
+        need[k] = int(2 * (math.ceil(ba[k] + margin) + 2) + 1)
+    wsize = _window_sizes(need)
+    sup_x = np.empty(max_w * max_w, np.int64)
+    sup_y = np.empty(max_w * max_w, np.int64)
+    # visit blobs band by band, left to right: neighbouring windows share cache lines
+    visit = np.argsort(np.floor(by / 16.0) * 1e5 + bx)
+    # touch every window row first: a new frame is seldom in the cache, and these loads are
+    # independent, so they overlap (-25 % with a cold cache); the windows then fit in L2
+    if _touch_windows(img, bx, by, wsize, max_w) == 1234567891234:  # never: keeps the loads
         contrast[0] = -1.0
     for kk in range(n):
         k = visit[kk]

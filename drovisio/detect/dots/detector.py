@@ -40,7 +40,7 @@ import math
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -52,7 +52,7 @@ from drovisio.detect.dots.batch import Context, dot_views, make_batch, set_cente
 from drovisio.detect.dots.blobs import Blobs, refine_centers
 from drovisio.detect.dots.bricks import brick_poses
 from drovisio.detect.dots.candidates import BlobFinder
-from drovisio.detect.dots.color import DotsInputError, check_image
+from drovisio.detect.dots.color import check_image
 from drovisio.detect.dots.config import DotsConfig
 from drovisio.detect.dots.kernels import notice_first_compile
 from drovisio.detect.dots.match import (
@@ -66,19 +66,11 @@ from drovisio.detect.dots.match import (
 from drovisio.detect.dots.occlusion import complete, drop_hidden, drop_wrong
 from drovisio.detect.dots.poses import initial_poses
 from drovisio.detect.dots.refine import accepted, perspective_step
-from drovisio.detect.dots.stream import DotsState, remember
+from drovisio.detect.dots.stream import PreviousBrick, remembered
 from drovisio.detect.result import BrickPose
 from drovisio.layout import ColorSpec, MarkerLayout
 
-__all__ = [
-    "DotDetector",
-    "DotsConfig",
-    "DotsInputError",
-    "DotsState",
-    "LayoutNotSupported",
-    "StageTimes",
-    "detect_dots",
-]
+__all__ = ["DotDetector", "DotsState", "StageTimes", "detect_dots"]
 
 log = logging.getLogger("drovisio.detect.dots")
 
@@ -115,6 +107,23 @@ class StageTimes:
         name = f"{stage}_s"
         setattr(self, name, getattr(self, name) + now - since)
         return now
+
+
+@dataclass
+class DotsState:
+    """Memory of the previous frame, for a stream (pass the same object every frame).
+
+    It keeps a symmetric brick's yaw in the same half-turn from frame to frame (instead of
+    letting the canonical rule flip it where the rule's boundary is) and holds the detector
+    built for the camera and layouts. Its size does not grow with the number of frames.
+    """
+
+    previous: list[PreviousBrick] = field(default_factory=list)
+    """(layout name, tvec, rotation matrix, ambiguous) of the bricks of the previous frame."""
+    note: str | None = None
+    """Why the last frame gave nothing, when it was not a usable colour image."""
+    detector: DotDetector | None = None
+    frames: int = 0
 
 
 class DotDetector:
@@ -209,7 +218,7 @@ class DotDetector:
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 poses = self._detect(img, gravity, state)
         if state is not None:
-            remember(state, poses)
+            state.previous = remembered(poses)
         return poses
 
     def _detect(self, img: np.ndarray, gravity, state: DotsState | None) -> list[BrickPose]:
@@ -260,7 +269,8 @@ class DotDetector:
         t = tm.lap("refine", t)
         if rows.size == 0:
             return []
-        decision = decide(ctx, bt, rows, gravity, state)
+        decision = decide(ctx, bt, rows, gravity,
+                          state.previous if state is not None else None)
         t = tm.lap("decide", t)
         out = brick_poses(ctx, bt, rmse, decision)
         tm.lap("bricks", t)

@@ -3,8 +3,9 @@ beside (the warm-up, the first-compile notice and the tests use this list).
 
 Each stage chooses its own kernel (the lens model in :mod:`drovisio.camera_kernels`, the blob,
 colour and matching stages in :mod:`.blobs_kernels`, :mod:`.color_kernels`,
-:mod:`.match_kernels`, the batched poses in :mod:`drovisio.pose.batch_kernels`); numba
-compiles each once per machine (``cache=True``, kept in ``__pycache__`` beside its module).
+:mod:`.match_kernels`, the batched poses in :mod:`drovisio.pose.batch_kernels` and
+:mod:`drovisio.pose.ippe_kernels`); numba compiles each once per machine (``cache=True``,
+kept in ``__pycache__`` beside its module).
 """
 
 from __future__ import annotations
@@ -19,11 +20,11 @@ from drovisio.detect.dots.match_kernels import assign_greedy, hypotheses, occlus
 from drovisio.pose.batch_kernels import (
     conic_center_offsets,
     gn_step,
-    ippe,
     pose_covariance,
     refine_poses,
     so3_log,
 )
+from drovisio.pose.ippe_kernels import ippe
 
 __all__ = [
     "AVAILABLE",

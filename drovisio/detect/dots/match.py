@@ -31,6 +31,7 @@ import numpy as np
 from drovisio import _numba
 from drovisio.detect.dots import match_kernels as _k
 from drovisio.layout import MarkerLayout
+from drovisio.pose.batch import layout_degeneracy
 
 __all__ = [
     "BlobGeometry",
@@ -49,6 +50,65 @@ class LayoutNotSupported(ValueError):
 
 def _rot_z_pi(X: np.ndarray) -> np.ndarray:
     return X * np.array([-1.0, -1.0, 1.0])
+
+
+def _plane_normal(X: np.ndarray, normals: np.ndarray, where: str) -> np.ndarray:
+    """The unit normal (3,) of the plane of the dots (n, 3) with unit normals (n, 3), brick
+    frame.
+
+    Raises:
+        LayoutNotSupported: the normals disagree (opposite, or > 5° apart), or a dot is more
+            than 1 mm off the plane.
+    """
+    n = normals.mean(axis=0)
+    if np.linalg.norm(n) < 1e-6:
+        raise LayoutNotSupported(f"{where}: dot normals point in opposite directions; the "
+                                 "dot detector needs all dots on one face")
+    n /= np.linalg.norm(n)
+    if np.min(normals @ n) < np.cos(np.radians(5)):
+        raise LayoutNotSupported(f"{where}: dot normals differ by more than 5°; the dot "
+                                 "detector needs all dots on one plane")
+    off = (X - X.mean(axis=0)) @ n
+    if np.max(np.abs(off)) > 1e-3:
+        raise LayoutNotSupported(f"{where}: dots are up to {np.max(np.abs(off)) * 1e3:.1f} "
+                                 "mm off a common plane; the dot detector needs coplanar "
+                                 "dots")
+    return n
+
+
+def _half_turn_perm(layout: MarkerLayout, X: np.ndarray, names: list[str]
+                    ) -> np.ndarray | None:
+    """For a ``rot180_z`` layout whose dots (n, 3) map onto dots of the same colour under the
+    half-turn: the dot each goes to (n,); else None."""
+    if getattr(layout, "symmetry", "none") != "rot180_z":
+        return None
+    Xs = _rot_z_pi(X)
+    d = np.linalg.norm(Xs[:, None, :] - X[None, :, :], axis=2)
+    perm = np.argmin(d, axis=1)
+    if (np.max(d[np.arange(len(X)), perm]) < 1e-6
+            and np.array_equal(np.sort(perm), np.arange(len(X)))
+            and all(names[i] == names[perm[i]] for i in range(len(X)))):
+        return perm
+    return None
+
+
+def _seed_pairs(count: int, sym: np.ndarray | None) -> list[tuple[int, int]]:
+    """Ordered pairs of distinct dots (a, b) that seed hypotheses; with a half-turn
+    permutation ``sym``, one of each pair and its image."""
+    pairs = []
+    seen = set()
+    for a in range(count):
+        for b in range(count):
+            if a == b:
+                continue
+            key = (a, b)
+            if sym is not None:
+                key = min((a, b), (int(sym[a]), int(sym[b])))
+            if key in seen:
+                continue
+            seen.add(key)
+            pairs.append((a, b))
+    return pairs
 
 
 @dataclass
@@ -139,20 +199,8 @@ class DotModel:
         normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
         radii = np.asarray(layout.dot_diameters_m(), np.float64).ravel() / 2
         names = list(layout.dot_colors())
-        n = normals.mean(axis=0)
-        if np.linalg.norm(n) < 1e-6:
-            raise LayoutNotSupported(f"{where}: dot normals point in opposite directions; the "
-                                     "dot detector needs all dots on one face")
-        n /= np.linalg.norm(n)
-        if np.min(normals @ n) < np.cos(np.radians(5)):
-            raise LayoutNotSupported(f"{where}: dot normals differ by more than 5°; the dot "
-                                     "detector needs all dots on one plane")
+        n = _plane_normal(X, normals, where)
         O = X.mean(axis=0)
-        off = (X - O) @ n
-        if np.max(np.abs(off)) > 1e-3:
-            raise LayoutNotSupported(f"{where}: dots are up to {np.max(np.abs(off)) * 1e3:.1f} "
-                                     "mm off a common plane; the dot detector needs coplanar "
-                                     "dots")
         hint = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
         u = hint - (hint @ n) * n
         u /= np.linalg.norm(u)
@@ -168,29 +216,9 @@ class DotModel:
             raise LayoutNotSupported(f"{where}: colours {sorted(missing)} are not in the "
                                      "detector's palette")
         colors = np.array([color_index[c] for c in names], np.int64)
-        sym = None
-        if getattr(layout, "symmetry", "none") == "rot180_z":
-            Xs = _rot_z_pi(X)
-            d = np.linalg.norm(Xs[:, None, :] - X[None, :, :], axis=2)
-            perm = np.argmin(d, axis=1)
-            if (np.max(d[np.arange(len(X)), perm]) < 1e-6
-                    and np.array_equal(np.sort(perm), np.arange(len(X)))
-                    and all(names[i] == names[perm[i]] for i in range(len(X)))):
-                sym = perm
+        sym = _half_turn_perm(layout, X, names)
         dist = np.linalg.norm(P[:, None, :] - P[None, :, :], axis=2)
-        pairs = []
-        seen = set()
-        for a in range(len(X)):
-            for b in range(len(X)):
-                if a == b:
-                    continue
-                key = (a, b)
-                if sym is not None:
-                    key = min((a, b), (int(sym[a]), int(sym[b])))
-                if key in seen:
-                    continue
-                seen.add(key)
-                pairs.append((a, b))
+        pairs = _seed_pairs(len(X), sym)
         iu = np.triu_indices(len(X), 1)
         occ = _occluders(layout, X, n)
         occ_p = occ @ plane_from_brick[:3, :3].T + plane_from_brick[:3, 3]
@@ -240,8 +268,6 @@ class DotModel:
         key = dots if isinstance(dots, int) else int(np.sum(1 << np.asarray(dots, np.int64)))
         val = self._degeneracy.get(key)
         if val is None:
-            from drovisio.pose.batch import layout_degeneracy
-
             sel = [i for i in range(self.n) if key >> i & 1]
             val = self._degeneracy[key] = layout_degeneracy(self.P[sel])
         return val
@@ -256,7 +282,7 @@ def _occluders(layout: MarkerLayout, X: np.ndarray, n: np.ndarray) -> np.ndarray
     if path is None or not path.exists():
         return np.zeros((0, 3, 3))
     try:
-        import trimesh
+        import trimesh  # heavy: loaded only for a layout with a mesh
 
         mesh: Any = trimesh.load(path, force="mesh")
         V = np.asarray(mesh.vertices, np.float64) * float(layout.scale_to_m)
@@ -568,37 +594,73 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
     if not hyps:
         return []
     W = max(h.model.n for h in hyps)
-    if len(hyps) == 1:
-        A = hyps[0].assign
-        scores = hyps[0].score
-        which = np.zeros(A.shape[0], np.int64)
-        row = np.arange(A.shape[0])
-    else:
-        A = np.concatenate([np.pad(h.assign, ((0, 0), (0, W - h.model.n)), constant_values=-1)
-                            for h in hyps])
-        scores = np.concatenate([h.score for h in hyps])
-        which = np.concatenate([np.full(h.score.size, k) for k, h in enumerate(hyps)])
-        row = np.concatenate([np.arange(h.score.size) for h in hyps])
+    A, scores, which, row = _stacked(hyps, W)
     order = np.argsort(-scores, kind="stable")
+
+    def candidate(o: int, r: np.ndarray) -> Candidate:
+        h = hyps[int(which[o])]
+        return Candidate(h.model, r[:h.model.n], float(scores[o]), float(h.scale[int(row[o])]))
+
     if _numba.enabled():
         A = np.ascontiguousarray(A[order])
         acc, rows_a = _k.assign_greedy(A, int(min_dots), taken)
-        found = []
-        for k, r in zip(acc.tolist(), rows_a):
-            o = int(order[k])
-            h = hyps[int(which[o])]
-            found.append(Candidate(h.model, r[:h.model.n], float(scores[o]),
-                                   float(h.scale[int(row[o])])))
-        return found
+        return [candidate(int(order[k]), r) for k, r in zip(acc.tolist(), rows_a)]
     if order.size > 64:     # many rows: merge duplicates first (few rows: the rounds do it)
-        with np.errstate(over="ignore"):
-            hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))
-            key = np.where(A >= 0, hv[np.maximum(A, 0)], np.uint64(0)).sum(axis=1) \
-                + _splitmix64(which.astype(np.uint64) + np.uint64(1 << 40))
-        _, first = np.unique(key[order], return_index=True)
-        order = order[np.sort(first)]
+        order = _unique_rows(A, order, which, n_blobs)
     A = A[order].copy()
-    # one blob for two dots of a hypothesis: the first dot keeps it
+    _first_dot_keeps(A, W)
+    out: list[Candidate] = []
+    # rounds of "locally best" rows: a row is accepted when no better row still in play uses
+    # any of its free blobs; rows left with too few free blobs drop out
+    while A.shape[0]:
+        free = (A >= 0) & ~taken[np.maximum(A, 0)]
+        ok = free.sum(axis=1) >= min_dots
+        if not ok.all():
+            A, order, free = A[ok], order[ok], free[ok]
+            if A.shape[0] == 0:
+                break
+        owner = np.full(n_blobs, A.shape[0], np.int64)
+        rows_of = np.broadcast_to(np.arange(A.shape[0])[:, None], A.shape)
+        np.minimum.at(owner, A[free], rows_of[free])
+        best = np.where(free, owner[np.maximum(A, 0)], np.arange(A.shape[0])[:, None])
+        win = (best == np.arange(A.shape[0])[:, None]).all(axis=1)
+        for k in np.flatnonzero(win).tolist():
+            r = np.where(free[k], A[k], -1)
+            taken[r[r >= 0]] = True
+            out.append(candidate(int(order[k]), r))
+        keep = ~win
+        A, order = A[keep], order[keep]
+    return out
+
+
+def _stacked(hyps: list[Hypotheses], W: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All hypotheses' rows as one (rows, W) assignment (padded with -1), their scores, the
+    hypotheses each came from and its row there."""
+    if len(hyps) == 1:
+        A = hyps[0].assign
+        return A, hyps[0].score, np.zeros(A.shape[0], np.int64), np.arange(A.shape[0])
+    A = np.concatenate([np.pad(h.assign, ((0, 0), (0, W - h.model.n)), constant_values=-1)
+                        for h in hyps])
+    scores = np.concatenate([h.score for h in hyps])
+    which = np.concatenate([np.full(h.score.size, k) for k, h in enumerate(hyps)])
+    row = np.concatenate([np.arange(h.score.size) for h in hyps])
+    return A, scores, which, row
+
+
+def _unique_rows(A: np.ndarray, order: np.ndarray, which: np.ndarray, n_blobs: int
+                 ) -> np.ndarray:
+    """``order`` without the rows that repeat a better row's (layout, set of blobs)."""
+    with np.errstate(over="ignore"):
+        hv = _splitmix64(np.arange(n_blobs, dtype=np.uint64))
+        key = np.where(A >= 0, hv[np.maximum(A, 0)], np.uint64(0)).sum(axis=1) \
+            + _splitmix64(which.astype(np.uint64) + np.uint64(1 << 40))
+    _, first = np.unique(key[order], return_index=True)
+    return order[np.sort(first)]
+
+
+def _first_dot_keeps(A: np.ndarray, W: int) -> None:
+    """One blob for two dots of a row: the first dot keeps it (A changed in place)."""
     srt = np.sort(np.where(A >= 0, A, -np.arange(1, W + 1)[None, :]), axis=1)
     dup_rows = np.flatnonzero((srt[:, 1:] == srt[:, :-1]).any(axis=1))
     for rr in dup_rows.tolist():
@@ -608,29 +670,3 @@ def assign_greedy(hyps: list[Hypotheses], n_blobs: int, min_dots: int = 4,
                 if bl in seen:
                     A[rr, d] = -1
                 seen.add(bl)
-    out: list[Candidate] = []
-    rank = np.arange(A.shape[0])
-    # rounds of "locally best" rows: a row is accepted when no better row still in play uses
-    # any of its free blobs; rows left with too few free blobs drop out
-    while A.shape[0]:
-        free = (A >= 0) & ~taken[np.maximum(A, 0)]
-        ok = free.sum(axis=1) >= min_dots
-        if not ok.all():
-            A, order, rank, free = A[ok], order[ok], rank[ok], free[ok]
-            if A.shape[0] == 0:
-                break
-        owner = np.full(n_blobs, A.shape[0], np.int64)
-        rows_of = np.broadcast_to(np.arange(A.shape[0])[:, None], A.shape)
-        np.minimum.at(owner, A[free], rows_of[free])
-        best = np.where(free, owner[np.maximum(A, 0)], np.arange(A.shape[0])[:, None])
-        win = (best == np.arange(A.shape[0])[:, None]).all(axis=1)
-        for k in np.flatnonzero(win).tolist():
-            o = int(order[k])
-            h = hyps[int(which[o])]
-            r = np.where(free[k], A[k], -1)
-            taken[r[r >= 0]] = True
-            out.append(Candidate(h.model, r[:h.model.n], float(scores[o]),
-                                 float(h.scale[int(row[o])])))
-        keep = ~win
-        A, order, rank = A[keep], order[keep], rank[keep]
-    return out

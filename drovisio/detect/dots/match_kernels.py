@@ -18,6 +18,8 @@ import numpy as np
 from drovisio._numba import jit as _jit
 
 
+# one compiled loop nest on purpose: the per-seed scoring loop is the detector's hottest
+# code, and its state (candidate lists, scratch rows) would have to cross calls if split
 @_jit
 def hypotheses(qq, col, S, Si, semi_major, pairs, pcm, pair_len, pair_vec, pair_mid,
                pair_ra_half, pair_rb_half, pair_ia, pair_ib, P, colors, min_spacing,

@@ -1,4 +1,4 @@
-"""The dot detector's memory of a stream: the previous frame's bricks.
+"""The dot detector's use of a stream's previous frame (kept in :class:`~.detector.DotsState`).
 
 A symmetric brick's yaw stays in the previous frame's half-turn (instead of letting the
 canonical rule flip it where the rule's boundary is), and a decided pose of the previous frame
@@ -8,8 +8,6 @@ is evidence for the planar ambiguity of the same brick now.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -19,37 +17,16 @@ from drovisio.detect.dots.match import DotModel
 from drovisio.detect.result import BrickPose
 from drovisio.pose import HALF_TURN
 
-if TYPE_CHECKING:  # the detector holds a state, the state names its detector
-    from drovisio.detect.dots.detector import DotDetector
-
-__all__ = ["DotsState", "PreviousBrick", "previous_flip", "previous_rotations", "remember"]
+__all__ = ["PreviousBrick", "previous_flip", "previous_rotations", "remembered"]
 
 PreviousBrick = tuple[str, np.ndarray, np.ndarray, bool]
 """(layout name, tvec, rotation matrix camera_from_brick, ambiguous) of a brick."""
 
 
-@dataclass
-class DotsState:
-    """Memory of the previous frame, for a stream (pass the same object every frame).
-
-    It keeps a symmetric brick's yaw in the same half-turn from frame to frame (instead of
-    letting the canonical rule flip it where the rule's boundary is) and holds the detector
-    built for the camera and layouts. Its size does not grow with the number of frames.
-    """
-
-    previous: list[PreviousBrick] = field(default_factory=list)
-    """(layout name, tvec, rotation matrix, ambiguous) of the bricks of the previous frame."""
-    note: str | None = None
-    """Why the last frame gave nothing, when it was not a usable colour image."""
-    detector: DotDetector | None = None
-    frames: int = 0
-
-
-def remember(state: DotsState, poses: Sequence[BrickPose]) -> None:
-    """Keep this frame's bricks for the next frame."""
-    state.previous = [(p.layout, np.asarray(p.tvec, float).copy(),
-                       cv2.Rodrigues(np.asarray(p.rvec, float))[0], p.ambiguous)
-                      for p in poses]
+def remembered(poses: Sequence[BrickPose]) -> list[PreviousBrick]:
+    """This frame's bricks as the next frame will see them."""
+    return [(p.layout, np.asarray(p.tvec, float).copy(),
+             cv2.Rodrigues(np.asarray(p.rvec, float))[0], p.ambiguous) for p in poses]
 
 
 def _previous_match(model: DotModel, t: np.ndarray, previous: list[PreviousBrick]
@@ -74,7 +51,7 @@ def previous_flip(model: DotModel, R: np.ndarray, t: np.ndarray,
 
 
 def previous_rotations(bt: DotBatch, rows: np.ndarray, R2: np.ndarray, t2: np.ndarray,
-                       state: DotsState | None) -> list[np.ndarray | None] | None:
+                       previous: list[PreviousBrick] | None) -> list[np.ndarray | None] | None:
     """Per brick, the rotation of the same brick in the previous frame when that pose was
     decided (evidence for the planar ambiguity), else None. A symmetric layout's pose
     was reported in one of its half-turns: the one nearer to either candidate.
@@ -82,13 +59,14 @@ def previous_rotations(bt: DotBatch, rows: np.ndarray, R2: np.ndarray, t2: np.nd
     Args:
         rows: (n,) the bricks of the batch.
         R2: (n, 2, 3, 3) and t2: (n, 2, 3): both solutions of each.
+        previous: The previous frame's bricks (None: not a stream).
     """
-    if state is None or not any(not p[3] for p in state.previous):
+    if previous is None or not any(not p[3] for p in previous):
         return None
     out: list[np.ndarray | None] = []
     for k, r in enumerate(rows.tolist()):
         m = bt.models[r]
-        hit = _previous_match(m, t2[k, 0], state.previous)
+        hit = _previous_match(m, t2[k, 0], previous)
         if hit is None or hit[1]:
             out.append(None)
             continue
