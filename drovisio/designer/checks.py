@@ -358,7 +358,7 @@ def _check_detectors(doc: DesignDocument, layout) -> list[Finding]:
     so that no layout is saved that the drone then cannot use."""
     if not layout.has_dots:
         return []
-    from drovisio.detect.dots.match import DotModel, LayoutNotSupported
+    from drovisio.detect.dots.model import DotModel, LayoutNotSupported
 
     names = list(dict.fromkeys(layout.dot_colors()))
     try:

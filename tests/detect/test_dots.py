@@ -34,7 +34,7 @@ from drovisio.detect.dots.color import (
     threshold_color,
     to_hsv,
 )
-from drovisio.detect.dots.match import DotModel, occluded_dots
+from drovisio.detect.dots.model import DotModel, occluded_dots
 from drovisio.geometry import so3_exp
 from drovisio.layout import (
     DEFAULT_PALETTE,

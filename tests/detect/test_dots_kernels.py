@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 
 from drovisio.camera import Camera
-from drovisio.detect.dots import kernels as K
 from drovisio.detect.dots import DotDetector
+from drovisio.detect.dots import kernels as K
 from drovisio.detect.dots.blobs import _measure, find_blobs_multi, refine_centers
 from drovisio.detect.dots.color import ClaheMap, clean_mask
 from drovisio.detect.dots.match import (
     BlobGeometry,
     assign_greedy,
     generate_hypotheses,
-    occluded_dots,
 )
+from drovisio.detect.dots.model import occluded_dots
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.pose import batch as dots_pose
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene

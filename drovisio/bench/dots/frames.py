@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.detect.dots.match import DotModel, occluded_dots
+from drovisio.detect.dots.model import DotModel, occluded_dots
 from drovisio.fileio import atomic_write_text, write_image
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene

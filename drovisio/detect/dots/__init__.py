@@ -7,7 +7,8 @@ The public face of the colour-dot detector: :class:`DotDetector` (kept across fr
 
 * :mod:`.candidates` — stages 1–4 on a frame: HSV, palette masks (:mod:`.color`), blobs
   (:mod:`.blobs`), CLAHE V per blob;
-* :mod:`.match` — blobs to the layouts' dots: pair-seeded hypotheses, greedy assignment;
+* :mod:`.match` — blobs to the layouts' dots (:mod:`.model`: a layout's dots as the
+  detector sees them): pair-seeded hypotheses, greedy assignment;
 * :mod:`.batch` — the matched bricks as one typed batch, sub-pixel centres on it;
 * :mod:`.poses` — both planar solutions of every brick, solved again when its dots change;
 * :mod:`.occlusion` — hidden dots, wrong blobs, missing dots;
@@ -25,7 +26,7 @@ from __future__ import annotations
 from drovisio.detect.dots.color import DotsInputError
 from drovisio.detect.dots.config import DotsConfig
 from drovisio.detect.dots.detector import DotDetector, DotsState, StageTimes, detect_dots
-from drovisio.detect.dots.match import LayoutNotSupported
+from drovisio.detect.dots.model import LayoutNotSupported
 
 __all__ = [
     "DotDetector",

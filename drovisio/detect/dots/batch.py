@@ -14,7 +14,8 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect.dots.config import DotsConfig
-from drovisio.detect.dots.match import Candidate, DotModel
+from drovisio.detect.dots.match import Candidate
+from drovisio.detect.dots.model import DotModel
 
 __all__ = ["Context", "DotBatch", "DotViews", "EllipseMoments", "make_batch", "set_centers",
            "dot_views"]

@@ -18,7 +18,7 @@ from drovisio.detect.dots import color_kernels
 from drovisio.detect.dots.blobs import BlobFilter, Blobs, find_blobs_multi
 from drovisio.detect.dots.color import ClaheMap, ColorClassifier, clean_mask
 from drovisio.detect.dots.config import DotsConfig
-from drovisio.detect.dots.match import DotModel
+from drovisio.detect.dots.model import DotModel
 from drovisio.layout import ColorSpec
 
 __all__ = ["BlobFinder"]

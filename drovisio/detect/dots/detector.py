@@ -58,11 +58,10 @@ from drovisio.detect.dots.kernels import notice_first_compile
 from drovisio.detect.dots.match import (
     BlobGeometry,
     Candidate,
-    DotModel,
-    LayoutNotSupported,
     assign_greedy,
     generate_hypotheses,
 )
+from drovisio.detect.dots.model import DotModel, LayoutNotSupported
 from drovisio.detect.dots.occlusion import complete, drop_hidden, drop_wrong
 from drovisio.detect.dots.poses import initial_poses
 from drovisio.detect.dots.refine import accepted, perspective_step

@@ -3,9 +3,9 @@ beside (the warm-up, the first-compile notice and the tests use this list).
 
 Each stage chooses its own kernel (the lens model in :mod:`drovisio.camera_kernels`, the blob,
 colour and matching stages in :mod:`.blobs_kernels`, :mod:`.color_kernels`,
-:mod:`.match_kernels`, the batched poses in :mod:`drovisio.pose.batch_kernels` and
-:mod:`drovisio.pose.ippe_kernels`); numba compiles each once per machine (``cache=True``,
-kept in ``__pycache__`` beside its module).
+:mod:`.match_kernels`, the dot model's occlusion in :mod:`.model_kernels`, the batched poses
+in :mod:`drovisio.pose.batch_kernels` and :mod:`drovisio.pose.ippe_kernels`); numba compiles
+each once per machine (``cache=True``, kept in ``__pycache__`` beside its module).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from drovisio._numba import AVAILABLE, enabled, missing_cache, set_enabled
 from drovisio.camera_kernels import project, undistort
 from drovisio.detect.dots.blobs_kernels import measure_contours, polygon_areas, refine_centers
 from drovisio.detect.dots.color_kernels import clahe_at
-from drovisio.detect.dots.match_kernels import assign_greedy, hypotheses, occlusion_clearance
+from drovisio.detect.dots.match_kernels import assign_greedy, hypotheses
+from drovisio.detect.dots.model_kernels import occlusion_clearance
 from drovisio.pose.batch_kernels import (
     conic_center_offsets,
     gn_step,

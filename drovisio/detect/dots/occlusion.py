@@ -17,7 +17,7 @@ import numpy as np
 
 from drovisio.detect.dots.batch import Context, DotBatch, DotViews, set_centers
 from drovisio.detect.dots.blobs import Blobs, refine_centers
-from drovisio.detect.dots.match import occluded_dots
+from drovisio.detect.dots.model import occluded_dots
 from drovisio.detect.dots.poses import alt_plausible, residuals_px, resolve
 
 __all__ = ["complete", "drop_hidden", "drop_wrong", "self_occluded", "shape_outliers"]

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from drovisio.detect.dots.batch import DotBatch
-from drovisio.detect.dots.match import DotModel
+from drovisio.detect.dots.model import DotModel
 from drovisio.detect.result import BrickPose
 from drovisio.pose import HALF_TURN
 
