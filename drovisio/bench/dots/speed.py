@@ -136,7 +136,6 @@ def part_kernels(src, det, args, n, repeats) -> dict:
     """Median time of each compiled kernel and of what it replaces, on the same inputs (the
     stages of the 20-brick timing frames), in this process."""
 
-
     if not K.enabled():
         return {"skipped": "numba is not installed (or DROVISIO_NUMBA=0)"}
     cfg = det.config
@@ -247,7 +246,6 @@ def part_memory(src, det, args, nframes) -> dict:
     slope × frames); with ``--memory-trace`` also the growth of Python's own allocations
     (tracemalloc), which is what a leak would show first.
     """
-
 
     frames = (timing_frames(src, args, 1, 2) + timing_frames(src, args, 5, 2)
               + timing_frames(src, args, 20, 2))
