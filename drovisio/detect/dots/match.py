@@ -112,6 +112,52 @@ class BlobGeometry:
         return cls(q=q, S=S, Si=Si, semi_major=2 * np.sqrt(lmax), color=color, usable=usable)
 
 
+def _hypotheses_compiled(model: DotModel, geo: BlobGeometry, idx: np.ndarray,
+                         seeds_per_blob: int, ratio_tol: float, match_tol: float,
+                         min_dots: int, orientation: float) -> Hypotheses:
+    """:func:`generate_hypotheses` by the compiled kernel, on the usable blobs ``idx``."""
+    assign, score, scale, A, origin = _k.hypotheses(
+        geo.q[idx], geo.color[idx], geo.S[idx], geo.Si[idx], geo.semi_major[idx],
+        model.pairs, model.pair_color_match, model.pair_len, model.pair_vec,
+        model.pair_mid, model.pair_ra_half, model.pair_rb_half, model.pair_ia,
+        model.pair_ib, model.P, model.colors, float(model.min_spacing),
+        float(model.reach_per_semi_axis), int(seeds_per_blob), float(ratio_tol),
+        float(match_tol), int(min_dots), float(orientation))
+    if score.size == 0:
+        return Hypotheses.empty(model)
+    sel = np.argsort(-score, kind="stable")
+    assign = assign[sel]
+    assign = np.where(assign >= 0, idx[np.maximum(assign, 0)], -1)
+    return Hypotheses(model, assign, score[sel], scale[sel], A[sel], origin[sel])
+
+
+def _local_affine(model: DotModel, S: np.ndarray, i: np.ndarray, j: np.ndarray,
+                  hp: np.ndarray, f: np.ndarray, orientation: float) -> np.ndarray:
+    """(H, 2, 2) local affine map A (plane → normalised image) of each seed: blob i on the
+    first dot of layout pair ``hp``, blob j on the second, ``f`` (H, 2) = q_j − q_i; A·e = f
+    with e the pair's plane vector, A = S̄·Q·s (S: (M, 2, 2) square roots of the blobs'
+    second moments)."""
+    e, le = model.pair_vec[hp], model.pair_len[hp]
+    Sbar = S[i] * model.pair_ia[hp][:, None, None] + S[j] * model.pair_ib[hp][:, None, None]
+    s00, s01, s11 = Sbar[:, 0, 0], Sbar[:, 0, 1], Sbar[:, 1, 1]
+    dS = s00 * s11 - s01 * s01
+    g0 = (s11 * f[:, 0] - s01 * f[:, 1]) / dS                 # g = S̄⁻¹·f
+    g1 = (s00 * f[:, 1] - s01 * f[:, 0]) / dS
+    lg = np.sqrt(g0 * g0 + g1 * g1)
+    e0, e1 = e[:, 0] / le, e[:, 1] / le
+    h0, h1 = g0 / lg, g1 / lg
+    Q = np.empty_like(Sbar)
+    if orientation < 0:   # reflection taking ê to ĝ
+        c2 = e0 * h0 - e1 * h1
+        s2 = e0 * h1 + e1 * h0
+        Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1] = c2, s2, s2, -c2
+    else:                 # rotation taking ê to ĝ
+        c1 = e0 * h0 + e1 * h1
+        s1 = e0 * h1 - e1 * h0
+        Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1] = c1, -s1, s1, c1
+    return (Sbar @ Q) * (lg / le)[:, None, None]
+
+
 def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int = 4,
                         ratio_tol: float = 1.5, match_tol: float = 0.3, min_dots: int = 4,
                         orientation: float = -1.0) -> Hypotheses:
@@ -138,19 +184,8 @@ def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int 
     if M < min_dots:
         return Hypotheses.empty(model)
     if _numba.enabled():
-        assign, score, scale, A, origin = _k.hypotheses(
-            geo.q[idx], geo.color[idx], geo.S[idx], geo.Si[idx], geo.semi_major[idx],
-            model.pairs, model.pair_color_match, model.pair_len, model.pair_vec,
-            model.pair_mid, model.pair_ra_half, model.pair_rb_half, model.pair_ia,
-            model.pair_ib, model.P, model.colors, float(model.min_spacing),
-            float(model.reach_per_semi_axis), int(seeds_per_blob), float(ratio_tol),
-            float(match_tol), int(min_dots), float(orientation))
-        if score.size == 0:
-            return Hypotheses.empty(model)
-        sel = np.argsort(-score, kind="stable")
-        assign = assign[sel]
-        assign = np.where(assign >= 0, idx[np.maximum(assign, 0)], -1)
-        return Hypotheses(model, assign, score[sel], scale[sel], A[sel], origin[sel])
+        return _hypotheses_compiled(model, geo, idx, seeds_per_blob, ratio_tol, match_tol,
+                                    min_dots, orientation)
     qq, col = geo.q[idx], geo.color[idx]
     S, Si = geo.S[idx], geo.Si[idx]
     reach = geo.semi_major[idx] * model.reach_per_semi_axis
@@ -186,26 +221,7 @@ def generate_hypotheses(model: DotModel, geo: BlobGeometry, seeds_per_blob: int 
     if keep.size == 0:
         return Hypotheses.empty(model)
     i, j, a, b, hp, f = i[keep], j[keep], a[keep], b[keep], hp[keep], f[keep]
-    e, le = model.pair_vec[hp], model.pair_len[hp]
-    # ---- local affine map A (plane → image) with A·e = f, A = S̄·Q·s
-    Sbar = S[i] * model.pair_ia[hp][:, None, None] + S[j] * model.pair_ib[hp][:, None, None]
-    s00, s01, s11 = Sbar[:, 0, 0], Sbar[:, 0, 1], Sbar[:, 1, 1]
-    dS = s00 * s11 - s01 * s01
-    g0 = (s11 * f[:, 0] - s01 * f[:, 1]) / dS                 # g = S̄⁻¹·f
-    g1 = (s00 * f[:, 1] - s01 * f[:, 0]) / dS
-    lg = np.sqrt(g0 * g0 + g1 * g1)
-    e0, e1 = e[:, 0] / le, e[:, 1] / le
-    h0, h1 = g0 / lg, g1 / lg
-    Q = np.empty_like(Sbar)
-    if orientation < 0:   # reflection taking ê to ĝ
-        c2 = e0 * h0 - e1 * h1
-        s2 = e0 * h1 + e1 * h0
-        Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1] = c2, s2, s2, -c2
-    else:                 # rotation taking ê to ĝ
-        c1 = e0 * h0 + e1 * h1
-        s1 = e0 * h1 - e1 * h0
-        Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 0], Q[:, 1, 1] = c1, -s1, s1, c1
-    A = (Sbar @ Q) * (lg / le)[:, None, None]
+    A = _local_affine(model, S, i, j, hp, f, orientation)
     origin = 0.5 * (qq[i] + qq[j]) - (A @ model.pair_mid[hp][:, :, None])[:, :, 0]
     pred = origin[:, None, :] + model.P[None, :, :] @ A.transpose(0, 2, 1)   # (H, N, 2)
     # smallest singular value of A × smallest dot spacing → position tolerance
