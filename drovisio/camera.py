@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from types import ModuleType
 from typing import Literal
 
 import cv2
@@ -38,6 +39,8 @@ MODEL_ALIASES: dict[str, LensModel] = {
     "equidistant": "fisheye",   # ROS camera_calibration's and Kalibr's name for it
 }
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+# central differences of one pixel: the point, then ±x, then ±y
+PIXEL_STENCIL = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
 
 def check_coefficients(model: str, n: int) -> str | None:
@@ -287,6 +290,70 @@ class Camera:
         if self.dist.size <= 12 and np.any(self.dist):
             xy = self._polish(xy, px.reshape(-1, 2))
         return xy
+
+    # -------------------------------------------------------------- compiled lens model
+    def _compiled_lens(self) -> tuple[ModuleType, np.ndarray] | None:
+        """The compiled lens model's module and this lens's 12 coefficients, or None when it
+        cannot serve (kernels off, fisheye, tilted sensor)."""
+        if self.is_fisheye:
+            return None
+        # numba is heavy to import (~1 s): loaded only when a fast path is asked for
+        from drovisio import _numba, camera_kernels
+        d12 = camera_kernels.lens_coefficients(self.dist)
+        if d12 is None or not _numba.enabled():
+            return None
+        return camera_kernels, d12
+
+    def normalize_local(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised coordinates (N, 2) of pixels (N, 2) and the local Jacobian
+        d(normalised)/d(pixel) (N, 2, 2).
+
+        The compiled lens model (:mod:`drovisio.camera_kernels`, Newton's method with the
+        analytic Jacobian) where it serves; else :meth:`normalize` and central differences
+        of one pixel. The two agree to ~1e-12.
+        """
+        c = np.asarray(pixels, np.float64).reshape(-1, 2)
+        lens = self._compiled_lens()
+        if lens is not None:
+            kernels, d12 = lens
+            return kernels.undistort(np.ascontiguousarray(c), float(self.K[0, 0]),
+                                     float(self.K[1, 1]), float(self.K[0, 2]),
+                                     float(self.K[1, 2]), d12)
+        n = c.shape[0]
+        pts = (c[None] + PIXEL_STENCIL[:, None, :]).reshape(-1, 2)
+        qn = self.normalize_fast(pts).reshape(5, n, 2)
+        J = np.stack([qn[1] - qn[2], qn[3] - qn[4]], axis=2) * 0.5        # (N, 2, 2)
+        return qn[0], J
+
+    def normalize_fast(self, pixels: np.ndarray) -> np.ndarray:
+        """:meth:`normalize` (pixels (N, 2) → normalised (N, 2)) with the compiled lens model
+        where it serves (see :meth:`normalize_local`)."""
+        px = np.asarray(pixels, np.float64).reshape(-1, 1, 2)
+        if px.shape[0] == 0:
+            return np.zeros((0, 2))
+        lens = self._compiled_lens()
+        if lens is not None:
+            kernels, d12 = lens
+            return kernels.undistort(np.ascontiguousarray(px, np.float64).reshape(-1, 2),
+                                     float(self.K[0, 0]), float(self.K[1, 1]),
+                                     float(self.K[0, 2]), float(self.K[1, 2]), d12)[0]
+        return self.normalize(px.reshape(-1, 2))
+
+    def project_fast(self, points_cam: np.ndarray) -> np.ndarray:
+        """:meth:`project` of camera-frame points (..., 3) to pixels (..., 2), with the
+        compiled lens model where it serves (see :meth:`normalize_local`)."""
+        Y = np.asarray(points_cam)
+        shp = Y.shape[:-1]
+        flat = Y.reshape(-1, 3)
+        if flat.shape[0] == 0:
+            return np.zeros(shp + (2,))
+        lens = self._compiled_lens()
+        if lens is not None:
+            kernels, d12 = lens
+            return kernels.project(np.ascontiguousarray(flat, np.float64), float(self.K[0, 0]),
+                                   float(self.K[1, 1]), float(self.K[0, 2]),
+                                   float(self.K[1, 2]), d12).reshape(shp + (2,))
+        return self.project(flat).reshape(shp + (2,))
 
     def cv_undistort(self, pixels: np.ndarray) -> np.ndarray:
         """Alias of :meth:`normalize` for code that mirrors ``cv2.undistortPoints``."""

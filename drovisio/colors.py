@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drovisio.detect.dots_color import clahe_value
+from drovisio.detect.dots.color import clahe_value
 from drovisio.layout import ColorSpec
 
 __all__ = ["ColorProposal", "propose_color", "propose_color_report", "selection_mask"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drovisio.colors import propose_color, propose_color_report, selection_mask
-from drovisio.detect.dots_color import threshold_color, to_hsv
+from drovisio.detect.dots.color import threshold_color, to_hsv
 from drovisio.layout import DEFAULT_PALETTE, ColorSpec
 
 

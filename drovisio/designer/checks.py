@@ -186,7 +186,7 @@ def _check_detectors(doc: DesignDocument, layout: MarkerLayout) -> list[Finding]
     if not layout.has_dots:
         return []
     # deferred: the dot detector loads its compiled kernels, which only this check needs
-    from drovisio.detect.dots_match import DotModel, LayoutNotSupported
+    from drovisio.detect.dots.model import DotModel, LayoutNotSupported
 
     names = list(dict.fromkeys(layout.dot_colors()))
     try:

@@ -20,6 +20,11 @@ import cv2
 import numpy as np
 
 from drovisio import _numba
+from drovisio.camera import Camera
+from drovisio.detect.aruco import ArucoBrickDetector
+from drovisio.detect.dots import DotsState, detect_dots
+from drovisio.detect.dots import kernels as K
+from drovisio.layout import load_layout, shipped_layouts_dir
 
 __all__ = ["warm_up", "warm_up_frame"]
 
@@ -38,9 +43,6 @@ def _pose(tilt_deg: float, x: float) -> np.ndarray:
 def warm_up_frame(camera=None):
     """(BGR frame, gravity in the camera frame, camera, dots layout, code layouts): a grey
     ground with one dot drick and one ArUco drick drawn on it."""
-    from drovisio.camera import Camera
-    from drovisio.layout import load_layout, shipped_layouts_dir
-
     cam = camera or Camera.drone_webcam()
     d = shipped_layouts_dir()
     dots = load_layout(d / "drick-dots-2x3.json")
@@ -94,10 +96,6 @@ def warm_up() -> dict:
     t0 = time.perf_counter()
     if not _numba.enabled():
         return {"seconds": 0.0, "dots": 0, "codes": 0, "compiled": False}
-    from drovisio.detect import dots_kernels as K
-    from drovisio.detect.aruco import ArucoBrickDetector
-    from drovisio.detect.dots import DotsState, detect_dots
-
     # kernels the frame may not reach (blob holes, a re-solve after a dropped dot), with the
     # argument types the detector passes
     K.polygon_areas(np.zeros((3, 2), np.int32), np.zeros(1, np.int64), np.array([3]))

@@ -7,8 +7,8 @@ dot — a circle on a plane — projects to an exact ellipse).
 :func:`ippe_batch` gives each brick's two planar solutions (IPPE from a normalised-DLT
 homography; SQPnP and :func:`mirror_pose` serve where three of four points are in a line).
 Then, for all bricks and both solutions in one batch (numpy here; the same arithmetic
-compiled in :mod:`drovisio.detect.dots_kernels` when numba is there — the choice is made
-inside each function, never by a caller):
+compiled in :mod:`drovisio.pose.batch_kernels` and :mod:`drovisio.pose.ippe_kernels` when
+numba is there — the choice is made inside each function, never by a caller):
 
 * :func:`refine_poses`: Levenberg–Marquardt on the reprojection error (after a dot was
   dropped or added);
@@ -31,8 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drovisio.detect import dots_kernels as _k
+from drovisio import _numba
 from drovisio.geometry import skew, so3_exp, so3_log
+from drovisio.pose import batch_kernels as _k
+from drovisio.pose import ippe_kernels
 
 __all__ = [
     "conic_center_offsets",
@@ -122,8 +124,8 @@ def ippe_batch(P: np.ndarray, q: np.ndarray, w: np.ndarray, plane_from_brick: np
     """
     Rpb = np.ascontiguousarray(plane_from_brick[:3, :3], np.float64)
     tpb = np.ascontiguousarray(plane_from_brick[:3, 3], np.float64)
-    if _k.enabled():
-        R, t, half_cost, ok = _k.ippe(*_f64(P, q, w), Rpb, tpb)
+    if _numba.enabled():
+        R, t, half_cost, ok = ippe_kernels.ippe(*_f64(P, q, w), Rpb, tpb)
         return R, t, 2.0 * half_cost, ok
     import cv2
 
@@ -244,7 +246,7 @@ def refine_poses(X: np.ndarray, q: np.ndarray, w: np.ndarray, R: np.ndarray, t: 
     Returns:
         (R, t, cost) with cost the weighted sum of squared residuals (normalised units²).
     """
-    if _k.enabled():
+    if _numba.enabled():
         return _k.refine_poses(*_f64(X, q, w, R, t), int(iterations), float(tol))
     R = np.array(R, np.float64)
     t = np.array(t, np.float64)
@@ -290,7 +292,7 @@ def gn_step(X: np.ndarray, q: np.ndarray, w: np.ndarray, R: np.ndarray, t: np.nd
         (R, t, cost) at the new poses; with ``return_normal`` also the normal matrices JᵀJ
         (B, 6, 6) (for the covariance) and each point's residual distance (B, N).
     """
-    if _k.enabled():
+    if _numba.enabled():
         R, t, cost, A, resid = _k.gn_step(*_f64(X, q, w, R, t))
         return (R, t, cost, A, resid) if return_normal else (R, t, cost)
     res, J, _ = _residual_jacobian(X, q, w, R, t)
@@ -332,7 +334,7 @@ def conic_center_offsets(X: np.ndarray, normals: np.ndarray, radii: np.ndarray,
     a conic whose centre is the pole of the line at infinity:
     c ∝ r²(e_z − n_c n_c,z) − Y Y_z, with Y = R·C + t and n_c = R·n (camera frame).
     """
-    if _k.enabled():
+    if _numba.enabled():
         return _k.conic_center_offsets(*_f64(X, normals, radii, R, t))
     Y = np.einsum("bij,bnj->bni", R, X) + t[:, None, :]
     nc = np.einsum("bij,bnj->bni", R, normals)
@@ -364,7 +366,7 @@ def pose_covariance_from_normal(A: np.ndarray, R: np.ndarray, t: np.ndarray,
         A: (B, 6, 6) normal matrices; R, t: the poses; rvec: (B, 3) their rotation vectors.
         sigma_norm: (B,) standard deviation of one image coordinate, normalised units.
     """
-    if _k.enabled():
+    if _numba.enabled():
         return _k.pose_covariance(*_f64(A, rvec, sigma_norm))
     try:
         cov = np.linalg.inv(A + 1e-18 * np.eye(6))
@@ -379,7 +381,7 @@ def pose_covariance_from_normal(A: np.ndarray, R: np.ndarray, t: np.ndarray,
 
 def rotation_vectors(R: np.ndarray) -> np.ndarray:
     """Rotation vectors (B, 3) of rotations (B, 3, 3) (OpenCV's Rodrigues for a few)."""
-    if _k.enabled():
+    if _numba.enabled():
         return _k.so3_log(*_f64(R))
     if R.shape[0] > 6:
         return so3_log(R)

@@ -19,7 +19,12 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
+
+from drovisio.pose import yaw_about_axis_deg
+from drovisio.pose.truth_errors import pose_errors
+from drovisio.study.protocol import FIGURES
 
 __all__ = ["ERRORS", "frame_errors", "summarise"]
 
@@ -47,10 +52,6 @@ def frame_errors(T_est: np.ndarray, T_true: np.ndarray, symmetric: bool = False,
         kind: ``"codes"`` or ``"dots"``: whose benchmark's measures (``drovisio bench aruco``
             or ``dots``) ``lateral_mm``, ``depth_pct`` and ``yaw_deg`` are.
     """
-    import cv2
-
-    from drovisio.pose import yaw_about_axis_deg
-
     R_true = T_true[:3, :3]
     R_est = T_est[:3, :3]
     if symmetric:
@@ -61,10 +62,7 @@ def frame_errors(T_est: np.ndarray, T_true: np.ndarray, symmetric: bool = False,
     rv = cv2.Rodrigues(R_est @ R_true.T)[0].ravel()
     rot = np.degrees(rv)
     if kind == "dots":
-        from drovisio.bench.dots import DotTruth, _pose_errors
-
-        truth = DotTruth("", T_true.tolist(), [], [], [])
-        yaw = _pose_errors(truth, T_est[:3, :3], T_est[:3, 3], symmetric)["yaw_deg"]
+        yaw = pose_errors(T_true.tolist(), T_est[:3, :3], T_est[:3, 3], symmetric)["yaw_deg"]
     else:
         yaw = yaw_about_axis_deg(R_true, R_est)
     out = {"x_cm": 100 * float(dt[0]), "y_cm": 100 * float(dt[1]),
@@ -83,8 +81,6 @@ def frame_errors(T_est: np.ndarray, T_true: np.ndarray, symmetric: bool = False,
 def summarise(records: list[dict]) -> list[dict]:
     """Per (figure, layout, method, step): frames, found, flagged ambiguous, median / p95 /
     max of the figure's error, and the share of frames within the budget."""
-    from drovisio.study.protocol import FIGURES
-
     groups: dict[tuple, list[dict]] = {}
     for r in records:
         groups.setdefault((r["figure"], r["layout"], r["method"], r["step"]), []).append(r)

@@ -19,14 +19,14 @@ from drovisio.detect.dots import (
     LayoutNotSupported,
     detect_dots,
 )
-from drovisio.detect.dots_blobs import (
+from drovisio.detect.dots.blobs import (
     BlobFilter,
     find_blobs,
     find_blobs_cc,
     find_blobs_multi,
     refine_centers,
 )
-from drovisio.detect.dots_color import (
+from drovisio.detect.dots.color import (
     ClaheMap,
     ColorClassifier,
     clahe_value,
@@ -34,7 +34,7 @@ from drovisio.detect.dots_color import (
     threshold_color,
     to_hsv,
 )
-from drovisio.detect.dots_match import DotModel, occluded_dots
+from drovisio.detect.dots.model import DotModel, occluded_dots
 from drovisio.geometry import so3_exp
 from drovisio.layout import (
     DEFAULT_PALETTE,
@@ -216,7 +216,7 @@ def test_unsupported_layouts_are_named(drick):
 
 def test_greedy_assignment_keeps_disjoint_bricks(drick):
     """Two bricks whose blob indices have equal sums must not be merged as duplicates."""
-    from drovisio.detect.dots_match import Hypotheses, assign_greedy
+    from drovisio.detect.dots.match import Hypotheses, assign_greedy
 
     m = DotModel.from_layout(drick, {"red": 0, "blue": 1})
     rows = np.array([[0, 11, 1, 3, 12, -1], [0, 11, 1, 3, 12, -1], [6, 13, 4, -1, -1, 5],

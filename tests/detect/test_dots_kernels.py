@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 
 from drovisio.camera import Camera
-from drovisio.detect import dots_kernels as K
 from drovisio.detect.dots import DotDetector
-from drovisio.detect.dots_blobs import _measure, find_blobs_multi, refine_centers
-from drovisio.detect.dots_color import ClaheMap, clean_mask
-from drovisio.detect.dots_match import (
+from drovisio.detect.dots import kernels as K
+from drovisio.detect.dots.blobs import _measure, find_blobs_multi, refine_centers
+from drovisio.detect.dots.color import ClaheMap, clean_mask
+from drovisio.detect.dots.match import (
     BlobGeometry,
     assign_greedy,
     generate_hypotheses,
-    occluded_dots,
 )
+from drovisio.detect.dots.model import occluded_dots
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.pose import batch as dots_pose
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
@@ -287,7 +287,7 @@ def test_detector_with_and_without_kernels(drick, cam, frames):
 
 def test_environment_switch():
     """``DROVISIO_NUMBA=0`` turns the kernels off (the numpy path, as on 32-bit ARM)."""
-    code = "from drovisio.detect import dots_kernels as K; print(K.AVAILABLE, K.enabled())"
+    code = "from drovisio.detect.dots import kernels as K; print(K.AVAILABLE, K.enabled())"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**os.environ, "DROVISIO_NUMBA": "0"}, check=True)
     assert out.stdout.split() == ["False", "False"]

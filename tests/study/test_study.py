@@ -137,7 +137,7 @@ def test_errors_are_the_benchmarks_own_on_the_same_frames():
 def test_dot_errors_are_the_dot_benchmarks_own():
     from types import SimpleNamespace
 
-    from drovisio.bench.dots import _pose_errors
+    from drovisio.bench.dots.scoring import truth_pose_errors as _pose_errors
     from drovisio.detect.dots import DotDetector
 
     cam = Camera.drone_webcam()

@@ -120,6 +120,7 @@ def threshold_color(hsv: np.ndarray, spec: ColorSpec) -> np.ndarray:
     for lo, hi in spec.cv_ranges():
         m = cv2.inRange(hsv, lo, hi)
         mask = m if mask is None else cv2.bitwise_or(mask, m)
+    assert mask is not None, "a palette colour has at least one range"
     return mask
 
 

@@ -25,7 +25,8 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from drovisio.detect import dots_kernels as _k
+from drovisio import _numba
+from drovisio.detect.dots import blobs_kernels as _k
 
 __all__ = [
     "BlobFilter",
@@ -163,7 +164,7 @@ def _measure(contours: list[np.ndarray], color, shape: tuple[int, int],
     also measures the convexity of the contours that ``flt``'s shape filters may keep."""
     if not contours:
         return Blobs.empty()
-    if _k.enabled():
+    if _numba.enabled():
         return _measure_compiled(contours, color, shape, index, flt)
     n_pts = np.array(list(map(len, contours)), np.int64)
     pts = np.concatenate(contours).reshape(-1, 2).astype(np.float64)
@@ -288,6 +289,37 @@ def find_blobs(mask: np.ndarray, color: int = 0, flt: BlobFilter | None = None
     return blobs, contours
 
 
+def _all_contours(masks: list, shape: tuple[int, int] | None
+                  ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray],
+                             tuple[int, int] | None]:
+    """The contours of every mask (see :func:`find_blobs_multi`) in one list, per mask the
+    colour of its contours and each contour's outline index (-1 for an outline), and the
+    frame's shape (given, or that of the first whole mask)."""
+    allc: list[np.ndarray] = []
+    colors: list[np.ndarray] = []
+    parent: list[np.ndarray] = []
+    shape = (shape[0], shape[1]) if shape is not None else None
+    for k, entry in enumerate(masks):
+        if entry is None:
+            continue
+        for mask in (entry if isinstance(entry, list) else [entry]):
+            offset = (0, 0)
+            if isinstance(mask, tuple):
+                mask, offset = mask
+            else:
+                shape = shape or (mask.shape[0], mask.shape[1])
+            cs, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE,
+                                        offset=offset)
+            if not cs:
+                continue
+            base = len(allc)
+            allc.extend(cs)
+            colors.append(np.full(len(cs), k, np.int64))
+            par = hier[0][:, 3].astype(np.int64)
+            parent.append(np.where(par >= 0, par + base, -1))
+    return allc, colors, parent, shape
+
+
 def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
                      shape: tuple[int, int] | None = None) -> tuple[Blobs, list[np.ndarray]]:
     """:func:`find_blobs` for one mask per colour, measured in one pass (colour k = mask k;
@@ -303,28 +335,7 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         (blobs, contours of all masks in one list — ``Blobs.contour`` indexes it).
     """
     flt = flt or BlobFilter()
-    allc: list[np.ndarray] = []
-    colors: list[np.ndarray] = []
-    parent: list[np.ndarray] = []
-    shape = tuple(shape) if shape is not None else None
-    for k, entry in enumerate(masks):
-        if entry is None:
-            continue
-        for mask in (entry if isinstance(entry, list) else [entry]):
-            offset = (0, 0)
-            if isinstance(mask, tuple):
-                mask, offset = mask
-            else:
-                shape = shape or mask.shape
-            cs, hier = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE,
-                                        offset=offset)
-            if not cs:
-                continue
-            base = len(allc)
-            allc.extend(cs)
-            colors.append(np.full(len(cs), k, np.int64))
-            par = hier[0][:, 3].astype(np.int64)
-            parent.append(np.where(par >= 0, par + base, -1))
+    allc, colors, parent, shape = _all_contours(masks, shape)
     if not allc:
         return Blobs.empty(), []
     parent_a = np.concatenate(parent)
@@ -336,32 +347,42 @@ def find_blobs_multi(masks: list, flt: BlobFilter | None = None, extra=None,
         return Blobs.empty(), allc
     col = np.concatenate(colors)[keep]
     kept = [allc[i] for i in keep.tolist()]
-    if _k.enabled():
+    assert shape is not None, "regions of a mask need the frame's shape"
+    if _numba.enabled():
         blobs = _measure_compiled(kept, col, shape, keep, flt, n_pts[keep])
     else:
         blobs = _measure(kept, col, shape, index=keep, flt=flt)
     holes = np.nonzero(~outer)[0]
     if holes.size:
-        pos = np.full(len(allc), -1, np.int64)
-        pos[keep] = np.arange(keep.size)
-        owner = pos[parent_a[holes]]
-        sel = owner >= 0
-        if np.any(sel):
-            hs = holes[sel]
-            if _k.enabled():
-                hc = [allc[h] for h in hs]
-                nh = n_pts[hs]
-                starts = np.zeros(hs.size, np.int64)
-                np.cumsum(nh[:-1], out=starts[1:])
-                hole_area = np.maximum(_k.polygon_areas(np.concatenate(hc).reshape(-1, 2),
-                                                        starts, nh) - nh / 2.0 + 1.0, 0.0)
-            else:
-                hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0,
-                                          0.0) for h in hs])
-            total = np.zeros(keep.size)
-            np.add.at(total, owner[sel], hole_area)
-            blobs.holes = total / np.maximum(blobs.area, 1.0)
+        _measure_holes(blobs, allc, holes, parent_a, keep, n_pts)
     return filter_blobs(blobs, flt, allc, extra), allc
+
+
+def _measure_holes(blobs: Blobs, allc: list[np.ndarray], holes: np.ndarray,
+                   parent_a: np.ndarray, keep: np.ndarray, n_pts: np.ndarray) -> None:
+    """Set ``blobs.holes``: the area of the holes of each kept outline (index ``keep`` into
+    ``allc``) over its area. ``holes``: indices of the hole contours, ``parent_a``: each
+    contour's outline (-1 for outlines), ``n_pts``: each contour's point count."""
+    pos = np.full(len(allc), -1, np.int64)
+    pos[keep] = np.arange(keep.size)
+    owner = pos[parent_a[holes]]
+    sel = owner >= 0
+    if not np.any(sel):
+        return
+    hs = holes[sel]
+    if _numba.enabled():
+        hc = [allc[h] for h in hs]
+        nh = n_pts[hs]
+        starts = np.zeros(hs.size, np.int64)
+        np.cumsum(nh[:-1], out=starts[1:])
+        hole_area = np.maximum(_k.polygon_areas(np.concatenate(hc).reshape(-1, 2),
+                                                starts, nh) - nh / 2.0 + 1.0, 0.0)
+    else:
+        hole_area = np.array([max(cv2.contourArea(allc[h]) - len(allc[h]) / 2.0 + 1.0, 0.0)
+                              for h in hs])
+    total = np.zeros(keep.size)
+    np.add.at(total, owner[sel], hole_area)
+    blobs.holes = total / np.maximum(blobs.area, 1.0)
 
 
 def _shape_ok(blobs: Blobs, flt: BlobFilter) -> np.ndarray:
@@ -464,7 +485,7 @@ def refine_centers(image_bgr: np.ndarray, blobs: Blobs, index: np.ndarray | None
     """
     idx = np.arange(len(blobs)) if index is None else np.asarray(index, np.int64)
     n = idx.size
-    if _k.enabled() and n:
+    if _numba.enabled() and n:
         return _k.refine_centers(np.ascontiguousarray(image_bgr), blobs.x[idx], blobs.y[idx],
                                  blobs.a[idx], blobs.b[idx], blobs.cov[idx], float(margin_px),
                                  _WINDOW_SIZES[-1])
