@@ -13,6 +13,13 @@ import time
 from dataclasses import dataclass
 
 from drovisio.autopilot.check import Facts, param_names
+from drovisio.autopilot.connection import (
+    AddressError,
+    check_host,
+    mavutil2,
+    parse_connection,
+    split_connection,
+)
 from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, ParamReader, StreamKeeper
 from drovisio.errors import InputError
 
@@ -46,14 +53,11 @@ def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,
             connection and what to look at).
         InputError: a connection string that cannot be opened.
     """
-    from drovisio.sinks.base import SinkError
-    from drovisio.sinks.mavlink import _check_host, _split_connection, mavutil2, parse_mavlink_spec
-
     try:
-        conn_str, ids = parse_mavlink_spec(connection)
-        dev, baud = _split_connection(conn_str)
-        _check_host(connection, dev)
-    except SinkError as e:
+        conn_str, ids = parse_connection(connection)
+        dev, baud = split_connection(conn_str)
+        check_host(connection, dev)
+    except AddressError as e:
         raise InputError(str(e)) from None
     mavutil = mavutil2()
     try:
