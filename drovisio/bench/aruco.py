@@ -390,18 +390,7 @@ def _setup(args: argparse.Namespace) -> _Bench:
     except ValueError:
         raise _Refused(f"--bricks: {args.bricks!r} is not a list of whole numbers (e.g. "
                        "1,4,16)") from None
-    try:
-        layouts = load_layouts(paths)
-    except (LayoutError, ValueError) as e:
-        raise _Refused(str(e)) from None
-    coded = [lay for lay in layouts if lay.has_codes]
-    if not coded:
-        raise _Refused("no layout with ArUco codes given")
-    if args.dictionary:
-        try:
-            coded = [with_dictionary(lay, args.dictionary) for lay in coded]
-        except (LayoutError, ValueError) as e:
-            raise _Refused(f"--dictionary: {e}") from None
+    coded = _coded_layouts(paths, args.dictionary)
     peer = None
     if args.apriltag:
         peer, why_not = _apriltag_detector(sorted({d for lay in coded
@@ -415,6 +404,27 @@ def _setup(args: argparse.Namespace) -> _Bench:
     return _Bench(counts, coded, ArucoBrickDetector(cam, coded), ArucoBrickDetector(cam, coded),
                   plain_detector(coded[0].dictionaries()[0]), peer, owners, clock,
                   max(1, args.repeat), cam.width, cam.height)
+
+
+def _coded_layouts(paths: list[Path], dictionary: str | None) -> list[MarkerLayout]:
+    """The layouts that have codes, with ``dictionary`` given to every code when set.
+
+    Raises:
+        _Refused: a layout that cannot be read, none with codes, an unknown dictionary.
+    """
+    try:
+        layouts = load_layouts(paths)
+    except (LayoutError, ValueError) as e:
+        raise _Refused(str(e)) from None
+    coded = [lay for lay in layouts if lay.has_codes]
+    if not coded:
+        raise _Refused("no layout with ArUco codes given")
+    if dictionary:
+        try:
+            coded = [with_dictionary(lay, dictionary) for lay in coded]
+        except (LayoutError, ValueError) as e:
+            raise _Refused(f"--dictionary: {e}") from None
+    return coded
 
 
 def _run(bench: _Bench, args: argparse.Namespace, corner_acc: dict[str, list[float]]) -> Rows:

@@ -34,9 +34,16 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from drovisio.camera import Camera
+from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
+from drovisio.detect.corners import normalized_grid
 from drovisio.errors import InputError
+from drovisio.images import IMAGE_SUFFIXES
+from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
+from drovisio.sources import list_folder
 
 DEFAULT_DICTIONARIES = ("DICT_4X4_50", "DICT_6X6_250", "DICT_APRILTAG_36h11")
 #: pupil-apriltags may crash the process when a detector is freed while another is alive:
@@ -50,11 +57,6 @@ def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
     Raises:
         InputError: The path is missing, not a video or holds no readable frame.
     """
-    import cv2
-
-    from drovisio.images import IMAGE_SUFFIXES
-    from drovisio.sources import list_folder
-
     if not path.exists():
         raise InputError(f"{path}: --video: no such file or folder; give a video file or a "
                          "folder of images")
@@ -116,13 +118,6 @@ def run(path: Path, dictionaries=DEFAULT_DICTIONARIES, max_frames: int = 300,
             their size.
         apriltag: Also time AprilTag 3 on tag36h11 (when installed).
     """
-    import cv2
-
-    from drovisio.camera import Camera
-    from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
-    from drovisio.detect.corners import normalized_grid
-    from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
-
     frames = read_frames(path, max_frames)
     H, W = frames[0].shape[:2]
     if camera is None:

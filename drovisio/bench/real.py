@@ -227,11 +227,16 @@ def _calibrations(images: list[Path], grays: list[np.ndarray], size: tuple[int, 
         model = ("fisheye" if fisheye else "plumb_bob") if model == "reference" else model
         got, why = _calibrate_cli(images, f"chessboard:{size[0]}x{size[1]}", model)
         calib[f"drovisio_{model}"] = got if got is not None else {"failed": why}
+    _errors_vs_reference(calib, refd)
+    return calib
+
+
+def _errors_vs_reference(calib: dict[str, Any], refd: dict[str, Any]) -> None:
+    """Each calibration's fx, fy, cx, cy against the reference's, in percent."""
     for v in calib.values():
         if "fx" in v and "fx" in refd and v is not refd:
             v["error_pct"] = {k: 100.0 * (v[k] - refd[k]) / refd[k]
                               for k in ("fx", "fy", "cx", "cy")}
-    return calib
 
 
 def _opencv_calibration(pts_obj: list[np.ndarray], pts_img: list[np.ndarray],

@@ -18,6 +18,8 @@ __all__ = ["Frame", "FrameSource", "SourceState", "SourceStatus"]
 
 
 class SourceState(str, Enum):
+    """Where a :class:`FrameSource` stands (its status's ``state``)."""
+
     STARTING = "starting"
     LIVE = "live"
     LOST = "lost"        # retrying
@@ -51,6 +53,8 @@ _FINAL = (SourceState.ENDED, SourceState.FAILED, SourceState.STOPPED)
 
 @dataclass
 class SourceStatus:
+    """A :class:`FrameSource`'s counters and state, for status pages and JSON."""
+
     label: str
     state: str
     since: float
