@@ -268,45 +268,66 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
     rep: dict[str, Any] = {"kind": "charuco", "folder": str(folder), "camera": str(cam_path),
                            "dictionary": dictionary, "board_squares": [int(cols), int(rows)],
                            "square_m": square, "marker_m": marker, "photos": len(images)}
-    n = {"drovisio": 0, "opencv": 0, "charuco_corners": 0, "photos_posed": 0,
-         "ambiguous": 0}
-    e_ours: list[float] = []
-    e_cv: list[float] = []
-    dt_mm: list[float] = []
-    dr_deg: list[float] = []
-    times: dict[str, list[float]] = {"drovisio": [], "opencv": [], "charuco": []}
+    fig = _CharucoFigures()
     for g in grays:
-        poses, t = timed(partial(det.detect, g), repeat)
-        times["drovisio"].append(t)
-        (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
-        times["opencv"].append(t)
-        (cc, cid, _, _), t = timed(partial(ch_det.detectBoard, g), repeat)
-        times["charuco"].append(t)
-        codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
-        n["drovisio"] += len(codes)
-        n["opencv"] += 0 if ci is None else len(ci)
-        if cid is None or len(cid) < 6:
-            continue
-        n["charuco_corners"] += len(cid)
-        ok, rv, tv = cv2.solvePnP(chess[np.ravel(cid)], np.asarray(cc, np.float64).reshape(-1, 2),
-                                  camera.K, camera.dist)
-        if not ok:
-            continue
-        for c in codes:
-            p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
-            e_ours.extend(np.linalg.norm(p.reshape(4, 2) - c.refined.corners_px, axis=1))
-        if ci is not None:
-            e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
-        if poses:
-            b = poses[0]
-            n["photos_posed"] += 1
-            n["ambiguous"] += bool(b.ambiguous)
-            dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
-            dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
-    rep.update(codes=n, corners_vs_board_px={"drovisio": stats(e_ours), "opencv": stats(e_cv)},
-               pose_vs_board={"trans_mm": stats(dt_mm), "rot_deg": stats(dr_deg)},
-               ms_per_photo=_ms_per_photo(times))
+        _charuco_photo(g, camera, det, cv_det, ch_det, obj, chess, repeat, fig)
+    rep.update(codes=fig.n,
+               corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv)},
+               pose_vs_board={"trans_mm": stats(fig.dt_mm), "rot_deg": stats(fig.dr_deg)},
+               ms_per_photo=_ms_per_photo(fig.times))
     return rep
+
+
+@dataclass
+class _CharucoFigures:
+    """What the ChArUco photos give, gathered photo by photo."""
+
+    n: dict[str, int] = field(default_factory=lambda: {
+        "drovisio": 0, "opencv": 0, "charuco_corners": 0, "photos_posed": 0, "ambiguous": 0})
+    e_ours: list[float] = field(default_factory=list)
+    """Distances (px) of Drovisio's code corners from the board pose's prediction."""
+    e_cv: list[float] = field(default_factory=list)
+    dt_mm: list[float] = field(default_factory=list)
+    """The brick pose's translation from the board pose's, mm."""
+    dr_deg: list[float] = field(default_factory=list)
+    times: dict[str, list[float]] = field(default_factory=lambda: {
+        "drovisio": [], "opencv": [], "charuco": []})
+
+
+def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
+                   cv_det: cv2.aruco.ArucoDetector, ch_det: cv2.aruco.CharucoDetector,
+                   obj: dict[int, np.ndarray], chess: np.ndarray, repeat: int,
+                   fig: _CharucoFigures) -> None:
+    """One photo: each method timed; with at least 6 ChArUco corners, the board posed from
+    them and both methods' code corners and Drovisio's brick pose against it."""
+    n, times = fig.n, fig.times
+    poses, t = timed(partial(det.detect, g), repeat)
+    times["drovisio"].append(t)
+    (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
+    times["opencv"].append(t)
+    (cc, cid, _, _), t = timed(partial(ch_det.detectBoard, g), repeat)
+    times["charuco"].append(t)
+    codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
+    n["drovisio"] += len(codes)
+    n["opencv"] += 0 if ci is None else len(ci)
+    if cid is None or len(cid) < 6:
+        return
+    n["charuco_corners"] += len(cid)
+    ok, rv, tv = cv2.solvePnP(chess[np.ravel(cid)], np.asarray(cc, np.float64).reshape(-1, 2),
+                              camera.K, camera.dist)
+    if not ok:
+        return
+    for c in codes:
+        p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
+        fig.e_ours.extend(np.linalg.norm(p.reshape(4, 2) - c.refined.corners_px, axis=1))
+    if ci is not None:
+        fig.e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
+    if poses:
+        b = poses[0]
+        n["photos_posed"] += 1
+        n["ambiguous"] += bool(b.ambiguous)
+        fig.dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
+        fig.dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
 
 
 def _opencv_vs_board(camera: Camera, obj: dict[int, np.ndarray], cq: Any, ci: np.ndarray,
