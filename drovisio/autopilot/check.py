@@ -147,89 +147,118 @@ def _param(f: Facts, e: Expected, want: float | None, out: list[Finding]) -> Non
 
 
 def evaluate(f: Facts) -> list[Finding]:
-    """One finding per item (see the module doc)."""
-    out: list[Finding] = []
-    names = {3: "ArduPilot", 12: "PX4"}
-    if f.autopilot is None:
-        out.append(Finding("autopilot", "unknown", "no HEARTBEAT from a flight controller"))
-    else:
-        kind = names.get(f.autopilot, f"MAV_AUTOPILOT {f.autopilot}")
-        sends = "ardupilot" if f.autopilot == 3 else "px4" if f.autopilot == 12 else None
-        if sends == f.flavour:
-            out.append(Finding("autopilot", "ok", f"{kind} (system {f.system}); Drovisio sends "
-                               + ("BODY_FRD targets, mount applied" if f.flavour == "ardupilot"
-                                  else "LOCAL_NED targets, mount and attitude applied")))
-        else:
-            fix = f"--autopilot {sends}" if sends else "a PX4 or ArduPilot flight controller"
-            out.append(Finding("autopilot", "wrong",
-                               f"{kind} (system {f.system}) but Drovisio sends the {f.flavour} "
-                               f"flavour → run with {fix}: the other flavour's frame is "
-                               "ignored or misread"))
+    """One finding per item (see the module doc), in a fixed order: the autopilot, its
+    parameters (and serial ports), the streams Drovisio asked for, latency, detection rate."""
+    out = [_autopilot_finding(f)]
     lag = plnd_lag_for(f.latency_s) if f.latency_s is not None else None
     if f.flavour == "ardupilot":
-        enabled = f.params.get("PLND_ENABLED")
-        for e in ARDUPILOT:
-            if e.name != "PLND_ENABLED" and enabled is not None and enabled != 1 \
-                    and e.name not in f.params:
-                out.append(Finding(e.name, "unknown", "hidden while PLND_ENABLED is 0: set "
-                                   "PLND_ENABLED=1, refresh the parameters and check again"))
-                continue
-            if e.name == "PLND_LAG":
-                lat_ms = (f.latency_s or 0.0) * 1e3
-                if lag is not None and f.params.get(e.name) is not None:
-                    # one rounding step or a quarter of the lag: ArduPilot's 10 ms grain
-                    tol = max(0.01, 0.25 * lag)
-                    have = f.params[e.name]
-                    if abs(have - lag) <= tol:
-                        out.append(Finding(e.name, "ok", f"{_fmt(have)} s for a measured "
-                                           f"{lat_ms:.0f} ms"))
-                    else:
-                        out.append(Finding(e.name, "wrong", f"{_fmt(have)} → set {lag:.2f}: "
-                                           f"measured capture-to-send latency "
-                                           f"{lat_ms:.0f} ms. {e.why}"))
-                    continue
-                _param(f, e, lag, out)
-                continue
-            _param(f, e, e.value, out)
+        out += _ardupilot_params(f, lag)
         if f.serial and f.params_asked:
-            ports = {p: f.params[p] for p in SERIAL_PORTS if p in f.params}
-            mav2 = [p for p, v in ports.items() if v == MAVLINK2]
-            mav1 = [p for p, v in ports.items() if v == 1]
-            if mav2 and not mav1:
-                out.append(Finding("SERIALn_PROTOCOL", "ok", ", ".join(mav2) + " = 2 (MAVLink 2)"))
-            elif mav1:
-                out.append(Finding("SERIALn_PROTOCOL", "wrong" if not mav2 else "warn",
-                                   ", ".join(f"{p} = 1" for p in mav1) + " → set 2 on the port "
-                                   "Drovisio is wired to: LANDING_TARGET's x, y, z and q are "
-                                   "MAVLink 2 fields"))
-            else:
-                out.append(Finding("SERIALn_PROTOCOL", "wrong", "no serial port speaks MAVLink "
-                                   "2 → set SERIALn_PROTOCOL = 2 on Drovisio's port"))
+            out.append(_serial_ports(f))
     else:
-        for e in PX4:
-            want: float | None = e.value
-            if e.name == "PLD_FAPPR_ALT":
-                want = None if f.blind_height_m is None else round(f.blind_height_m + 0.05, 2)
-                have_alt = f.params.get(e.name)
-                if want is not None and have_alt is not None:
-                    have = have_alt
-                    out.append(Finding(e.name, "ok" if have >= want - 1e-6 else "wrong",
-                                       f"{_fmt(have)}" if have >= want - 1e-6 else
-                                       f"{_fmt(have)} → set {want:.2f}: the brick leaves the "
-                                       f"picture {f.blind_height_m:.2f} m above it. {e.why}"))
-                    continue
-                _param(f, e, want, out)
+        out += _px4_params(f)
+    out += _streams(f)
+    out.append(_latency(f, lag))
+    out.append(_detection_rate(f))
+    return out
+
+
+def _autopilot_finding(f: Facts) -> Finding:
+    """Is there a flight controller, and of the flavour Drovisio sends?"""
+    if f.autopilot is None:
+        return Finding("autopilot", "unknown", "no HEARTBEAT from a flight controller")
+    names = {3: "ArduPilot", 12: "PX4"}
+    kind = names.get(f.autopilot, f"MAV_AUTOPILOT {f.autopilot}")
+    sends = "ardupilot" if f.autopilot == 3 else "px4" if f.autopilot == 12 else None
+    if sends == f.flavour:
+        return Finding("autopilot", "ok", f"{kind} (system {f.system}); Drovisio sends "
+                       + ("BODY_FRD targets, mount applied" if f.flavour == "ardupilot"
+                          else "LOCAL_NED targets, mount and attitude applied"))
+    fix = f"--autopilot {sends}" if sends else "a PX4 or ArduPilot flight controller"
+    return Finding("autopilot", "wrong",
+                   f"{kind} (system {f.system}) but Drovisio sends the {f.flavour} "
+                   f"flavour → run with {fix}: the other flavour's frame is "
+                   "ignored or misread")
+
+
+def _ardupilot_params(f: Facts, lag: float | None) -> list[Finding]:
+    """ArduPilot's precision-landing parameters, PLND_LAG against the measured latency."""
+    out: list[Finding] = []
+    enabled = f.params.get("PLND_ENABLED")
+    for e in ARDUPILOT:
+        if e.name != "PLND_ENABLED" and enabled is not None and enabled != 1 \
+                and e.name not in f.params:
+            out.append(Finding(e.name, "unknown", "hidden while PLND_ENABLED is 0: set "
+                               "PLND_ENABLED=1, refresh the parameters and check again"))
+        elif e.name == "PLND_LAG":
+            _plnd_lag(f, e, lag, out)
+        else:
+            _param(f, e, e.value, out)
+    return out
+
+
+def _plnd_lag(f: Facts, e: Expected, lag: float | None, out: list[Finding]) -> None:
+    """PLND_LAG within one rounding step or a quarter of the lag the latency asks for."""
+    have = f.params.get(e.name)
+    if lag is None or have is None:
+        _param(f, e, lag, out)
+        return
+    lat_ms = (f.latency_s or 0.0) * 1e3
+    tol = max(0.01, 0.25 * lag)   # ArduPilot's 10 ms grain
+    if abs(have - lag) <= tol:
+        out.append(Finding(e.name, "ok", f"{_fmt(have)} s for a measured "
+                           f"{lat_ms:.0f} ms"))
+    else:
+        out.append(Finding(e.name, "wrong", f"{_fmt(have)} → set {lag:.2f}: "
+                           f"measured capture-to-send latency "
+                           f"{lat_ms:.0f} ms. {e.why}"))
+
+
+def _serial_ports(f: Facts) -> Finding:
+    """A serial link needs MAVLink 2 on its port (LANDING_TARGET's extension fields)."""
+    ports = {p: f.params[p] for p in SERIAL_PORTS if p in f.params}
+    mav2 = [p for p, v in ports.items() if v == MAVLINK2]
+    mav1 = [p for p, v in ports.items() if v == 1]
+    if mav2 and not mav1:
+        return Finding("SERIALn_PROTOCOL", "ok", ", ".join(mav2) + " = 2 (MAVLink 2)")
+    if mav1:
+        return Finding("SERIALn_PROTOCOL", "wrong" if not mav2 else "warn",
+                       ", ".join(f"{p} = 1" for p in mav1) + " → set 2 on the port "
+                       "Drovisio is wired to: LANDING_TARGET's x, y, z and q are "
+                       "MAVLink 2 fields")
+    return Finding("SERIALn_PROTOCOL", "wrong", "no serial port speaks MAVLink "
+                   "2 → set SERIALn_PROTOCOL = 2 on Drovisio's port")
+
+
+def _px4_params(f: Facts) -> list[Finding]:
+    """PX4's precision-landing parameters; the final-approach altitude against the height
+    at which the brick leaves the picture, the horizontal acceptance radius as a bound."""
+    out: list[Finding] = []
+    for e in PX4:
+        want: float | None = e.value
+        have = f.params.get(e.name)
+        if e.name == "PLD_FAPPR_ALT":
+            want = None if f.blind_height_m is None else round(f.blind_height_m + 0.05, 2)
+            if want is not None and have is not None:
+                high_enough = have >= want - 1e-6
+                out.append(Finding(e.name, "ok" if high_enough else "wrong",
+                                   f"{_fmt(have)}" if high_enough else
+                                   f"{_fmt(have)} → set {want:.2f}: the brick leaves the "
+                                   f"picture {f.blind_height_m:.2f} m above it. {e.why}"))
                 continue
-            if e.name == "PLD_HACC_RAD":
-                have_r = f.params.get(e.name)
-                if have_r is not None and want is not None:
-                    have = have_r
-                    out.append(Finding(e.name, "ok" if have <= want + 1e-6 else "wrong",
-                                       _fmt(have) if have <= want + 1e-6 else
-                                       f"{_fmt(have)} → set {_fmt(want)}: {e.why}"))
-                    continue
-            _param(f, e, want, out)
-    # streams Drovisio asked for
+        elif e.name == "PLD_HACC_RAD" and have is not None and want is not None:
+            tight_enough = have <= want + 1e-6
+            out.append(Finding(e.name, "ok" if tight_enough else "wrong",
+                               _fmt(have) if tight_enough else
+                               f"{_fmt(have)} → set {_fmt(want)}: {e.why}"))
+            continue
+        _param(f, e, want, out)
+    return out
+
+
+def _streams(f: Facts) -> list[Finding]:
+    """The streams Drovisio asked for, at the rates its pose needs."""
+    out: list[Finding] = []
     for name, hz, need, why in (
             ("ATTITUDE", f.attitude_hz, 5.0, "roll and pitch for the gravity prior (without "
              "them poses assume level flight)"),
@@ -246,29 +275,35 @@ def evaluate(f: Facts) -> list[Finding]:
                                f"≥ {need:.0f} Hz for {why}) → allow the companion's stream "
                                "requests, or set the port's stream rates (ArduPilot "
                                "MAVn_EXTRA1/MAVn_POSITION or SRn_*; PX4 MAV_n_MODE)"))
-    if f.latency_s is None:
-        out.append(Finding("latency", "unknown", "not measured: give --source, --camera and "
-                           "--layout to measure it on the current scene"))
-    else:
-        out.append(Finding("latency", "ok", f"capture to send {f.latency_s * 1e3:.0f} ms → "
-                           f"PLND_LAG {lag:.2f}"))
-    if f.detection_hz is None:
-        out.append(Finding("detection rate", "unknown", "not measured: give --source, "
-                           "--camera and --layout, the brick in view"))
-    elif f.detection_hz < REQUIRED_RATE_HZ:
-        out.append(Finding("detection rate", "wrong", f"target measured {f.detection_hz:.1f} "
-                           f"times a second: below {REQUIRED_RATE_HZ:g} Hz the autopilot's "
-                           "precision-landing filter never initialises (it needs an update "
-                           "at least every 0.5 s for 2 s) → a faster board, fewer layouts, "
-                           "a lower resolution, or more light"))
-    elif f.detection_hz < 1.5 * REQUIRED_RATE_HZ:
-        out.append(Finding("detection rate", "warn", f"{f.detection_hz:.1f} Hz: just above "
-                           f"the filter's {REQUIRED_RATE_HZ:g} Hz need; one missed detection "
-                           "breaks its 0.5 s chain"))
-    else:
-        out.append(Finding("detection rate", "ok", f"{f.detection_hz:.1f} Hz (the filter "
-                           f"needs {REQUIRED_RATE_HZ:g} Hz)"))
     return out
+
+
+def _latency(f: Facts, lag: float | None) -> Finding:
+    if f.latency_s is None:
+        return Finding("latency", "unknown", "not measured: give --source, --camera and "
+                       "--layout to measure it on the current scene")
+    return Finding("latency", "ok", f"capture to send {f.latency_s * 1e3:.0f} ms → "
+                   f"PLND_LAG {lag:.2f}")
+
+
+def _detection_rate(f: Facts) -> Finding:
+    """The filter initialises only on updates at least every 0.5 s for 2 s."""
+    hz = f.detection_hz
+    if hz is None:
+        return Finding("detection rate", "unknown", "not measured: give --source, "
+                       "--camera and --layout, the brick in view")
+    if hz < REQUIRED_RATE_HZ:
+        return Finding("detection rate", "wrong", f"target measured {hz:.1f} "
+                       f"times a second: below {REQUIRED_RATE_HZ:g} Hz the autopilot's "
+                       "precision-landing filter never initialises (it needs an update "
+                       "at least every 0.5 s for 2 s) → a faster board, fewer layouts, "
+                       "a lower resolution, or more light")
+    if hz < 1.5 * REQUIRED_RATE_HZ:
+        return Finding("detection rate", "warn", f"{hz:.1f} Hz: just above "
+                       f"the filter's {REQUIRED_RATE_HZ:g} Hz need; one missed detection "
+                       "breaks its 0.5 s chain")
+    return Finding("detection rate", "ok", f"{hz:.1f} Hz (the filter "
+                   f"needs {REQUIRED_RATE_HZ:g} Hz)")
 
 
 def verdict(findings: list[Finding]) -> int:

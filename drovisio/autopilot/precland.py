@@ -37,6 +37,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from drovisio.autopilot.blind import blind_height
+from drovisio.autopilot.check import REQUIRED_RATE_HZ
 from drovisio.camera import Camera
 from drovisio.layout import MarkerLayout
 from drovisio.mount import BODY_FROM_ALIGNED_BRICK, Mount
@@ -386,9 +388,6 @@ def landing_report(camera: Camera, mount: Mount, layout: MarkerLayout,
                    params: LandingParams | None = None, runs: int = 20) -> list[str]:
     """Lines for people: the landing with this mount and with the camera straight down at the
     same place, the blind heights, and a warning below the filter's 2 Hz."""
-    from drovisio.autopilot.blind import blind_height
-    from drovisio.autopilot.check import REQUIRED_RATE_HZ
-
     p = params or LandingParams()
     a = mount.angles()
     down = Mount.from_angles(0.0, 0.0, a["roll_deg"], a["offset_m"])

@@ -49,20 +49,41 @@ import argparse
 import json
 import math
 import pickle
-import statistics
 import sys
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, cast
 
+import cv2
 import numpy as np
+import trimesh
 
+from drovisio.bench import aruco_video
+from drovisio.bench.aruco_report import FLIP_DEG, MIN_CODE_PX, SIZE_BINS, Rows, Stats, report
 from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
+from drovisio.detect.aruco import ArucoBrickDetector, CodeDetection, plain_detector
+from drovisio.detect.corners import normalized_grid
+from drovisio.detect.result import BrickPose
+from drovisio.errors import InputError
+from drovisio.fileio import atomic_write_bytes, atomic_write_text, check_output_path
+from drovisio.layout import (
+    LayoutError,
+    MarkerLayout,
+    aruco_dictionary_id,
+    load_layouts,
+    shipped_layouts_dir,
+    with_dictionary,
+)
+from drovisio.pose import rotation_angle_deg, yaw_about_axis_deg
+from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
+from drovisio.study.methods import APRILTAG_FAMILIES, apriltag_detector
+from drovisio.synth import BrickTruth, Scene, brick_mesh_for, render
 
-FLIP_DEG = 20.0
-MIN_CODE_PX = 14.0
-#: recall is also reported by the size of a brick's largest countable code (px across)
-SIZE_BINS = ((MIN_CODE_PX, 20.0, "14-20 px"), (20.0, 30.0, "20-30 px"), (30.0, math.inf, ">30 px"))
+__all__ = ["FLIP_DEG", "MIN_CODE_PX", "SIZE_BINS", "Frame", "Stats", "main"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -121,37 +142,38 @@ def _parser() -> argparse.ArgumentParser:
 @dataclass
 class Frame:
     image: np.ndarray
-    bricks: list  # BrickTruth
+    """BGR uint8 (H, W, 3)."""
+    bricks: list[BrickTruth]
     gravity: np.ndarray
-    visible: dict  # marker id -> fraction of sample points seen
+    """(3,) gravity in the camera frame."""
+    visible: dict[int, float]
+    """marker id -> fraction of sample points seen"""
     blur: float
+    """Blur sigma of the frame, px."""
 
 
-def _visibility(scene) -> dict[int, float]:
+def _placed(mesh: Any, world_from_object: np.ndarray) -> Any:
+    """A copy of a trimesh mesh, moved into the world."""
+    m = mesh.copy()
+    m.apply_transform(world_from_object)
+    return m
+
+
+def _visibility(scene: Scene) -> dict[int, float]:
     """Fraction of 9 points of each code (corners, half-way, centre) not hidden by a mesh."""
-    import trimesh
-
-    from drovisio.synth import brick_mesh_for
-
-    meshes = []
-    for b in scene.bricks:
-        m = brick_mesh_for(b.layout).copy()
-        m.apply_transform(b.world_from_brick)
-        meshes.append(m)
-    for pr in scene.props:
-        m = pr.mesh.copy()
-        m.apply_transform(pr.world_from_object)
-        meshes.append(m)
+    meshes = [_placed(brick_mesh_for(b.layout), b.world_from_brick) for b in scene.bricks]
+    meshes += [_placed(pr.mesh, pr.world_from_object) for pr in scene.props]
     out: dict[int, float] = {}
     if not meshes:
         return out
-    big = trimesh.util.concatenate(meshes)
+    big: Any = trimesh.util.concatenate(meshes)
     eye = np.linalg.inv(scene.camera_from_world)[:3, 3]
     for b in scene.bricks:
-        if not b.layout.has_codes:
+        lay = cast(MarkerLayout, b.layout)
+        if not lay.has_codes:
             continue
-        for slot, c in b.layout.code_corners_m().items():
-            mid = b.layout.marker_id(b.instance, slot)
+        for slot, c in lay.code_corners_m().items():
+            mid = lay.marker_id(cast(int, b.instance), slot)  # a coded brick has one
             ctr = c.mean(axis=0)
             pts = np.concatenate([ctr + 0.97 * (c - ctr), ctr + 0.5 * (c - ctr), ctr[None]])
             pw = pts @ b.world_from_brick[:3, :3].T + b.world_from_brick[:3, 3]
@@ -168,11 +190,8 @@ def _visibility(scene) -> dict[int, float]:
     return out
 
 
-def _frames(kind: str, n_bricks: int, count: int, seed0: int, layouts, ss: int,
-            cache: Path | None):
-    from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
-    from drovisio.synth import render
-
+def _frames(kind: str, n_bricks: int, count: int, seed0: int,
+            layouts: list[MarkerLayout], ss: int, cache: Path | None) -> Iterator[Frame]:
     spec = SceneSpec(layouts=layouts, n_bricks=n_bricks, props=4 if n_bricks == 0 else 0)
     names = "+".join(lay.name for lay in layouts)
     for i in range(count):
@@ -192,8 +211,6 @@ def _frames(kind: str, n_bricks: int, count: int, seed0: int, layouts, ss: int,
         fr = Frame(r.image, r.bricks, gravity_in_camera(r.camera_from_world),
                    _visibility(scene), float(fx.blur_sigma_px))
         if path is not None:
-            from drovisio.fileio import atomic_write_bytes
-
             # beside and renamed: a run killed mid-write leaves no half pickle behind
             atomic_write_bytes(path, pickle.dumps(fr), make_parents=True)
         yield fr
@@ -201,11 +218,12 @@ def _frames(kind: str, n_bricks: int, count: int, seed0: int, layouts, ss: int,
 
 # ----------------------------------------------------------------------------- metrics
 def _size_px(c: np.ndarray) -> float:
+    """Square root of the area of the (4, 2) polygon ``c``, px."""
     x, y = c[:, 0], c[:, 1]
     return math.sqrt(0.5 * abs(float(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))))
 
 
-def _countable(truth, fr: Frame, w: int, h: int) -> float | None:
+def _countable(truth: BrickTruth, fr: Frame, w: int, h: int) -> float | None:
     """The size (px across) of the brick's largest code that counts for recall, or None."""
     best = None
     for mid, c in truth.code_corners_px.items():
@@ -223,36 +241,8 @@ def _size_bin(size: float) -> str:
     return next(name for lo, hi, name in SIZE_BINS if lo <= size < hi)
 
 
-@dataclass
-class Stats:
-    frames: int = 0
-    t_ours: list = field(default_factory=list)
-    t_plain: list = field(default_factory=list)
-    countable: int = 0
-    found: int = 0
-    false: int = 0
-    lateral_mm: list = field(default_factory=list)
-    depth_pct: list = field(default_factory=list)
-    yaw_deg: list = field(default_factory=list)
-    flips: int = 0
-    unflagged_flips: int = 0
-    ambiguous: int = 0
-    poses: int = 0
-    by_size: dict = field(default_factory=dict)
-    """size bin -> [countable, found]"""
-    t_peer: list = field(default_factory=list)
-    """AprilTag 3's time per frame (the row with gravity holds AprilTag's figures)."""
-
-
-def _pct(v: list, q: float) -> float:
-    return float(np.percentile(v, q)) if v else float("nan")
-
-
-def _errors(st: Stats, poses, fr: Frame, w: int, h: int) -> None:
-    import cv2
-
-    from drovisio.pose import rotation_angle_deg, yaw_about_axis_deg
-
+def _errors(st: Stats, poses: Sequence[BrickPose], fr: Frame, w: int, h: int) -> None:
+    """Pose errors of the bricks found, false bricks and recall of one frame."""
     truth = {(b.layout, b.instance): b for b in fr.bricks}
     seen = set()
     for bp in poses:
@@ -275,7 +265,8 @@ def _errors(st: Stats, poses, fr: Frame, w: int, h: int) -> None:
     _recall(st, truth, seen, fr, w, h)
 
 
-def _recall(st: Stats, truth: dict, seen: set, fr: Frame, w: int, h: int) -> None:
+def _recall(st: Stats, truth: dict[tuple[str, int | None], BrickTruth],
+            seen: set[tuple[str, int | None]], fr: Frame, w: int, h: int) -> None:
     for key, t in truth.items():
         size = _countable(t, fr, w, h)
         if size is not None:
@@ -286,28 +277,25 @@ def _recall(st: Stats, truth: dict, seen: set, fr: Frame, w: int, h: int) -> Non
             b[1] += key in seen
 
 
-def _apriltag_detector(dictionaries: list[str]):
+def _apriltag_detector(dictionaries: list[str]) -> tuple[Any, str | None]:
     """AprilTag 3 for the layouts' codes, or a one-line reason why it cannot run."""
-    from drovisio.study.methods import APRILTAG_FAMILIES
-
     fams = sorted({APRILTAG_FAMILIES.get(d, "") for d in dictionaries})
     if "" in fams:
         return None, ("AprilTag 3 cannot read " + ", ".join(
             d for d in dictionaries if d not in APRILTAG_FAMILIES)
             + ": give --dictionary DICT_APRILTAG_36h11")
     try:
-        import pupil_apriltags  # noqa: F401
+        import pupil_apriltags  # noqa: F401 - an optional dependency, only asked whether present
     except ImportError:
         return None, "AprilTag 3 is not installed: pip install drovisio[peers]"
-    from drovisio.study.methods import apriltag_detector
-
     return apriltag_detector(" ".join(fams)), None
 
 
-def _peer_errors(st: Stats, tags, fr: Frame, owners: dict, w: int, h: int) -> None:
+def _peer_errors(st: Stats, tags: Sequence[Any], fr: Frame,
+                 owners: dict[int, tuple[str, int]], w: int, h: int) -> None:
     """AprilTag's tags → bricks (one id is enough), false bricks and recall."""
     truth = {(b.layout, b.instance): b for b in fr.bricks}
-    seen = set()
+    seen: set[tuple[str, int | None]] = set()
     for tag in tags:
         key = owners.get(int(tag.tag_id))
         if key is None or key not in truth:
@@ -318,7 +306,10 @@ def _peer_errors(st: Stats, tags, fr: Frame, owners: dict, w: int, h: int) -> No
     _recall(st, truth, seen, fr, w, h)
 
 
-def _corner_errors(codes, fr: Frame, acc: dict) -> None:
+def _corner_errors(codes: Sequence[CodeDetection], fr: Frame,
+                   acc: dict[str, list[float]]) -> None:
+    """Signed radial and squared errors (px) of the raw and refined corners of every fully
+    visible code of a sharp frame, against the renderer's true corners."""
     truth = {mid: c for b in fr.bricks for mid, c in b.code_corners_px.items()}
     for c in codes:
         tc = truth.get(c.marker_id)
@@ -336,118 +327,169 @@ def _corner_errors(codes, fr: Frame, acc: dict) -> None:
 
 
 # ----------------------------------------------------------------------------- main
+class _Refused(Exception):
+    """An option the benchmark cannot run with (one line, exit 2)."""
+
+
+@dataclass
+class _Bench:
+    """What every frame is measured with."""
+
+    counts: list[int]
+    """Brick counts of the scenes."""
+    coded: list[MarkerLayout]
+    det_g: ArucoBrickDetector
+    """The detector given gravity (timed)."""
+    det_n: ArucoBrickDetector
+    """The detector without gravity."""
+    plain: Any
+    """OpenCV's plain ``ArucoDetector`` (the time reference)."""
+    peer: Any
+    """AprilTag 3, or None."""
+    owners: dict[int, tuple[str, int]]
+    """Marker id → (layout, instance)."""
+    clock: Callable[[], float]
+    repeat: int
+    width: int
+    height: int
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.json:
-        from drovisio.fileio import check_output_path
-
         check_output_path(args.json, "--json", folder_must_exist=True)
     if args.video is not None:
         return _video_main(args)
-    import cv2
-
-    from drovisio.camera import Camera
-    from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
-    from drovisio.detect.corners import normalized_grid
-    from drovisio.layout import LayoutError, load_layouts, shipped_layouts_dir, with_dictionary
-
     cv2.setNumThreads(max(1, args.threads))
+    try:
+        bench = _setup(args)
+    except _Refused as e:
+        print(f"drovisio bench aruco: {e}", file=sys.stderr)
+        return 2
+    corner_acc: dict[str, list[float]] = {}
+    rows = _run(bench, args, corner_acc)
+    out = report(rows, corner_acc, args)
+    print(out["text"])
+    if args.json:
+        atomic_write_text(args.json, json.dumps(out["data"], indent=2) + "\n")
+    return 0
+
+
+def _setup(args: argparse.Namespace) -> _Bench:
+    """Layouts, detectors and clock from the options.
+
+    Raises:
+        _Refused: brick counts that are not numbers, layouts that cannot be read or have no
+            codes, an unknown dictionary, AprilTag 3 asked for but unable to run.
+    """
     clock = time.thread_time if args.clock == "cpu" else time.perf_counter
     paths = args.layout or [shipped_layouts_dir() / "drick-aruco-centre.json",
                             shipped_layouts_dir() / "drick-aruco-pyramids.json"]
     try:
         counts = [int(x) for x in args.bricks.split(",") if x.strip()]
     except ValueError:
-        print(f"drovisio bench aruco: --bricks: {args.bricks!r} is not a list of whole "
-              "numbers (e.g. 1,4,16)", file=sys.stderr)
-        return 2
-    try:
-        layouts = load_layouts(paths)
-    except (LayoutError, ValueError) as e:
-        print(f"drovisio bench aruco: {e}", file=sys.stderr)
-        return 2
-    coded = [lay for lay in layouts if lay.has_codes]
-    if not coded:
-        print("drovisio bench aruco: no layout with ArUco codes given", file=sys.stderr)
-        return 2
-    if args.dictionary:
-        try:
-            coded = [with_dictionary(lay, args.dictionary) for lay in coded]
-        except (LayoutError, ValueError) as e:
-            print(f"drovisio bench aruco: --dictionary: {e}", file=sys.stderr)
-            return 2
-    peer, why_not = (None, None)
+        raise _Refused(f"--bricks: {args.bricks!r} is not a list of whole numbers (e.g. "
+                       "1,4,16)") from None
+    coded = _coded_layouts(paths, args.dictionary)
+    peer = None
     if args.apriltag:
         peer, why_not = _apriltag_detector(sorted({d for lay in coded
                                                    for d in lay.dictionaries()}))
         if peer is None:
-            print(f"drovisio bench aruco: --apriltag: {why_not}", file=sys.stderr)
-            return 2
+            raise _Refused(f"--apriltag: {why_not}")
     owners = {lay.marker_id(k, slot): (lay.name, k) for lay in coded
               for k in range(lay.instances or 0) for slot in lay.code_dictionaries()}
     cam = Camera.drone_webcam()
     normalized_grid(cam)  # one-off per camera, not part of a frame's time
-    det_g = ArucoBrickDetector(cam, coded)
-    det_n = ArucoBrickDetector(cam, coded)
-    plain = plain_detector(coded[0].dictionaries()[0])
-    W, H = cam.width, cam.height
-    corner_acc: dict = {}
-    rows: dict = {}
-    plan = [("bricks", n, args.frames) for n in counts] + (
+    return _Bench(counts, coded, ArucoBrickDetector(cam, coded), ArucoBrickDetector(cam, coded),
+                  plain_detector(coded[0].dictionaries()[0]), peer, owners, clock,
+                  max(1, args.repeat), cam.width, cam.height)
+
+
+def _coded_layouts(paths: list[Path], dictionary: str | None) -> list[MarkerLayout]:
+    """The layouts that have codes, with ``dictionary`` given to every code when set.
+
+    Raises:
+        _Refused: a layout that cannot be read, none with codes, an unknown dictionary.
+    """
+    try:
+        layouts = load_layouts(paths)
+    except (LayoutError, ValueError) as e:
+        raise _Refused(str(e)) from None
+    coded = [lay for lay in layouts if lay.has_codes]
+    if not coded:
+        raise _Refused("no layout with ArUco codes given")
+    if dictionary:
+        try:
+            coded = [with_dictionary(lay, dictionary) for lay in coded]
+        except (LayoutError, ValueError) as e:
+            raise _Refused(f"--dictionary: {e}") from None
+    return coded
+
+
+def _run(bench: _Bench, args: argparse.Namespace, corner_acc: dict[str, list[float]]) -> Rows:
+    """Every scene kind and brick count, frame by frame; progress on stderr."""
+    rows: Rows = {}
+    plan = [("bricks", n, args.frames) for n in bench.counts] + (
         [("empty", 0, args.empty)] if args.empty > 0 else [])
     t_start = time.perf_counter()
     for kind, n_b, count in plan:
         st_g, st_n, st_p = Stats(), Stats(), Stats()
-        for fr in _frames(kind, n_b, count, args.seed, coded, args.ss, args.cache):
-            gray = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
-            tp, to = [], []
-            poses_g = []
-            for rep in range(max(1, args.repeat)):
-                order = (0, 1) if rep % 2 == 0 else (1, 0)
-                for which in order:
-                    if which == 0:
-                        t0 = clock()
-                        plain.detectMarkers(fr.image)
-                        tp.append(clock() - t0)
-                    else:
-                        t0 = clock()
-                        poses_g = det_g.detect(fr.image, gravity=fr.gravity)
-                        to.append(clock() - t0)
-            st_g.t_plain.append(min(tp))
-            st_g.t_ours.append(min(to))
-            st_g.frames += 1
-            _errors(st_g, poses_g, fr, W, H)
-            poses_n = det_n.detect(fr.image)
-            st_n.frames += 1
-            _errors(st_n, poses_n, fr, W, H)
-            _corner_errors(det_g.detect_codes(gray), fr, corner_acc)
-            if peer is not None:
-                tp = []
-                for _ in range(max(1, args.repeat)):
-                    t0 = clock()
-                    tags = peer.detect(gray)
-                    tp.append(clock() - t0)
-                st_p.t_peer.append(min(tp))
-                st_p.frames += 1
-                _peer_errors(st_p, tags, fr, owners, W, H)
+        for fr in _frames(kind, n_b, count, args.seed, bench.coded, args.ss, args.cache):
+            _measure(bench, fr, (st_g, st_n, st_p), corner_acc)
         rows[(kind, n_b)] = (st_g, st_n, st_p)
         print(f"  ... {kind} {n_b}: {count} frames done ({time.perf_counter() - t_start:.0f} s)",
               file=sys.stderr)
-    report = _report(rows, corner_acc, args)
-    print(report["text"])
-    if args.json:
-        from drovisio.fileio import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(report["data"], indent=2) + "\n")
-    return 0
+    return rows
 
 
-def _video_main(args) -> int:
+def _measure(bench: _Bench, fr: Frame, stats: tuple[Stats, Stats, Stats],
+             corner_acc: dict[str, list[float]]) -> None:
+    """One frame: timed with gravity against plain OpenCV, again without gravity, the
+    corners, and AprilTag 3 when it runs."""
+    st_g, st_n, st_p = stats
+    w, h = bench.width, bench.height
+    gray = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
+    poses_g = _timed_against_plain(bench, fr, st_g)
+    st_g.frames += 1
+    _errors(st_g, poses_g, fr, w, h)
+    poses_n = bench.det_n.detect(fr.image)
+    st_n.frames += 1
+    _errors(st_n, poses_n, fr, w, h)
+    _corner_errors(bench.det_g.detect_codes(gray), fr, corner_acc)
+    if bench.peer is not None:
+        tp = []
+        for _ in range(bench.repeat):
+            t0 = bench.clock()
+            tags = bench.peer.detect(gray)
+            tp.append(bench.clock() - t0)
+        st_p.t_peer.append(min(tp))
+        st_p.frames += 1
+        _peer_errors(st_p, tags, fr, bench.owners, w, h)
+
+
+def _timed_against_plain(bench: _Bench, fr: Frame, st: Stats) -> list[BrickPose]:
+    """The detector given gravity and plain ``detectMarkers``, each run ``repeat`` times,
+    interleaved (their order alternates), the fastest of each kept in ``st``."""
+    tp, to = [], []
+    poses: list[BrickPose] = []
+    for rep in range(bench.repeat):
+        order = (0, 1) if rep % 2 == 0 else (1, 0)
+        for which in order:
+            t0 = bench.clock()
+            if which == 0:
+                bench.plain.detectMarkers(fr.image)
+                tp.append(bench.clock() - t0)
+            else:
+                poses = bench.det_g.detect(fr.image, gravity=fr.gravity)
+                to.append(bench.clock() - t0)
+    st.t_plain.append(min(tp))
+    st.t_ours.append(min(to))
+    return poses
+
+
+def _video_main(args: argparse.Namespace) -> int:
     """``--video``: timing on real frames (:mod:`drovisio.bench.aruco_video`)."""
-    from drovisio.bench import aruco_video
-    from drovisio.errors import InputError
-    from drovisio.layout import aruco_dictionary_id
-
     if args.max_frames < 1:
         raise InputError(f"--max-frames {args.max_frames}: give a positive number of frames")
     dicts = (args.dictionary,) if args.dictionary else aruco_video.DEFAULT_DICTIONARIES
@@ -458,133 +500,14 @@ def _video_main(args) -> int:
             raise InputError(f"--dictionary: {e}") from None
     camera = None
     if args.camera is not None:
-        from drovisio.camera_file import load_camera
-
         camera = load_camera(args.camera)
     data = aruco_video.run(args.video, dicts, max_frames=args.max_frames, repeat=args.repeat,
                            threads=args.threads, clock=args.clock, camera=camera,
                            apriltag=True)
     print(aruco_video.report(data))
     if args.json:
-        from drovisio.fileio import atomic_write_text
-
         atomic_write_text(args.json, json.dumps(data, indent=2) + "\n")
     return 0
-
-
-def _fmt(x: float, nd: int = 1) -> str:
-    return "  -  " if not np.isfinite(x) else f"{x:.{nd}f}"
-
-
-def _report(rows: dict, corner_acc: dict, args) -> dict:
-    lines = []
-    data: dict = {"threads": args.threads, "repeat": args.repeat, "clock": args.clock,
-                  "rows": []}
-    hdr = (f"{'scene':<10}{'grav':>5}{'frames':>7}{'ours ms':>9}{'plain ms':>9}{'ratio':>7}"
-           f"{'recall':>13}{'lat p50/p95 mm':>16}{'depth p50/p95 %':>17}"
-           f"{'yaw p50/p95 deg':>17}{'flips':>7}{'unflag':>7}{'ambig':>7}{'false':>7}")
-    lines.append(hdr)
-    lines.append("-" * len(hdr))
-    for (kind, n_b), triple in rows.items():
-        pair = triple[:2]
-        for grav, st in zip(("yes", "no"), pair):
-            name = f"{n_b} brick" + ("s" if n_b != 1 else "") if kind == "bricks" else "no brick"
-            t_o = statistics.median(pair[0].t_ours) * 1e3 if pair[0].t_ours else float("nan")
-            t_p = statistics.median(pair[0].t_plain) * 1e3 if pair[0].t_plain else float("nan")
-            # the median of per-frame ratios (both timed on the same frame, interleaved: the
-            # machine's load cancels better than in a ratio of medians)
-            ratio = (statistics.median(o / p for o, p in zip(pair[0].t_ours, pair[0].t_plain))
-                     if pair[0].t_ours else float("nan"))
-            timing = (f"{_fmt(t_o, 2):>9}{_fmt(t_p, 2):>9}{_fmt(ratio, 2):>7}"
-                      if grav == "yes" else f"{'':>9}{'':>9}{'':>7}")
-            rec = (f"{st.found}/{st.countable} {100 * st.found / st.countable:.1f}%"
-                   if st.countable else "-")
-            lines.append(
-                f"{name:<10}{grav:>5}{st.frames:>7}{timing}{rec:>13}"
-                f"{_fmt(_pct(st.lateral_mm, 50)):>7}/{_fmt(_pct(st.lateral_mm, 95)):<8}"
-                f"{_fmt(_pct(st.depth_pct, 50), 2):>8}/{_fmt(_pct(st.depth_pct, 95), 2):<8}"
-                f"{_fmt(_pct(st.yaw_deg, 50), 2):>8}/{_fmt(_pct(st.yaw_deg, 95), 2):<8}"
-                f"{st.flips:>7}{st.unflagged_flips:>7}{st.ambiguous:>7}{st.false:>7}")
-            data["rows"].append({
-                "scene": kind, "bricks": n_b, "gravity": grav == "yes", "frames": st.frames,
-                "ours_ms_median": t_o, "plain_ms_median": t_p, "ratio_per_frame_median": ratio,
-                "ratio_of_medians": t_o / t_p,
-                "countable": st.countable, "found": st.found, "poses": st.poses,
-                "lateral_mm_p50": _pct(st.lateral_mm, 50), "lateral_mm_p95": _pct(st.lateral_mm, 95),
-                "depth_pct_p50": _pct(st.depth_pct, 50), "depth_pct_p95": _pct(st.depth_pct, 95),
-                "yaw_deg_p50": _pct(st.yaw_deg, 50), "yaw_deg_p95": _pct(st.yaw_deg, 95),
-                "flips": st.flips, "unflagged_flips": st.unflagged_flips,
-                "ambiguous": st.ambiguous, "false_bricks": st.false})
-    # AprilTag 3 on the same frames
-    for (kind, n_b), triple in rows.items():
-        st = triple[2]
-        if not st.frames:
-            continue
-        name = f"{n_b} brick" + ("s" if n_b != 1 else "") if kind == "bricks" else "no brick"
-        t_a = statistics.median(st.t_peer) * 1e3
-        ratio = statistics.median(a / p for a, p in zip(st.t_peer, triple[0].t_plain))
-        rec = f"{st.found}/{st.countable} {100 * st.found / st.countable:.1f}%" \
-            if st.countable else "-"
-        lines.append(f"{name:<10}{'AT3':>5}{st.frames:>7}{_fmt(t_a, 2):>9}"
-                     f"{_fmt(statistics.median(triple[0].t_plain) * 1e3, 2):>9}"
-                     f"{_fmt(ratio, 2):>7}{rec:>13}{'':>67}{st.false:>7}")
-        data["rows"].append({"scene": kind, "bricks": n_b, "method": "apriltag3",
-                             "frames": st.frames, "apriltag_ms_median": t_a,
-                             "ratio_per_frame_median": ratio, "countable": st.countable,
-                             "found": st.found, "false_bricks": st.false})
-    # totals over brick scenes
-    for gi, grav in enumerate(("yes", "no")):
-        sts = [t[gi] for (kind, _), t in rows.items() if kind == "bricks"]
-        if not sts:
-            continue
-        cnt = sum(s.countable for s in sts)
-        fnd = sum(s.found for s in sts)
-        lat = [x for s in sts for x in s.lateral_mm]
-        dep = [x for s in sts for x in s.depth_pct]
-        yaw = [x for s in sts for x in s.yaw_deg]
-        lines.append(
-            f"{'all':<10}{grav:>5}{sum(s.frames for s in sts):>7}{'':>25}"
-            f"{(f'{fnd}/{cnt} {100 * fnd / cnt:.1f}%' if cnt else '-'):>13}"
-            f"{_fmt(_pct(lat, 50)):>7}/{_fmt(_pct(lat, 95)):<8}"
-            f"{_fmt(_pct(dep, 50), 2):>8}/{_fmt(_pct(dep, 95), 2):<8}"
-            f"{_fmt(_pct(yaw, 50), 2):>8}/{_fmt(_pct(yaw, 95), 2):<8}"
-            f"{sum(s.flips for s in sts):>7}{sum(s.unflagged_flips for s in sts):>7}"
-            f"{sum(s.ambiguous for s in sts):>7}{sum(s.false for s in sts):>7}")
-    # recall by code size, over brick scenes (with gravity; AprilTag 3 when run)
-    methods = [("drovisio", 0)] + ([("apriltag3", 2)] if any(
-        t[2].frames for t in rows.values()) else [])
-    data["recall_by_size"] = {}
-    for mname, i in methods:
-        sts = [t[i] for (kind, _), t in rows.items() if kind == "bricks"]
-        cells = []
-        data["recall_by_size"][mname] = {}
-        for _, _, bname in SIZE_BINS:
-            c = sum(s.by_size.get(bname, [0, 0])[0] for s in sts)
-            f = sum(s.by_size.get(bname, [0, 0])[1] for s in sts)
-            data["recall_by_size"][mname][bname] = {"countable": c, "found": f,
-                                                    "recall": f / c if c else None}
-            cells.append(f"{bname} {f}/{c} {100 * f / c:.1f}%" if c else f"{bname} -")
-        lines.append(f"recall by code size, {mname}: " + ", ".join(cells))
-    lines.append("")
-    clock = ("CPU time of the thread" if args.clock == "cpu" else "wall-clock time")
-    lines.append(f"times: {clock}, median over frames of the fastest of {args.repeat} runs, "
-                 f"OpenCV threads = {args.threads}; ratio: median over frames of ours (whole "
-                 "detect + pose, gravity given) / plain detectMarkers (default parameters) "
-                 "on the same frame.")
-    lines.append("lateral: x/y error of tvec in the camera frame; depth: |dz|/z; yaw: rotation "
-                 "about the brick's z axis; flip: rotation error > 20 deg;")
-    lines.append("unflag: flips not flagged ambiguous; recall: bricks with a fully visible code "
-                 f">= {MIN_CODE_PX:g} px across (sqrt of its area) reported with the right id; AT3: "
-                 "AprilTag 3 (pupil-apriltags, decimate 1) on the same frames.")
-    for name in ("raw", "ours"):
-        rad = corner_acc.get(name + "_radial", [])
-        sq = corner_acc.get(name + "_sq", [])
-        if rad:
-            lines.append(f"corners {name:<5} (blur <= 1 px, {len(rad)} corners): mean signed "
-                         f"radial {np.mean(rad):+.3f} px, RMS {math.sqrt(np.mean(sq)):.3f} px")
-            data[f"corners_{name}"] = {"n": len(rad), "mean_radial_px": float(np.mean(rad)),
-                                       "rms_px": math.sqrt(float(np.mean(sq)))}
-    return {"text": "\n".join(lines), "data": data}
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -32,11 +32,20 @@ from __future__ import annotations
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import cv2
 import numpy as np
 
+from drovisio.camera import Camera
+from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
+from drovisio.detect.corners import normalized_grid
 from drovisio.errors import InputError
+from drovisio.images import IMAGE_SUFFIXES
+from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
+from drovisio.sources import list_folder
 
 DEFAULT_DICTIONARIES = ("DICT_4X4_50", "DICT_6X6_250", "DICT_APRILTAG_36h11")
 #: pupil-apriltags may crash the process when a detector is freed while another is alive:
@@ -50,11 +59,6 @@ def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
     Raises:
         InputError: The path is missing, not a video or holds no readable frame.
     """
-    import cv2
-
-    from drovisio.images import IMAGE_SUFFIXES
-    from drovisio.sources import list_folder
-
     if not path.exists():
         raise InputError(f"{path}: --video: no such file or folder; give a video file or a "
                          "folder of images")
@@ -116,13 +120,6 @@ def run(path: Path, dictionaries=DEFAULT_DICTIONARIES, max_frames: int = 300,
             their size.
         apriltag: Also time AprilTag 3 on tag36h11 (when installed).
     """
-    import cv2
-
-    from drovisio.camera import Camera
-    from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
-    from drovisio.detect.corners import normalized_grid
-    from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
-
     frames = read_frames(path, max_frames)
     H, W = frames[0].shape[:2]
     if camera is None:
@@ -145,48 +142,67 @@ def run(path: Path, dictionaries=DEFAULT_DICTIONARIES, max_frames: int = 300,
         plain = plain_detector(dname)
         peer = _apriltag_default() if apriltag and dname == "DICT_APRILTAG_36h11" else None
         ours.detect(frames[0])  # first call: lazy set-up, not a frame's work
-        t_o: list[float] = []
-        t_p: list[float] = []
-        t_a: list[float] = []
-        bricks = codes_plain = tags = 0
-        for f, g in zip(frames, grays):
-            best = [np.inf, np.inf, np.inf]
-            for rep in range(max(1, repeat)):
-                order = (0, 1, 2) if rep % 2 == 0 else (2, 1, 0)
-                for which in order:
-                    if which == 0:
-                        t0 = tick()
-                        poses = ours.detect(f)
-                        best[0] = min(best[0], tick() - t0)
-                    elif which == 1:
-                        t0 = tick()
-                        _, ids, _ = plain.detectMarkers(f)
-                        best[1] = min(best[1], tick() - t0)
-                    elif peer is not None:
-                        t0 = tick()
-                        found = peer.detect(g)
-                        best[2] = min(best[2], tick() - t0)
-            bricks += len(poses)
-            codes_plain += 0 if ids is None else len(ids)
-            t_o.append(best[0])
-            t_p.append(best[1])
-            if peer is not None:
-                tags += len(found)
-                t_a.append(best[2])
-        row: dict = {"ours_s": _stats(t_o), "plain_s": _stats(t_p),
-                     "ratio_plain": (_stats(t_o)[0] / _stats(t_p)[0],
-                                     _stats(t_o)[1] / _stats(t_p)[1]),
-                     "ratio_plain_per_frame_median": float(statistics.median(
-                         o / p for o, p in zip(t_o, t_p))),
-                     "bricks": bricks, "plain_codes": codes_plain}
-        if t_a:
-            row.update({"apriltag_s": _stats(t_a),
-                        "ratio_apriltag": (_stats(t_o)[0] / _stats(t_a)[0],
-                                           _stats(t_o)[1] / _stats(t_a)[1]),
-                        "apriltag_tags": tags})
-        out["dictionaries"][dname] = row
+        out["dictionaries"][dname] = _dictionary_row(frames, grays, ours, plain, peer,
+                                                     repeat, tick)
         print(f"  ... {dname}: {len(frames)} frames timed", file=sys.stderr, flush=True)
     return out
+
+
+def _dictionary_row(frames: list[np.ndarray], grays: list[np.ndarray],
+                    ours: ArucoBrickDetector, plain: Any, peer: Any, repeat: int,
+                    tick: Callable[[], float]) -> dict:
+    """One dictionary's figures: each detector's fastest time per frame, summarised, and
+    what each found."""
+    t_o: list[float] = []
+    t_p: list[float] = []
+    t_a: list[float] = []
+    bricks = codes_plain = tags = 0
+    for f, g in zip(frames, grays):
+        best, poses, ids, found = _time_frame(f, g, ours, plain, peer, repeat, tick)
+        bricks += len(poses)
+        codes_plain += 0 if ids is None else len(ids)
+        t_o.append(best[0])
+        t_p.append(best[1])
+        if peer is not None:
+            tags += len(found)
+            t_a.append(best[2])
+    row: dict = {"ours_s": _stats(t_o), "plain_s": _stats(t_p),
+                 "ratio_plain": (_stats(t_o)[0] / _stats(t_p)[0],
+                                 _stats(t_o)[1] / _stats(t_p)[1]),
+                 "ratio_plain_per_frame_median": float(statistics.median(
+                     o / p for o, p in zip(t_o, t_p))),
+                 "bricks": bricks, "plain_codes": codes_plain}
+    if t_a:
+        row.update({"apriltag_s": _stats(t_a),
+                    "ratio_apriltag": (_stats(t_o)[0] / _stats(t_a)[0],
+                                       _stats(t_o)[1] / _stats(t_a)[1]),
+                    "apriltag_tags": tags})
+    return row
+
+
+def _time_frame(f: np.ndarray, g: np.ndarray, ours: ArucoBrickDetector, plain: Any,
+                peer: Any, repeat: int, tick: Callable[[], float]
+                ) -> tuple[list[float], Any, Any, Any]:
+    """Each detector ``repeat`` times on one frame (BGR ``f``, grey ``g``), their order
+    alternating; (fastest times (s): ours, plain, AprilTag 3; the last results of each)."""
+    best = [np.inf, np.inf, np.inf]
+    poses = ids = found = None
+    for rep in range(max(1, repeat)):
+        order = (0, 1, 2) if rep % 2 == 0 else (2, 1, 0)
+        for which in order:
+            if which == 0:
+                t0 = tick()
+                poses = ours.detect(f)
+                best[0] = min(best[0], tick() - t0)
+            elif which == 1:
+                t0 = tick()
+                _, ids, _ = plain.detectMarkers(f)
+                best[1] = min(best[1], tick() - t0)
+            elif peer is not None:
+                t0 = tick()
+                found = peer.detect(g)
+                best[2] = min(best[2], tick() - t0)
+    return best, poses, ids, found
 
 
 def report(data: dict) -> str:

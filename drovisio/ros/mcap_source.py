@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from drovisio.raw_frame import EndOfStream, RawFrame
+from drovisio.ros.msgdefs import decoder
 
 __all__ = ["McapReader", "iter_images"]
 
@@ -29,11 +30,9 @@ def iter_images(path: str | Path, topic: str | None = None
                 ) -> Iterator[tuple[str, float, bytes, str]]:
     """``(topic, stamp_s, data, format)`` of the file's compressed images, in file order;
     stops quietly at a cut (truncated) end."""
-    from mcap.exceptions import McapError
+    from mcap.exceptions import McapError  # deferred: an optional dependency (mcap)
     from mcap.records import Channel, Chunk, Message, Schema
     from mcap.stream_reader import StreamReader, breakup_chunk
-
-    from drovisio.ros.msgdefs import decoder
 
     dec = decoder(IMAGE_TYPE)
     schemas: dict[int, str] = {}

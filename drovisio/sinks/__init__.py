@@ -20,7 +20,11 @@ SINK strings (``--sink`` of ``drovisio run``, :func:`open_sink`):
 from __future__ import annotations
 
 from drovisio.sinks.base import Sink, SinkError
+from drovisio.sinks.jsonl import JsonlSink
+from drovisio.sinks.mavlink import MavlinkSink
 from drovisio.sinks.target import TargetSelector, TargetSpec, parse_target
+from drovisio.sinks.udp import UdpSink
+from drovisio.sinks.websocket import WebSocketSink
 
 __all__ = ["Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink", "parse_target"]
 
@@ -31,6 +35,7 @@ def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str
     """Open the sink of a SINK string (see the module doc)."""
     s = spec.strip()
     if s.startswith("zenoh:"):
+        # deferred: the ROS messages load OpenCV, which a process without this sink never needs
         from drovisio.ros.messages import RosMessages, namespace_for
         from drovisio.sinks.zenoh import ZenohSink
 
@@ -38,21 +43,13 @@ def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str
         return ZenohSink(s, RosMessages(camera, mount, layouts or (), namespace=ns,
                                         frame_prefix=prefix))
     if s.startswith("jsonl:"):
-        from drovisio.sinks.jsonl import JsonlSink
-
         return JsonlSink(s[len("jsonl:"):])
     if s.startswith("udp://"):
-        from drovisio.sinks.udp import UdpSink
-
         return UdpSink.from_url(s)
     if s.startswith("mavlink:"):
-        from drovisio.sinks.mavlink import MavlinkSink
-
         return MavlinkSink(s[len("mavlink:"):], autopilot=autopilot, target=target,
                            mount=mount, layouts=layouts, send_held=send_held)
     if s.startswith("ws://"):
-        from drovisio.sinks.websocket import WebSocketSink
-
         return WebSocketSink.from_url(s, target=target)
     raise SinkError(f"unknown sink {spec!r}: use jsonl:-, jsonl:PATH, udp://HOST:PORT, "
                     "mavlink:CONNECTION, ws://HOST:PORT or zenoh:connect=tcp/HOST:PORT")

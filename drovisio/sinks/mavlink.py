@@ -52,15 +52,25 @@ hears. ``compid`` is our component id (default 191, ``MAV_COMP_ID_ONBOARD_COMPUT
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from drovisio.autopilot.check import Facts, evaluate, param_names
+from drovisio.autopilot.connection import (
+    AddressError,
+    check_host,
+    mavutil2,
+    parse_connection,
+    split_connection,
+)
+from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, ParamReader, StreamKeeper
 from drovisio.geometry import ned_from_body, quat_wxyz
 from drovisio.mount import Mount, down_camera_mount
 from drovisio.sinks.base import SinkError
@@ -82,15 +92,23 @@ LANDING_TARGET_TYPE_VISION_FIDUCIAL = 2
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 
 
-def mavutil2():
-    """pymavlink's ``mavutil`` switched to MAVLink 2 (LANDING_TARGET's position fields are
-    MAVLink 2 extensions). pymavlink keeps this choice process-wide."""
-    os.environ["MAVLINK20"] = "1"
-    from pymavlink import mavutil
+@contextmanager
+def _as_sink_error() -> Iterator[None]:
+    """A connection string the link cannot use is a sink that cannot be opened."""
+    try:
+        yield
+    except AddressError as e:
+        raise SinkError(str(e)) from None
 
-    if str(mavutil.mavlink.WIRE_PROTOCOL_VERSION) != "2.0":
-        mavutil.set_dialect(mavutil.current_dialect or "common")
-    return mavutil
+
+def parse_mavlink_spec(spec: str) -> tuple[str, dict[str, int]]:
+    """``udpout:127.0.0.1:14550?sysid=2&compid=191`` → (connection, {"sysid": 2, ...}).
+
+    Raises:
+        SinkError: an unknown option or an id outside 1-255 (named).
+    """
+    with _as_sink_error():
+        return parse_connection(spec)
 
 
 @dataclass
@@ -199,73 +217,6 @@ def landing_target_fields(brick, t_wall: float, mount: Mount | None, autopilot: 
     return fields
 
 
-def _check_host(name: str, dev: str) -> None:
-    """An unknown host name fails loudly here: pymavlink's UDP writer would drop every
-    message silently."""
-    import socket
-
-    kind, _, rest = dev.partition(":")
-    if kind not in ("udp", "udpin", "udpout", "udpbcast", "tcp", "tcpin") or not rest:
-        return
-    host, _, port = rest.rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise SinkError(f"{name}: expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
-    try:
-        socket.getaddrinfo(host, int(port))
-    except (socket.gaierror, UnicodeError) as e:
-        raise SinkError(f"{name}: unknown host {host!r} ({e}); check the address") from None
-    if kind == "tcp":
-        _probe_tcp(name, host, int(port))
-
-
-def _probe_tcp(name: str, host: str, port: int) -> None:
-    """Connect once with a deadline before pymavlink does: its connect has none (a silent
-    peer blocks ~7 minutes) and it retries a refused one for seconds."""
-    import socket
-
-    from drovisio.errors import LIMITS
-
-    deadline = LIMITS.connect_timeout_s
-    try:
-        with socket.create_connection((host, port), timeout=deadline):
-            pass
-    except TimeoutError:
-        raise SinkError(f"{name}: no answer from {host}:{port} within {deadline:g} s; is the "
-                        "autopilot (or its TCP bridge) on and is the address right?") from None
-    except OSError as e:
-        raise SinkError(f"{name}: cannot connect to {host}:{port} ({e.strerror or e}); is "
-                        "the autopilot (or its TCP bridge) listening there?") from None
-
-
-def parse_mavlink_spec(spec: str) -> tuple[str, dict[str, int]]:
-    """``udpout:127.0.0.1:14550?sysid=2&compid=191`` → (connection, {"sysid": 2, ...}).
-
-    Raises:
-        SinkError: an unknown option or an id outside 1-255 (named).
-    """
-    conn, sep, query = spec.partition("?")
-    opts: dict[str, int] = {}
-    if not sep:
-        return conn, opts
-    for part in query.split("&"):
-        key, eq, value = part.partition("=")
-        if key not in ("sysid", "compid"):
-            raise SinkError(f"mavlink:{spec}: unknown option {key!r}: use ?sysid=N&compid=M")
-        if not eq or not value.strip().isdigit() or not 1 <= int(value) <= 255:
-            raise SinkError(f"mavlink:{spec}: {key}: expected a whole number 1-255, "
-                            f"got {value!r}")
-        opts[key] = int(value)
-    return conn, opts
-
-
-def _split_connection(conn: str) -> tuple[str, int | None]:
-    """``/dev/ttyAMA0,921600`` → (device, baud)."""
-    dev, sep, baud = conn.rpartition(",")
-    if sep and baud.isdigit() and ":" not in baud:
-        return dev, int(baud)
-    return conn, None
-
-
 class MavlinkSink:
     """Sends the target brick as ``LANDING_TARGET`` and reads the vehicle state back.
 
@@ -321,8 +272,9 @@ class MavlinkSink:
         self._stop = threading.Event()
         mavutil = mavutil2()
         self._mavutil = mavutil
-        dev, baud = _split_connection(connection)
-        _check_host(self.name, dev)
+        dev, baud = split_connection(connection)
+        with _as_sink_error():
+            check_host(self.name, dev)
         try:
             kw = {"baud": baud} if baud else {}
             self.conn = mavutil.mavlink_connection(dev, source_system=source_system,
@@ -330,9 +282,6 @@ class MavlinkSink:
                                                    autoreconnect=True, **kw)
         except Exception as e:
             raise SinkError(f"{self.name}: cannot open the MAVLink connection ({e})") from e
-        from drovisio.autopilot.check import param_names
-        from drovisio.autopilot.link import ParamReader, StreamKeeper
-
         self._serial = baud is not None or dev.startswith(("/dev/", "COM"))
         self.streams = StreamKeeper(self._send_with, follow,
                                     needs_position=autopilot == "px4", start=time.monotonic())
@@ -447,11 +396,8 @@ class MavlinkSink:
             return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
         return 0.0 if now - self.streams.started >= window else None
 
-    def facts(self):
+    def facts(self) -> Facts:
         """What the sink knows for :func:`drovisio.autopilot.check.evaluate`."""
-        from drovisio.autopilot.check import Facts
-        from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED
-
         now = time.monotonic()
         v = self.streams.vehicle
         asked = v is not None and self.params.done(now)
@@ -467,8 +413,6 @@ class MavlinkSink:
 
     def check(self) -> list[dict]:
         """The autopilot check on what this link saw (the live page shows it)."""
-        from drovisio.autopilot.check import evaluate
-
         return [f.to_json() for f in evaluate(self.facts())]
 
     def status(self) -> dict:

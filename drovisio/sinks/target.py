@@ -46,30 +46,41 @@ class TargetSpec:
 
 def parse_target(spec: str | dict | TargetSpec | None) -> TargetSpec:
     """A :class:`TargetSpec` from a string (see the module doc) or a dict
-    ``{"mode": ..., "layout": ..., "instance": ..., "track": ...}``."""
+    ``{"mode": ..., "layout": ..., "instance": ..., "track": ...}``.
+
+    Raises:
+        ValueError: an unknown mode, or one without the fields it needs.
+    """
     if spec is None:
         return TargetSpec("nearest")
     if isinstance(spec, TargetSpec):
         return spec
     if isinstance(spec, dict):
-        if "spec" in spec and isinstance(spec["spec"], str):
-            return parse_target(spec["spec"])
-        mode = spec.get("mode")
-        layout, inst, track = spec.get("layout"), spec.get("instance"), spec.get("track")
-        if mode is None:
-            mode = ("track" if track is not None else "brick" if inst is not None
-                    else "layout" if layout else "nearest")
-        if mode not in ("nearest", "layout", "brick", "track", "none"):
-            raise ValueError(f"unknown target mode {mode!r}")
-        if mode in ("layout", "brick") and not layout:
-            raise ValueError("a target by layout needs 'layout'")
-        if mode == "brick" and inst is None:
-            raise ValueError("a target brick needs 'instance'")
-        if mode == "track" and track is None:
-            raise ValueError("a target track needs 'track'")
-        return TargetSpec(mode, layout, None if inst is None else int(inst),
-                          None if track is None else int(track))
-    s = str(spec).strip()
+        return _target_from_dict(spec)
+    return _target_from_string(str(spec).strip())
+
+
+def _target_from_dict(spec: dict) -> TargetSpec:
+    if "spec" in spec and isinstance(spec["spec"], str):
+        return parse_target(spec["spec"])
+    mode = spec.get("mode")
+    layout, inst, track = spec.get("layout"), spec.get("instance"), spec.get("track")
+    if mode is None:
+        mode = ("track" if track is not None else "brick" if inst is not None
+                else "layout" if layout else "nearest")
+    if mode not in ("nearest", "layout", "brick", "track", "none"):
+        raise ValueError(f"unknown target mode {mode!r}")
+    if mode in ("layout", "brick") and not layout:
+        raise ValueError("a target by layout needs 'layout'")
+    if mode == "brick" and inst is None:
+        raise ValueError("a target brick needs 'instance'")
+    if mode == "track" and track is None:
+        raise ValueError("a target track needs 'track'")
+    return TargetSpec(mode, layout, None if inst is None else int(inst),
+                      None if track is None else int(track))
+
+
+def _target_from_string(s: str) -> TargetSpec:
     if s in ("", "nearest"):
         return TargetSpec("nearest")
     if s in ("none", "off"):

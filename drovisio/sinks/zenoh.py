@@ -25,10 +25,16 @@ Never in the flight controller's way: :meth:`ZenohSink.send` only queues (a boun
 the oldest frame is dropped when the link is slow, counted); a background thread opens the
 session and publishes with congestion control *drop*. Zenoh reconnects a lost link by itself
 (``connect/retry``), so a link that comes back carries the next frames without a restart.
+
+The session is closed by the thread that opened it, once it stops; a sink still open when
+the interpreter exits is closed by an ``atexit`` hook first: Zenoh's runtime must not be
+used while the process tears down (a session left to the interpreter's finalization, or one
+closed from Zenoh's own exit handler, can abort the process).
 """
 
 from __future__ import annotations
 
+import atexit
 import json
 import math
 import os
@@ -36,6 +42,7 @@ import queue
 import struct
 import threading
 import time
+import weakref
 from typing import Any
 
 from drovisio.ros.messages import TOPIC_TYPES, RosMessages
@@ -49,6 +56,15 @@ IMAGE_HZ = 1.0
 """Camera images a second sent for a station's thumbnail (the ROS image topic, small)."""
 IMAGE_WIDTH = 320
 """Their width in pixels."""
+
+_OPEN_SINKS: weakref.WeakSet[ZenohSink] = weakref.WeakSet()
+"""Sinks not closed yet (closed at interpreter exit, see the module doc)."""
+
+
+@atexit.register
+def _close_open_sinks() -> None:
+    for sink in list(_OPEN_SINKS):
+        sink.close()
 
 
 def topic_key(domain: int, topic: str, type_name: str) -> str:
@@ -131,12 +147,15 @@ class ZenohSink:
         self._keys: dict[tuple[str, str], str] = {}
         self._q: queue.Queue = queue.Queue(maxsize=queue_frames)
         self._session: Any = None
+        self._session_lock = threading.Lock()
+        self._session_closed = False
         self._stop = threading.Event()
         self._last_tf = 0.0
         self._token: Any = None
         self._image: tuple[float, Any] | None = None   # (capture time, BGR frame) to send
         self._last_image = -math.inf
         self._thread = threading.Thread(target=self._run, daemon=True, name="zenoh-sink")
+        _OPEN_SINKS.add(self)
         self._thread.start()
 
     # ------------------------------------------------------------------ session
@@ -171,18 +190,36 @@ class ZenohSink:
             self.errors += 1
             self.last_error = f"cannot open a Zenoh session: {e}"
             return
-        while not self._stop.is_set():
-            try:
-                item = self._q.get(timeout=0.5)
-            except queue.Empty:
-                continue
-            if item is None:
-                break
-            try:
-                self._publish(item)
-            except Exception as e:  # noqa: BLE001
-                self.errors += 1
-                self.last_error = str(e)
+        try:
+            while not self._stop.is_set():
+                try:
+                    item = self._q.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                if item is None:
+                    break
+                try:
+                    self._publish(item)
+                except Exception as e:  # noqa: BLE001
+                    self.errors += 1
+                    self.last_error = str(e)
+        finally:
+            # also when close() gave up waiting while the session was still being opened
+            self._close_session()
+
+    def _close_session(self) -> None:
+        """Close the session once (from its thread or from :meth:`close`)."""
+        with self._session_lock:
+            if self._session is None or self._session_closed:
+                return
+            self._session_closed = True
+            session, token = self._session, self._token
+        try:
+            if token is not None:
+                token.undeclare()
+            session.close()
+        except Exception:  # noqa: BLE001
+            pass
 
     def _key(self, topic: str, type_name: str) -> str:
         k = self._keys.get((topic, type_name))
@@ -265,16 +302,8 @@ class ZenohSink:
         except queue.Full:
             pass
         self._thread.join(3)
-        if self._token is not None:
-            try:
-                self._token.undeclare()
-            except Exception:  # noqa: BLE001
-                pass
-        if self._session is not None:
-            try:
-                self._session.close()
-            except Exception:  # noqa: BLE001
-                pass
+        self._close_session()
+        _OPEN_SINKS.discard(self)
 
     def status(self) -> dict:
         return {"sink": self.name, "sent": self.sent, "dropped": self.dropped,

@@ -14,12 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
-from drovisio.bench.real import (
-    APRILTAG_PIXEL_OFFSET,
-    _match_corners,
-    charuco_layout,
-    tag_layout,
-)
+from drovisio.bench.real import charuco_layout, tag_layout
+from drovisio.bench.real_measures import APRILTAG_PIXEL_OFFSET
+from drovisio.bench.real_measures import match_corners as _match_corners
 from drovisio.camera_file import load_camera
 from drovisio.detect.aruco import ArucoBrickDetector
 

@@ -1,0 +1,341 @@
+"""``drovisio bench real`` on photos of codes: tag photos (every id its own one-code brick)
+and ChArUco photos (the board's codes as one brick), Drovisio beside OpenCV's plain
+``ArucoDetector`` and AprilTag 3 (see :mod:`drovisio.bench.real` for what is measured)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from drovisio.bench.real_folder import (
+    aruco_detector,
+    best_dictionary,
+    guess_charuco,
+    load_reference,
+    photos,
+    read_gray,
+)
+from drovisio.bench.real_measures import (
+    APRILTAG_PIXEL_OFFSET,
+    angle_deg,
+    apriltag,
+    ippe_pose,
+    match_corners,
+    roll_like,
+    stats,
+    timed,
+)
+from drovisio.camera import Camera
+from drovisio.detect.aruco import ArucoBrickDetector
+from drovisio.errors import InputError
+from drovisio.layout import MarkerLayout, aruco_dictionary_id, aruco_dictionary_size, parse_layout
+from drovisio.study.methods import APRILTAG_FAMILIES
+
+__all__ = ["bench_charuco", "bench_tags", "charuco_layout", "tag_layout"]
+
+Quads = list[tuple[int, np.ndarray]]
+"""(code id, its (4, 2) corners in pixels) per code read."""
+
+
+# --------------------------------------------------------------------------- layouts
+def tag_layout(dictionary: str, size_m: float, name: str = "tags") -> MarkerLayout:
+    """A layout whose every id of ``dictionary`` is its own one-code brick of ``size_m``."""
+    return parse_layout({
+        "schema": "drovisio/marker-layout@1", "name": name, "units": "m",
+        "first_id": 0, "ids_per_instance": 1,
+        "instances": aruco_dictionary_size(dictionary), "symmetry": "none",
+        "markers": [{"kind": "aruco", "dictionary": dictionary, "id": 0, "size": size_m,
+                     "center": [0, 0, 0], "normal": [0, 0, 1], "up": [0, 1, 0]}]},
+        "<bench real tags>")
+
+
+def charuco_layout(board: cv2.aruco.CharucoBoard, dictionary: str, name: str = "charuco"
+                   ) -> MarkerLayout:
+    """The codes of a ChArUco board as one brick; brick frame: the board's, y flipped (up
+    in the printed image) so that z points out of the board toward the camera."""
+    ids = [int(i) for i in np.ravel(board.getIds())]
+    size = float(board.getMarkerLength())
+    markers = []
+    for op, mid in zip(board.getObjPoints(), ids):
+        pts = np.asarray(op, np.float64).reshape(4, 3)
+        markers.append({"kind": "aruco", "dictionary": dictionary, "id": mid, "size": size,
+                        "corners": [[float(p[0]), -float(p[1]), 0.0] for p in pts]})
+    return parse_layout({"schema": "drovisio/marker-layout@1", "name": name, "units": "m",
+                         "first_id": 0, "ids_per_instance": max(ids) + 1, "instances": 1,
+                         "symmetry": "none", "markers": markers}, "<bench real charuco>")
+
+
+def _board_pts_to_brick(p: Any) -> np.ndarray:
+    """(N, 3) board points in the brick frame of :func:`charuco_layout` (y flipped)."""
+    q = np.asarray(p, np.float64).reshape(-1, 3).copy()
+    q[:, 1] *= -1.0
+    return q
+
+
+def _ms_per_photo(times: dict[str, list[float]]) -> dict[str, float | None]:
+    return {k: (1000.0 * float(np.median(v)) if v else None) for k, v in times.items()}
+
+
+# --------------------------------------------------------------------------- tags
+@dataclass
+class _TagFigures:
+    """What the tag photos give, gathered photo by photo."""
+
+    n: dict[str, int] = field(default_factory=lambda: {
+        "drovisio": 0, "opencv": 0, "apriltag": 0, "drovisio_bricks": 0,
+        "opencv_kept": 0, "duplicate_bricks": 0, "false": 0})
+    """Codes (and bricks) counted per method."""
+    c_ours_at: list[float] = field(default_factory=list)
+    """Corner RMS per code (px), Drovisio against AprilTag 3."""
+    c_cv_at: list[float] = field(default_factory=list)
+    c_ours_cv: list[float] = field(default_factory=list)
+    rot_ours_at: list[float] = field(default_factory=list)
+    """IPPE pose rotation differences (degrees) on each method's corners."""
+    rot_cv_at: list[float] = field(default_factory=list)
+    t_ours_at: list[float] = field(default_factory=list)
+    """IPPE pose translation differences (mm)."""
+    times: dict[str, list[float]] = field(default_factory=lambda: {
+        "drovisio": [], "opencv": [], "apriltag": []})
+    """Fastest time (s) per photo and method."""
+    missed: list[str] = field(default_factory=list)
+    """OpenCV's codes Drovisio does not keep, as ``photo:id``."""
+
+
+def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
+    """The figures of a folder of tag photos (with its camera file)."""
+    cam_path, camera = load_reference(folder, required=True)
+    assert camera is not None   # required: load_reference raised otherwise
+    images = photos(folder)
+    grays = [read_gray(p) for p in images]
+    dictionary, _ = best_dictionary(grays[:3])
+    if dictionary is None:
+        raise InputError(f"{folder}: no codes of a known dictionary in its first photos")
+    w, h = grays[0].shape[1], grays[0].shape[0]
+    camera = camera.for_image(w, h)[0]
+    det = ArucoBrickDetector(camera, [tag_layout(dictionary, tag_size)])
+    cv_det = aruco_detector(dictionary)
+    fam = APRILTAG_FAMILIES.get(dictionary)
+    at, why_not = apriltag(fam) if fam else (None, "AprilTag 3 reads no ArUco dictionary")
+    det.detect(grays[0])      # warm-up: compiled kernels, tables
+    rep: dict[str, Any] = {"kind": "tags", "folder": str(folder), "camera": str(cam_path),
+                           "dictionary": dictionary, "tag_size_m": tag_size,
+                           "photos": len(images),
+                           "apriltag": why_not or "pupil-apriltags, decimate 1, 1 thread"}
+    fig = _TagFigures()
+    for path, g in zip(images, grays):
+        if g.shape != grays[0].shape:
+            raise InputError(f"{path}: {g.shape[1]}x{g.shape[0]}, the others "
+                             f"{w}x{h} (one camera file is for one size)")
+        codes, cv, ats = _read_tags(g, det, cv_det, at, repeat, fig)
+        _opencv_kept(path, codes, cv, fig)
+        _against_apriltag(camera, tag_size, codes, cv, ats, at is not None, fig)
+    rep.update(codes=fig.n, missed_opencv_codes=fig.missed,
+               corners_rms_px={"drovisio_vs_apriltag": stats(fig.c_ours_at),
+                               "opencv_vs_apriltag": stats(fig.c_cv_at),
+                               "drovisio_vs_opencv": stats(fig.c_ours_cv)},
+               pose_vs_apriltag={"drovisio_rot_deg": stats(fig.rot_ours_at),
+                                 "drovisio_trans_mm": stats(fig.t_ours_at),
+                                 "opencv_rot_deg": stats(fig.rot_cv_at)},
+               ms_per_photo=_ms_per_photo(fig.times))
+    return rep
+
+
+def _read_tags(g: np.ndarray, det: ArucoBrickDetector, cv_det: cv2.aruco.ArucoDetector,
+               at: Any, repeat: int, fig: _TagFigures) -> tuple[list[Any], Quads, Quads]:
+    """One photo read by each method, timed and counted: Drovisio's refined codes, OpenCV's
+    and AprilTag 3's quads (AprilTag's moved to OpenCV's pixel convention)."""
+    n, times = fig.n, fig.times
+    poses, t = timed(partial(det.detect, g), repeat)
+    times["drovisio"].append(t)
+    (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
+    times["opencv"].append(t)
+    codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
+    n["drovisio"] += len(codes)
+    n["drovisio_bricks"] += len(poses)
+    n["duplicate_bricks"] += sum(bool(p.duplicate) for p in poses)
+    cv = [(int(i), np.asarray(q, np.float64).reshape(4, 2))
+          for q, i in zip(cq, np.ravel(ci))] if ci is not None else []
+    n["opencv"] += len(cv)
+    ats: Quads = []
+    if at is not None:
+        res, t = timed(partial(at.detect, g), repeat)
+        times["apriltag"].append(t)
+        ats = [(int(r.tag_id), np.asarray(r.corners, np.float64) - APRILTAG_PIXEL_OFFSET)
+               for r in res]
+        n["apriltag"] += len(ats)
+    return codes, cv, ats
+
+
+def _near(q: np.ndarray, pool: Quads) -> tuple[int, np.ndarray] | None:
+    """The first quad of ``pool`` whose centre is within 0.3 of ``q``'s side of its centre."""
+    c = q.mean(axis=0)
+    side = float(np.linalg.norm(q[1] - q[0]))
+    for i, p in pool:
+        if np.linalg.norm(p.mean(axis=0) - c) < 0.3 * side:
+            return i, p
+    return None
+
+
+def _opencv_kept(path: Path, codes: list[Any], cv: Quads, fig: _TagFigures) -> None:
+    """Every code OpenCV reads: kept by Drovisio (and how close its corners are)?"""
+    for mid, q in cv:
+        m = next((c for c in codes if c.marker_id == mid
+                  and np.linalg.norm(c.refined.corners_px.mean(0) - q.mean(0))
+                  < 0.3 * np.linalg.norm(q[1] - q[0])), None)
+        if m is None:
+            fig.missed.append(f"{path.name}:{mid}")
+            continue
+        fig.n["opencv_kept"] += 1
+        fig.c_ours_cv.append(float(np.sqrt(np.mean(match_corners(m.refined.corners_px, q) ** 2))))
+
+
+def _against_apriltag(camera: Camera, tag_size: float, codes: list[Any], cv: Quads,
+                      ats: Quads, have_apriltag: bool, fig: _TagFigures) -> None:
+    """Drovisio's and OpenCV's corners and IPPE poses against AprilTag 3's on the same
+    codes; Drovisio codes neither peer reads are counted as false."""
+    for c in codes:
+        q = c.refined.corners_px
+        other = _near(q, [(i, p) for i, p in ats if i == c.marker_id])
+        cvq = _near(q, [(i, p) for i, p in cv if i == c.marker_id])
+        if other is None and cvq is None and have_apriltag:
+            fig.n["false"] += 1   # neither peer reads a code there (a false code, or a hard one)
+        if other is None:
+            continue
+        ap = other[1]
+        fig.c_ours_at.append(float(np.sqrt(np.mean(match_corners(q, ap) ** 2))))
+        po, pa = ippe_pose(camera, tag_size, q), ippe_pose(camera, tag_size, roll_like(ap, q))
+        if po is not None and pa is not None:
+            fig.rot_ours_at.append(angle_deg(po[0], pa[0]))
+            fig.t_ours_at.append(1000.0 * float(np.linalg.norm(po[1] - pa[1])))
+        if cvq is not None:
+            fig.c_cv_at.append(float(np.sqrt(np.mean(match_corners(cvq[1], ap) ** 2))))
+            pc = ippe_pose(camera, tag_size, roll_like(cvq[1], q))
+            if pc is not None and pa is not None:
+                fig.rot_cv_at.append(angle_deg(pc[0], pa[0]))
+
+
+# --------------------------------------------------------------------------- charuco
+def _charuco_board(folder: Path, gray: np.ndarray, dictionary: str, board_spec: str | None,
+                   square: float, marker: float) -> cv2.aruco.CharucoBoard:
+    """The board ``--board`` names, or the one guessed from the codes of the first photo.
+
+    Raises:
+        InputError: a ``--board`` that is no ChArUco size, or codes that form no board.
+    """
+    d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
+    if board_spec:
+        m = re.fullmatch(r"charuco:(\d+)x(\d+)", board_spec)
+        if not m:
+            raise InputError(f"--board {board_spec}: give charuco:COLSxROWS (inner corners), "
+                             "e.g. charuco:4x6")
+        return cv2.aruco.CharucoBoard((int(m[1]) + 1, int(m[2]) + 1), square, marker, d)
+    _, ids, _ = aruco_detector(dictionary).detectMarkers(gray)
+    guessed = guess_charuco(gray, dictionary, np.ravel(ids), square, marker)
+    if guessed is None:
+        raise InputError(f"{folder}: the codes form no ChArUco board it could guess; give "
+                         "--board charuco:COLSxROWS")
+    return guessed
+
+
+def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: float,
+                  marker: float) -> dict[str, Any]:
+    """The figures of a folder of ChArUco photos (with its camera file)."""
+    cam_path, camera = load_reference(folder, required=True)
+    assert camera is not None   # required: load_reference raised otherwise
+    images = photos(folder)
+    grays = [read_gray(p) for p in images]
+    dictionary, _ = best_dictionary(grays[:3])
+    if dictionary is None:
+        raise InputError(f"{folder}: no codes in its first photos")
+    d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
+    board = _charuco_board(folder, grays[0], dictionary, board_spec, square, marker)
+    w, h = grays[0].shape[1], grays[0].shape[0]
+    camera = camera.for_image(w, h)[0]
+    det = ArucoBrickDetector(camera, [charuco_layout(board, dictionary)])
+    cv_det = cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters())
+    ch_det = cv2.aruco.CharucoDetector(board)
+    det.detect(grays[0])
+    obj = {int(i): _board_pts_to_brick(o)
+           for o, i in zip(board.getObjPoints(), np.ravel(board.getIds()))}
+    chess = _board_pts_to_brick(board.getChessboardCorners())
+    cols, rows = board.getChessboardSize()
+    rep: dict[str, Any] = {"kind": "charuco", "folder": str(folder), "camera": str(cam_path),
+                           "dictionary": dictionary, "board_squares": [int(cols), int(rows)],
+                           "square_m": square, "marker_m": marker, "photos": len(images)}
+    fig = _CharucoFigures()
+    for g in grays:
+        _charuco_photo(g, camera, det, cv_det, ch_det, obj, chess, repeat, fig)
+    rep.update(codes=fig.n,
+               corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv)},
+               pose_vs_board={"trans_mm": stats(fig.dt_mm), "rot_deg": stats(fig.dr_deg)},
+               ms_per_photo=_ms_per_photo(fig.times))
+    return rep
+
+
+@dataclass
+class _CharucoFigures:
+    """What the ChArUco photos give, gathered photo by photo."""
+
+    n: dict[str, int] = field(default_factory=lambda: {
+        "drovisio": 0, "opencv": 0, "charuco_corners": 0, "photos_posed": 0, "ambiguous": 0})
+    e_ours: list[float] = field(default_factory=list)
+    """Distances (px) of Drovisio's code corners from the board pose's prediction."""
+    e_cv: list[float] = field(default_factory=list)
+    dt_mm: list[float] = field(default_factory=list)
+    """The brick pose's translation from the board pose's, mm."""
+    dr_deg: list[float] = field(default_factory=list)
+    times: dict[str, list[float]] = field(default_factory=lambda: {
+        "drovisio": [], "opencv": [], "charuco": []})
+
+
+def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
+                   cv_det: cv2.aruco.ArucoDetector, ch_det: cv2.aruco.CharucoDetector,
+                   obj: dict[int, np.ndarray], chess: np.ndarray, repeat: int,
+                   fig: _CharucoFigures) -> None:
+    """One photo: each method timed; with at least 6 ChArUco corners, the board posed from
+    them and both methods' code corners and Drovisio's brick pose against it."""
+    n, times = fig.n, fig.times
+    poses, t = timed(partial(det.detect, g), repeat)
+    times["drovisio"].append(t)
+    (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
+    times["opencv"].append(t)
+    (cc, cid, _, _), t = timed(partial(ch_det.detectBoard, g), repeat)
+    times["charuco"].append(t)
+    codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
+    n["drovisio"] += len(codes)
+    n["opencv"] += 0 if ci is None else len(ci)
+    if cid is None or len(cid) < 6:
+        return
+    n["charuco_corners"] += len(cid)
+    ok, rv, tv = cv2.solvePnP(chess[np.ravel(cid)], np.asarray(cc, np.float64).reshape(-1, 2),
+                              camera.K, camera.dist)
+    if not ok:
+        return
+    for c in codes:
+        p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
+        fig.e_ours.extend(np.linalg.norm(p.reshape(4, 2) - c.refined.corners_px, axis=1))
+    if ci is not None:
+        fig.e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
+    if poses:
+        b = poses[0]
+        n["photos_posed"] += 1
+        n["ambiguous"] += bool(b.ambiguous)
+        fig.dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
+        fig.dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
+
+
+def _opencv_vs_board(camera: Camera, obj: dict[int, np.ndarray], cq: Any, ci: np.ndarray,
+                     rv: np.ndarray, tv: np.ndarray) -> list[float]:
+    """Distances (px) of OpenCV's code corners from the board pose's prediction."""
+    out: list[float] = []
+    for q, i in zip(cq, np.ravel(ci)):
+        if int(i) in obj:
+            p, _ = cv2.projectPoints(obj[int(i)], rv, tv, camera.K, camera.dist)
+            out.extend(np.linalg.norm(p.reshape(4, 2) - np.asarray(q).reshape(4, 2), axis=1))
+    return out
