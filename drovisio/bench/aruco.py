@@ -169,7 +169,7 @@ def _visibility(scene: Scene) -> dict[int, float]:
     big: Any = trimesh.util.concatenate(meshes)
     eye = np.linalg.inv(scene.camera_from_world)[:3, 3]
     for b in scene.bricks:
-        lay = cast(MarkerLayout, b.layout)
+        lay = b.layout
         if not lay.has_codes:
             continue
         for slot, c in lay.code_corners_m().items():
