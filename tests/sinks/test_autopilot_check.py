@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -113,7 +114,10 @@ def test_measures_latency_rate_and_blind_height_on_the_sample_video(vehicle, ard
     lines = {ln[8:].split(":")[0].split()[-1]: ln for ln in out.splitlines()
              if ln.split()[0] in ("ok", "wrong", "warn", "unknown")}
     # the figures depend on this machine's load; what is checked is what follows from them
-    rate = float(lines["rate"].split("detection rate: ")[1].split(" Hz")[0])
+    # "… 12.3 Hz …" when fast enough, "target measured 1.2 times a second" when not (a
+    # loaded machine)
+    rate = float(re.search(r"detection rate: (?:target measured )?([0-9.]+)",
+                           lines["rate"]).group(1))
     assert 0.0 < rate <= 15.0 * 1.1          # never faster than the 15 fps video
     latency_ms = float(lines["latency"].split("capture to send ")[1].split(" ms")[0])
     lag = plnd_lag_for(latency_ms / 1e3)
