@@ -47,10 +47,13 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     assert any("→" in x for x in page.locator("#replay-events li").all_inner_texts())
     st = page.request.get(base + "/api/replay/state").json()
     assert st["t"] > 5 and st["drone"]["position"] != p0
-    # the drone keeps moving while playing
+    # the drone keeps moving while playing (a slow machine may have played it to its end)
     time.sleep(1.0)
     st2 = page.request.get(base + "/api/replay/state").json()
-    assert st2["t"] > st["t"] and st2["drone"]["position"] != st["drone"]["position"]
+    if _text(page, "replay-state") != "DONE":
+        assert st2["t"] > st["t"] and st2["drone"]["position"] != st["drone"]["position"]
+    else:
+        assert st2["t"] >= st["t"]
     # to the end: the brick is placed and the run is DONE
     page.wait_for_function("document.getElementById('replay-state').textContent === 'DONE'",
                            timeout=30_000)
