@@ -46,11 +46,9 @@ from drovisio.errors import InputError
 from drovisio.images import IMAGE_SUFFIXES
 from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
 from drovisio.sources import list_folder
+from drovisio.study.methods import apriltag_detector
 
 DEFAULT_DICTIONARIES = ("DICT_4X4_50", "DICT_6X6_250", "DICT_APRILTAG_36h11")
-#: pupil-apriltags may crash the process when a detector is freed while another is alive:
-#: one per family set, kept for the process
-_PEERS: dict[str, object] = {}
 
 
 def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
@@ -90,13 +88,10 @@ def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
 def _apriltag_default():
     """AprilTag 3 for tag36h11 at its default settings, or None when not installed."""
     try:
-        from pupil_apriltags import Detector
+        import pupil_apriltags  # noqa: F401 - an optional dependency, only asked whether present
     except ImportError:
         return None
-    det = _PEERS.get("tag36h11")
-    if det is None:
-        det = _PEERS["tag36h11"] = Detector(families="tag36h11")
-    return det
+    return apriltag_detector("tag36h11", defaults=True)
 
 
 def _stats(v: list[float]) -> tuple[float, float]:

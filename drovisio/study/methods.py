@@ -16,6 +16,7 @@ integers).
 
 from __future__ import annotations
 
+import atexit
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -148,21 +149,37 @@ def _apriltag_applies(layout) -> str | None:
     return None
 
 
-_APRILTAG_DETECTORS: dict[str, object] = {}
+_APRILTAG_DETECTORS: dict[tuple[str, bool], Any] = {}
 
 
-def apriltag_detector(families: str):
-    """AprilTag 3 (decimate 1, one thread) for ``families`` ("tag36h11 ..."), one per family
-    set for the process: pupil-apriltags can crash the process when a detector is freed
-    while another is alive."""
-    from pupil_apriltags import Detector
+def apriltag_detector(families: str, defaults: bool = False) -> Any:
+    """AprilTag 3 for ``families`` ("tag36h11 ..."), one per family set and settings for the
+    process: decimate 1 and one thread (the study's settings), or pupil-apriltags' own
+    defaults (``defaults=True``, as a user would run it).
 
-    det = _APRILTAG_DETECTORS.get(families)
+    The detectors live until the process ends and are never freed by pupil-apriltags itself
+    (:func:`_forget_apriltag_detectors`)."""
+    from pupil_apriltags import Detector  # deferred: an optional dependency
+
+    key = (families, defaults)
+    det = _APRILTAG_DETECTORS.get(key)
     if det is None:
-        det = _APRILTAG_DETECTORS[families] = Detector(
+        det = Detector(families=families) if defaults else Detector(
             families=families, nthreads=1, quad_decimate=1.0, quad_sigma=0.0, refine_edges=1,
             decode_sharpening=0.25)
+        _APRILTAG_DETECTORS[key] = det
     return det
+
+
+@atexit.register
+def _forget_apriltag_detectors() -> None:
+    """pupil-apriltags' ``Detector.__del__`` destroys the tag families before the detector
+    that still reads them (a use-after-free): freed at interpreter exit, a detector corrupts
+    the heap and the process aborts ("malloc(): mismatching next->prev_size") after its work
+    is done. The process is ending: leave their memory to the system instead."""
+    for det in _APRILTAG_DETECTORS.values():
+        det.tag_detector_ptr = None
+    _APRILTAG_DETECTORS.clear()
 
 
 def _apriltag(camera, layouts) -> Estimator:
