@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: TextIO) -> int:
-    from drovisio.detect.result import FrameResult
+    from drovisio.detect.result import FrameRecord as FrameResult
     from drovisio.sources import iter_inputs
 
     if streams.aruco_layouts:  # the per-camera undistortion table, once, outside the timing

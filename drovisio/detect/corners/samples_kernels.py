@@ -1,4 +1,4 @@
-"""Compiled kernel of the code fit's sample selection (:func:`.corners.refine_codes`), numba.
+"""Compiled kernel of the code fit's sample selection (:func:`.samples.select_samples`), numba.
 
 Choosing the pixels of each code that enter the photometric fit — every pixel of the code's
 box (a random subset of a big box), its place in the code's cells through the start
