@@ -67,7 +67,8 @@ class ArucoParams:
     ring_quads_max: int = 30
     """For dictionaries with small cells, at most this many quads from contours OpenCV
     passed over (a code whose border touches a dark edge:
-    :func:`drovisio.detect.code_reading.ring_quads`; 0: none)."""
+    :func:`drovisio.detect.code_reading.ring_quads`; 0: none), only in frames where OpenCV
+    read one of the family's codes (the brick's other codes)."""
 
     # -- the second look: unread quads enlarged twice and searched again ------------------
     second_look_max: int = 6
