@@ -317,7 +317,7 @@ def _say_messages(messages: list[str], tally: _Tally) -> None:
 def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: TextIO) -> int:
     # deferred: the detectors and the readers load OpenCV, which `drovisio --help` must not
     from drovisio.detect.corners import normalized_grid
-    from drovisio.detect.result import FrameResult
+    from drovisio.detect.result import FrameRecord
     from drovisio.sources import iter_inputs
 
     if streams.aruco_layouts and streams.camera.size_known:
@@ -327,7 +327,7 @@ def _run_frames(args, streams: _Streams, gravity: GravityTable | None, out: Text
     for item in iter_inputs(args.inputs, messages):
         _say_messages(messages, tally)
         tally.frames += 1
-        res = FrameResult(file=item.file, frame=item.frame)
+        res = FrameRecord(file=item.file, frame=item.frame)
         where = f"{item.file}" + (f" frame {item.frame}" if item.is_video else "")
         if item.error is not None:
             res.error = item.error

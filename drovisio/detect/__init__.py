@@ -4,6 +4,6 @@ Every detector returns :class:`BrickPose` objects, the one result type the pipel
 and the web tool share (see :mod:`.result`).
 """
 
-from drovisio.detect.result import BrickPose, FrameResult
+from drovisio.detect.result import BrickPose, FrameRecord
 
-__all__ = ["BrickPose", "FrameResult"]
+__all__ = ["BrickPose", "FrameRecord"]

@@ -21,6 +21,7 @@ DICT_APRILTAG_36h11``) the reader with these quads decoded no wrong id among ~20
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import erf, sqrt
 
 import cv2
 import numpy as np
@@ -29,8 +30,8 @@ __all__ = ["CodeReading", "CodeReader", "ring_quads"]
 
 
 def _normal_cdf(z: np.ndarray) -> np.ndarray:
-    from math import erf, sqrt
-
+    """Standard normal CDF, elementwise (exact: used once per code size to build the
+    reader)."""
     return 0.5 * (1.0 + np.vectorize(erf)(np.asarray(z, np.float64) / sqrt(2.0)))
 
 

@@ -11,19 +11,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drovisio.geometry import from_rvec_tvec
+from drovisio.pose.covariance import parent_covariance
 
-__all__ = ["BrickPose", "FrameResult"]
+__all__ = ["BrickPose", "FrameRecord", "covariance_json"]
 
 
 def _r(x: float, nd: int = 6) -> float:
+    """``x`` rounded to ``nd`` decimals, as a plain float (the JSON output's precision)."""
     return float(round(float(x), nd))
 
 
-def covariance_json(rvec, cov_rvec_tvec) -> list[list[float]] | None:
+def covariance_json(rvec: np.ndarray, cov_rvec_tvec: np.ndarray) -> list[list[float]] | None:
     """The JSON ``covariance`` of a pose: 6×6 rows, (x, y, z, rotation about x, y, z) of the
-    camera frame, m and rad (:mod:`drovisio.pose.covariance`); None when not finite."""
-    from drovisio.pose.covariance import parent_covariance  # here: fusion imports this module
+    camera frame, m and rad (:mod:`drovisio.pose.covariance`); None when not finite.
 
+    Args:
+        rvec: (3,) rotation vector of ``camera_from_brick``.
+        cov_rvec_tvec: (6, 6) covariance of (rvec, tvec), rad and m.
+    """
     C = parent_covariance(rvec, cov_rvec_tvec)
     if not np.all(np.isfinite(C)):
         return None
@@ -99,7 +104,7 @@ class BrickPose:
 
 
 @dataclass
-class FrameResult:
+class FrameRecord:
     """All bricks of one frame (one JSON Lines record of ``drovisio detect``)."""
 
     file: str
@@ -108,6 +113,7 @@ class FrameResult:
     error: str | None = None
 
     def to_json(self, with_covariance: bool = True) -> dict:
+        """The DESIGN.md JSON Lines record: file, frame, the error if any, the bricks."""
         out: dict = {"file": self.file, "frame": self.frame}
         if self.error is not None:
             out["error"] = self.error

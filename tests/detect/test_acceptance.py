@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
-from drovisio.detect.corners import _move_limits, cell_verdict
+from drovisio.detect.corners import cell_verdict
+from drovisio.detect.corners.fit import _move_limits
 
 BITS = np.array([1, 0] * 18, np.float64)   # 36 cells, half white
 

@@ -215,7 +215,8 @@ def test_compiled_sample_selection_equals_numpy(frames, layouts, cam, monkeypatc
     """The code fit's samples chosen by the compiled kernel are exactly numpy's, and so are
     the refined corners (kernels on and off)."""
     from drovisio import _numba
-    from drovisio.detect import corners, corners_kernels
+    from drovisio.detect.corners import samples as corners
+    from drovisio.detect.corners import samples_kernels as corners_kernels
 
     if not _numba.AVAILABLE:
         pytest.skip("numba is not installed here (or DROVISIO_NUMBA=0)")

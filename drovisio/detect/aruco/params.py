@@ -1,0 +1,130 @@
+"""The code detector's tuning, grouped by stage (defaults measured with ``drovisio bench aruco``).
+
+The stages, in the order :class:`~drovisio.detect.aruco.ArucoBrickDetector` runs them: OpenCV's
+pass (quads and their bits), the rescue of the quads it could not read, the second look at
+twice the size, the corner fit, and the brick's pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from drovisio.pose import AmbiguityRule
+
+__all__ = ["ArucoParams"]
+
+
+@dataclass
+class ArucoParams:
+    """Tuning of the code detector (defaults measured with ``drovisio bench aruco``)."""
+
+    # -- OpenCV's pass: quads from one adaptive threshold, their bits read by OpenCV ------
+    adaptive_window: int = 5
+    """Adaptive threshold window (px, odd). One window: the default three cost 3× the time
+    and found fewer small codes on the drick scenes."""
+    threshold_constant: float = 12.0
+    """Adaptive threshold constant (grey levels below the local mean that count as black).
+    OpenCV's 7 merges the black border with the darker brick faces next to it (the white
+    paper rim is < 1 px at 2 m), so the quad is lost."""
+    pixels_per_cell: int = 8
+    """Samples per cell when the bits are read (OpenCV's 4 misreads codes of ~3 px cells)."""
+    min_code_px: float = 11.0
+    """Smallest code side, pixels; OpenCV's perimeter rate is set from it for the camera's
+    image size (0.07 at 640 px). The target is ≥ 15 px; fewer candidates than 8 px, same
+    recall."""
+    error_correction_rate: float = 0.6
+    polygon_accuracy: float = 0.03
+    """OpenCV's ``polygonalApproxAccuracyRate``: how far (× the perimeter) a candidate's
+    contour may stray from its 4-gon. 0.05 read 1 code more in 1000 on the 60° lens, but
+    through a fisheye it took curved, bumpy contours for codes and their poses were off by
+    3 cm (``drovisio bench lens``)."""
+
+    # -- the rescue: quads OpenCV could not read (and ring quads), read by a fit ----------
+    rescue: bool = True
+    """Read the quads OpenCV found but rejected, and the ring quads (see
+    :func:`drovisio.detect.aruco.rescue.rescue_codes`)."""
+    rescue_max: int = 60
+    """At most this many quads are read again per frame."""
+    rescue_max_side_px: float = 40.0
+    """Rejected quads bigger than this (mean side) are not read again."""
+    rescue_max_bit_errors: int = 3
+    """Most misread bits a rescued code may have (fewer when our codes are closer to each
+    other: :func:`drovisio.detect.aruco.families.tolerable_bit_errors`); small 36h11 codes
+    have cells of 1.4–2 px, blur makes one or two of 36 read wrong. The corner fit then
+    checks every cell against the code's bits (a misread code is dropped there)."""
+    rescue_chance_limit: float = 1e-4
+    """Highest chance that a random reading (a quad on gravel) comes within the tolerated
+    bit errors of one of our codes; it bounds the tolerance (36h11: 3 errors, 2e-5 for 40
+    codes; 4×4: 0)."""
+    rescue_shifts_px: tuple[float, ...] = (0.0, 0.8, 1.6)
+    """Outward shifts of a rescued quad's corners tried when reading it (OpenCV's contours
+    lie about a pixel inside the code, a ring's hull half a pixel)."""
+    rescue_min_contrast: float = 15.0
+    """Grey levels a rescued code's white cells must read above its black ones."""
+    rescue_max_black_offset: float = 0.35
+    """A rescued code's black cells must read as its border's black within this fraction
+    of the contrast (a quad on gravel has no uniform black frame)."""
+    ring_quads_max: int = 30
+    """For dictionaries with small cells, at most this many quads from contours OpenCV
+    passed over (a code whose border touches a dark edge:
+    :func:`drovisio.detect.code_reading.ring_quads`; 0: none), only in frames where OpenCV
+    read one of the family's codes (the brick's other codes)."""
+
+    # -- the second look: unread quads enlarged twice and searched again ------------------
+    second_look_max: int = 6
+    """Quads still unread after the rescue that get a second look at twice the size (the
+    largest first; 0: none)."""
+    small_cell_px: float = 2.5
+    """Dictionaries whose cells are at most this wide on a 20-px code have "small cells":
+    they get the ring quads and the second look. 4×4 codes (3.3 px) do not: on the bench the
+    two found the last 3 of 520 bricks but made 7 false ones in 440 frames (16 bits read off
+    random quads match one of our codes too often), at 2.3× the time."""
+    second_look_max_side_px: float = 30.0
+    """Unread quads larger than this (mean side) get no second look."""
+    second_look_chance: float = 0.05
+    """The budget of the second look (0.25 ms a quad): only quads whose reading shows a
+    code's frame (a uniform black border and cells with contrast, at some shift) or came
+    closer to one of our codes than a random pattern would with this chance (36h11 with
+    30–60 ids: at most 7 bits off) get it. Bits alone are no budget: a ring's hull that
+    takes in a pyramid's edge reads 9–11 bits off and still holds a code."""
+    second_look_window: int = 9
+    """Adaptive threshold window of the second look (px of the enlarged image)."""
+    second_look_constant: float = 5.0
+    """Adaptive threshold constant of the second look."""
+
+    # -- the corner fit (:func:`drovisio.detect.corners.refine_codes`) --------------------
+    initial_expand_px: float = 1.0
+    """OpenCV's corners (contours of the thresholded image) lie inside the code: at the
+    threshold settings above their mean signed radial error is -1.06 px (bench). The fit
+    starts from them moved outward by this much along the diagonals."""
+    refine_iterations: int = 2
+    """Levenberg–Marquardt iterations of the corner fit (two suffice from the corrected
+    start: RMS 0.17 px on the bench, against 0.23 px with three from the raw corners)."""
+    refine_coarse_iterations: int = 0
+    refine_lambda: float = 0.03
+    max_samples: int = 200
+    """Pixels per code in the corner fit (bigger codes: a random subset)."""
+    band_px: float = 2.0
+    """Only pixels within this distance of a modelled edge enter the corner fit."""
+    corner_noise_scale: float = 1.0
+    """Multiplies the corner standard deviations predicted by the photometric fit (which
+    takes the noise from its own residuals). The pose solve then inflates the covariance by
+    its own χ²/dof when the corners disagree more than predicted (correlated JPEG noise), so
+    a further factor counts that noise twice: with 2.0 the pose errors' Mahalanobis median
+    against the reported covariance was 2.0 on rendered scenes (χ²(6): 5.35), with 1.0 it is
+    3.8–4.7 (``tests/pose/test_covariance_honesty.py``)."""
+
+    # -- the brick's pose -----------------------------------------------------------------
+    max_rmse_px: float = 2.0
+    """Bricks whose joint fit is worse than this (px RMS) are dropped (a wrong grouping or a
+    code on a bent surface) unless the fit is explained otherwise
+    (:meth:`drovisio.detect.aruco.pose.BrickSolver.fit_explained`: noisier corners, or a
+    camera model that fits OpenCV's own corners no better)."""
+    gravity_prior_deg: float | None = 5.0
+    """With gravity, a soft prior that the brick lies flat (standard deviation, degrees;
+    None: gravity only chooses between flip candidates). It covers the drone's attitude
+    error and uneven ground; strong image evidence wins over it."""
+    ambiguity: AmbiguityRule = field(default_factory=AmbiguityRule)
+    """The planar ambiguity's rule, the same as the dot detector's
+    (:mod:`drovisio.pose.ambiguity`; measured on the bench: at a χ² margin of 16, small single
+    codes were flipped by corner errors, hence 25)."""

@@ -1,0 +1,56 @@
+"""Unbiased sub-pixel corners of square fiducial codes by fitting a photometric model.
+
+Why not OpenCV's corner refinement: the outer edge of a printed code sits between its black
+border and whatever is around it (a thin strip of paper, then the brick); once blurred, that
+neighbourhood pulls every local edge or corner estimator (gradient peak, threshold crossing,
+``cornerSubPix``) by 0.3–0.7 px, a bias measured on renders. Here the outer edge is not used
+at all. Each code is fitted *as a whole* from the inside: knowing the code's bits (from its
+decoded id), the model predicts every pixel of the code's interior,
+
+    I(p) = B + (W − B) · S(u, v),        (u, v) = G(x(p))
+
+where ``x(p)`` is the undistorted, normalised image coordinate of pixel ``p`` (exact, from
+the camera model), ``G`` the 8-parameter homography from the image plane to the code plane in
+cell units (the outer border spans [0, n]², n = bits + 2), and ``S`` the code's white cells
+blurred by a separable Gaussian (``s_u``, ``s_v`` in cells: defocus, motion, pixel area). The
+twelve parameters (G, B, W, s_u, s_v) are fitted by Levenberg–Marquardt to the pixels of the
+region [1 − a, n − 1 + a]² (the inner edges of the border and every bit edge) that lie within
+a couple of pixels of a modelled edge (a random subset for big codes: a regular one aliases
+with the edges), batched over all codes of a frame. Blur acts symmetrically on every modelled
+edge, so the fitted homography, and the outer corners ``G⁻¹((0,0), (n,0), (n,n), (0,n))``,
+carry no blur bias; working in undistorted coordinates makes lens distortion exact as well.
+
+The fit also yields, per code, the corners' 8×8 covariance (from the Jacobian and the fit's
+residual noise), the contrast, the blur, and two checks used to reject decoys and partly
+hidden codes: the goodness of fit, and a deblurred read-back of every inner cell at the fitted
+geometry, judged by the code's own two brightness classes (:func:`cell_verdicts`: real JPEGs
+read cells at 0.7 / 0.3 that still lie 15+ spreads apart); a corner that moved farther from
+its start than the frame's measured start noise allows is refused too
+(:func:`.fit._move_limits`).
+
+Measured on rendered drick scenes (``drovisio bench aruco``, blur σ ≤ 1 px, 2852 corners):
+mean signed radial error +0.004 px, RMS 0.20 px; OpenCV's corners at the detector's settings
+−1.04 px and 1.21 px.
+
+The package, one subject per module: :mod:`.fit` (:func:`refine_codes`, its stages in order),
+:mod:`.model` (the photometric model and its Jacobian), :mod:`.samples` (which pixels enter
+the fit; compiled in :mod:`.samples_kernels`, numba, where numba is installed, the same
+samples as the numpy reference; the fit stays numpy: its dense float32 arithmetic is faster
+vectorised), :mod:`.cells` (the read-back of the cells).
+
+Conventions: pixel (0, 0) is the centre of the top-left pixel; corners in OpenCV order TL, TR,
+BR, BL of the printed code (the order of ``cv2.aruco`` and of the layout file).
+"""
+
+from drovisio.detect.corners.cells import cell_verdict, cell_verdicts
+from drovisio.detect.corners.fit import MAX_SAMPLES, RefinedCode, refine_codes
+from drovisio.detect.corners.samples import normalized_grid
+
+__all__ = [
+    "MAX_SAMPLES",
+    "RefinedCode",
+    "cell_verdict",
+    "cell_verdicts",
+    "normalized_grid",
+    "refine_codes",
+]
