@@ -12,8 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drovisio.detect.aruco import ArucoBrickDetector
 from drovisio.errors import InputError
-from drovisio.mount import MountError, measure_mount
+from drovisio.geometry import transform
+from drovisio.mount import BODY_FROM_ALIGNED_BRICK, MountError, angles_of, measure_mount
 
 __all__ = ["MountMeasurement", "measure_from_images"]
 
@@ -46,8 +48,6 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
     Raises:
         InputError: No layout has codes, or no picture showed a code lying flat.
     """
-    from drovisio.detect.aruco import ArucoBrickDetector
-
     coded = [lay for lay in layouts if lay.has_codes]
     if not coded:
         raise InputError("none of these layouts has ArUco codes; measuring the mount needs a "
@@ -106,9 +106,6 @@ def pan_refusal(poses: Sequence[np.ndarray], layout_names: Sequence[str]) -> str
     the code's x axis points to the nose. That is known of a landing pad laid with its arrow
     to the nose, never of a brick; and the pictures must agree on it.
     """
-    from drovisio.geometry import transform
-    from drovisio.mount import BODY_FROM_ALIGNED_BRICK, angles_of
-
     others = sorted({n for n in layout_names if not is_nose_marker(n)})
     if others:
         return ("pan not measured: the codes seen are on " + ", ".join(others)

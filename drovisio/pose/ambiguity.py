@@ -33,8 +33,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
+
+from drovisio.pose.measures import rotation_angles_deg
 
 __all__ = [
     "AmbiguityRule",
@@ -119,12 +122,6 @@ class PoseHistory:
                             np.asarray(tvec, np.float64).copy())
 
 
-def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Rotation angles between batches of rotations (..., 3, 3), degrees."""
-    c = (np.einsum("...ij,...ij->...", Ra, Rb) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def _tilt_deg(R: np.ndarray, down: np.ndarray, up_axis: np.ndarray) -> np.ndarray:
     """Angles (B, 2) between each candidate's up axis and −``down`` (one (3,) vector or one
     per brick (B, 3)), degrees."""
@@ -146,8 +143,6 @@ MIN_DOF_FOR_SCALE = 8
 
 def _chi2_quantile(p: float, dof: float) -> float:
     """The p-quantile of χ²(dof) (Wilson–Hilferty; within 1 % from 3 dof up)."""
-    from statistics import NormalDist
-
     z = NormalDist().inv_cdf(p)
     h = 2.0 / (9.0 * dof)
     return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
@@ -278,12 +273,12 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
             ang = np.full((B, 2), np.inf)
             for b, Rp in enumerate(previous):
                 if Rp is not None:
-                    ang[b] = _angle_deg(Rp, R[b])
+                    ang[b] = rotation_angles_deg(Rp, R[b])
             agree(ang, rule.previous_tol_deg, "previous", separation=True)
     if use_fit:
         settle(finite & ~alternative_plausible(chi2, dof_a, rule), best, "reprojection")
         # closer than the pose's own uncertainty: one pose
-        settle(_angle_deg(R[:, 0], R[:, 1]) < rule.min_angle_deg, best, "close")
+        settle(rotation_angles_deg(R[:, 0], R[:, 1]) < rule.min_angle_deg, best, "close")
     if tilt is not None:
         # bricks lie roughly flat: a choice gravity contradicts is no decision (neither
         # candidate is then trustworthy: typically a pose from too few points)
