@@ -47,6 +47,18 @@ def _model_from(ref: Refined, views: list[ViewInput], O, I, size, key: str,
     return Model(cam, rms, fits, free, S, sigma2, cov, rms_history=list(ref.rms_history))
 
 
+def _checked(ref: Refined, start: str, views: list[ViewInput], O: list[np.ndarray],
+             I: list[np.ndarray], size: tuple[int, int], model: str, free: np.ndarray,
+             noise: float | None) -> tuple[Model | None, tuple[str, str] | None]:
+    """The :class:`Model` of one start's solve when it passes :func:`diagnose`, else None
+    and why not ((cause, fix))."""
+    if not np.isfinite(ref.rms_px):
+        return None, (f"diverged from the {start} (no finite reprojection)", "add varied views")
+    m = _model_from(ref, views, O, I, size, model, free)
+    why = diagnose(m, O, noise)
+    return (m, None) if why is None else (None, why)
+
+
 def _fit(views: list[ViewInput], size: tuple[int, int], fix_k3: bool,
          model: str = "plumb_bob", noise: float | None = None,
          fixed_coefficients: int = 0) -> Model:
@@ -74,19 +86,14 @@ def _fit(views: list[ViewInput], size: tuple[int, int], fix_k3: bool,
         if k:
             free[n - k:] = False
         for ref, start in candidates(O, I, size, model, stages[k3_fixed], k):
-            if not np.isfinite(ref.rms_px):
-                why: tuple[str, str] | None = (f"diverged from the {start} (no finite "
-                                               "reprojection)", "add varied views")
-            else:
-                m = _model_from(ref, views, O, I, size, model, free)
-                why = diagnose(m, O, noise)
-                if why is None:
-                    m.start = start
-                    if k and first is not None and not (model == "plumb_bob" and fix_k3):
-                        names = ", ".join(param_names(model)[n - k:])
-                        m.retry_note = (f"{names} held at 0: with them free the solve "
-                                        f"{first[0]}")
-                    return m
+            m, why = _checked(ref, start, views, O, I, size, model, free, noise)
+            if m is not None:
+                m.start = start
+                if k and first is not None and not (model == "plumb_bob" and fix_k3):
+                    names = ", ".join(param_names(model)[n - k:])
+                    m.retry_note = (f"{names} held at 0: with them free the solve "
+                                    f"{first[0]}")
+                return m
             first = first or why
         if first is None:
             first = ("found no start: no start's lens model sees the corners",
