@@ -191,6 +191,32 @@ def alternative_plausible(chi2: np.ndarray, dof: np.ndarray | float,
     return np.isfinite(other) & ((other - best < rule.chi2_margin) | (best > 3.0 * dof + 4.0))
 
 
+def _best_fit(chi2: np.ndarray, rmse_px: np.ndarray | None, rule: AmbiguityRule
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reprojection's part of the rule, for B bricks with two candidates each.
+
+    Returns:
+        (finite (B,): both χ² known; best (B,): the better-fitting candidate, by χ², else by
+        ``rmse_px``; fit_ok (B, 2): the candidates whose fit is not far worse than the best
+        one's: a candidate that is out stays out, whatever else is said).
+    """
+    B = chi2.shape[0]
+    finite = np.isfinite(chi2).all(axis=1)
+    ar = np.arange(B)
+    if finite.all():
+        best = (chi2[:, 1] < chi2[:, 0]).astype(np.int64)
+    else:
+        best = np.where(finite, np.argmin(np.where(np.isfinite(chi2), chi2, np.inf), axis=1),
+                        np.argmin(rmse_px, axis=1) if rmse_px is not None else 0)
+    if rmse_px is not None and not finite.all():
+        rb = rmse_px[ar, best]
+        fit_ok = rmse_px <= 3.0 * rb[:, None] + 1.0
+    else:
+        cb = chi2[ar, best]
+        fit_ok = chi2 - cb[:, None] <= np.maximum(9.0 * rule.chi2_margin, 3.0 * cb)[:, None]
+    return finite, best, fit_ok
+
+
 def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
                  gravity: np.ndarray | None = None, reference_up: np.ndarray | None = None,
                  previous: Sequence[np.ndarray | None] | None = None,
@@ -230,20 +256,8 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
     up = np.asarray(up_axis, np.float64)
     choice = np.full(B, -1, np.int64)
     why = [""] * B
-    finite = np.isfinite(chi2).all(axis=1)
     ar = np.arange(B)
-    if finite.all():
-        best = (chi2[:, 1] < chi2[:, 0]).astype(np.int64)
-    else:
-        best = np.where(finite, np.argmin(np.where(np.isfinite(chi2), chi2, np.inf), axis=1),
-                        np.argmin(rmse_px, axis=1) if rmse_px is not None else 0)
-    # a candidate whose fit is far worse than the best one's is out, whatever else is said
-    if rmse_px is not None and not finite.all():
-        rb = rmse_px[ar, best]
-        fit_ok = rmse_px <= 3.0 * rb[:, None] + 1.0
-    else:
-        cb = chi2[ar, best]
-        fit_ok = chi2 - cb[:, None] <= np.maximum(9.0 * rule.chi2_margin, 3.0 * cb)[:, None]
+    finite, best, fit_ok = _best_fit(chi2, rmse_px, rule)
 
     def settle(mask: np.ndarray, pick: np.ndarray, reason: str) -> None:
         m = mask & (choice < 0)

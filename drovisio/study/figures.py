@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -50,11 +51,10 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
     n_panels = len(rows) * len(cols)
     fig, grid = plt.subplots(n_panels, 1, figsize=(7.2, 4.6 * n_panels), squeeze=False)
     axes = [[grid[i * len(cols) + j][0] for j in range(len(cols))] for i in range(len(rows))]
-    names = [m for m in methods if any(r["method"] == m for r in recs)]
+    names = _methods_in(methods, recs)
     for i, lay in enumerate(rows):
         for j, vary in enumerate(cols):
-            here = [m for m in names if any(r["method"] == m and r["layout"] == lay
-                                            for r in recs)]
+            here = _methods_in(names, [r for r in recs if r["layout"] == lay])
             panel_recs = [r for r in recs if r["layout"] == lay and r["vary"] == vary]
             drawn["panels"].append(_box_panel(axes[i][j], spec, panel_recs, lay, vary, here,
                                               methods, not_applicable.get(lay, {})))
@@ -66,6 +66,11 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
         plt.close(fig)
     drawn["file"] = str(path)
     return drawn
+
+
+def _methods_in(methods: Iterable[str], recs: list[dict]) -> list[str]:
+    """The ``methods`` (in their order) that have a record in ``recs``."""
+    return [m for m in methods if any(r["method"] == m for r in recs)]
 
 
 def _box_panel(ax: Any, spec: dict, recs: list[dict], lay: str, vary: str, here: list[str],
