@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -52,6 +53,29 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
     if not coded:
         raise InputError("none of these layouts has ArUco codes; measuring the mount needs a "
                          "code lying flat (the shipped landing-pad.json is best)")
+    poses, names, lines = _flat_codes(images, camera, coded)
+    if not poses:
+        said = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
+        raise MountError("no code lying flat was found in view" + (f" ({said})" if said else "")
+                         + ": put a shipped code flat on the ground in front of the drone")
+    refused = None
+    if aligned:
+        refused = pan_refusal(poses, names)
+    result = measure_mount(poses, aligned=aligned and refused is None)
+    result["pan_refused"] = refused
+    if refused:
+        lines.insert(0, refused)
+    return MountMeasurement(result, lines)
+
+
+def _flat_codes(images: Iterable[tuple[str, np.ndarray | str]], camera: Any,
+                coded: list[Any]) -> tuple[list[np.ndarray], list[str], list[str]]:
+    """Per picture, the largest code brick lying flat (unambiguous) in view.
+
+    Returns:
+        (its ``camera_from_brick`` 4×4 per picture that showed one, its layout's name, one
+        line per picture in plain words).
+    """
     det, det_camera = None, None
     poses: list[np.ndarray] = []
     names: list[str] = []
@@ -75,18 +99,7 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
             best = max(found, key=lambda p: len(p.markers))
             poses.append(best.camera_from_brick())
             names.append(best.layout)
-    if not poses:
-        said = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
-        raise MountError("no code lying flat was found in view" + (f" ({said})" if said else "")
-                         + ": put a shipped code flat on the ground in front of the drone")
-    refused = None
-    if aligned:
-        refused = pan_refusal(poses, names)
-    result = measure_mount(poses, aligned=aligned and refused is None)
-    result["pan_refused"] = refused
-    if refused:
-        lines.insert(0, refused)
-    return MountMeasurement(result, lines)
+    return poses, names, lines
 
 
 #: Pan tolerance: pictures of one pad, its arrow toward the nose, agree within this (degrees).

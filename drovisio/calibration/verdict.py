@@ -134,13 +134,9 @@ def _uncertain_regions(regions: dict[str, float], coverage: Coverage, r: Verdict
     corners = sorted([k for k in uncovered if k in _CORNERS], key=lambda k: -bad[k])
     edges = sorted([k for k in uncovered if k in _EDGES], key=lambda k: -bad[k])
     if corners:
-        reasons.append("corners of the image not covered: " + ", ".join(
-            f"{k} ({bad[k]:.1f} px)" for k in corners) + f": move the board to the "
-            f"{suggested_region if suggested_region in corners else corners[0]}")
+        reasons.append(_uncovered("corners", corners, bad, suggested_region, ""))
     if edges:
-        reasons.append("edges of the image not covered: " + ", ".join(
-            f"{k} ({bad[k]:.1f} px)" for k in edges) + f": move the board to the "
-            f"{suggested_region if suggested_region in edges else edges[0]} edge")
+        reasons.append(_uncovered("edges", edges, bad, suggested_region, " edge"))
     if "centre" in uncovered:
         reasons.append("the centre of the image is not covered: hold the board in the "
                        "middle")
@@ -155,6 +151,16 @@ def _uncertain_regions(regions: dict[str, float], coverage: Coverage, r: Verdict
         reasons.extend(hints)
     else:
         advice.extend(hints)
+
+
+def _uncovered(what: str, names: list[str], bad: dict[str, float],
+               suggested_region: str | None, suffix: str) -> str:
+    """One reason naming uncovered regions (``what``: corners or edges) with their
+    uncertainty and where to move the board: the hint's region when it is one of them, else
+    the worst."""
+    return (f"{what} of the image not covered: " + ", ".join(
+        f"{k} ({bad[k]:.1f} px)" for k in names) + f": move the board to the "
+        f"{suggested_region if suggested_region in names else names[0]}{suffix}")
 
 
 def _advice(result: CalibrationResult, r: VerdictRules) -> list[str]:
