@@ -174,18 +174,7 @@ def fuse_frame(poses: Sequence[BrickPose], layouts_with_both: set[str] | None = 
     dots = [i for i, p in enumerate(poses) if p.method == "dots"]
     if not codes or not dots:
         return list(poses)
-    pairs = []
-    for i in codes:
-        for j in dots:
-            a, b = poses[i], poses[j]
-            if a.layout != b.layout:
-                continue
-            if layouts_with_both is not None and a.layout not in layouts_with_both:
-                continue
-            d = float(np.linalg.norm(np.ravel(a.tvec) - np.ravel(b.tvec)))
-            if d <= max_distance_m:
-                pairs.append((d, i, j))
-    pairs.sort()
+    pairs = _close_pairs(poses, codes, dots, layouts_with_both, max_distance_m)
     used: set[int] = set()
     out: dict[int, BrickPose] = {}
     for _d, i, j in pairs:
@@ -198,3 +187,23 @@ def fuse_frame(poses: Sequence[BrickPose], layouts_with_both: set[str] | None = 
         used.update((i, j))
         out[i] = fused
     return [out.get(i, p) for i, p in enumerate(poses) if i not in used or i in out]
+
+
+def _close_pairs(poses: Sequence[BrickPose], codes: list[int], dots: list[int],
+                 layouts_with_both: set[str] | None, max_distance_m: float
+                 ) -> list[tuple[float, int, int]]:
+    """(distance m, code index, dot index) of each code and dot pose of the same layout
+    closer than ``max_distance_m``, nearest first."""
+    pairs = []
+    for i in codes:
+        for j in dots:
+            a, b = poses[i], poses[j]
+            if a.layout != b.layout:
+                continue
+            if layouts_with_both is not None and a.layout not in layouts_with_both:
+                continue
+            d = float(np.linalg.norm(np.ravel(a.tvec) - np.ravel(b.tvec)))
+            if d <= max_distance_m:
+                pairs.append((d, i, j))
+    pairs.sort()
+    return pairs

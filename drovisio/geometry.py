@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "rot_x",
     "rot_y",
     "rot_z",
+    "rotation_about",
     "rvec_tvec",
     "skew",
     "so3_exp",
@@ -126,6 +128,17 @@ def rot_z(angle: float) -> np.ndarray:
     """3×3 rotation by ``angle`` (rad) about z (x turns toward y)."""
     c, s = math.cos(angle), math.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_about(axis: Sequence[float] | np.ndarray, angle: float) -> np.ndarray:
+    """3×3 rotation by ``angle`` (rad) about ``axis`` (3,), right-handed: OpenCV's Rodrigues
+    of ``axis · angle``.
+
+    The axis is used as given (a unit vector turns by exactly ``angle``): callers with any
+    other length normalise it first, so that the arithmetic stays the one each result was
+    measured with.
+    """
+    return cv2.Rodrigues(np.asarray(axis, np.float64).reshape(3, 1) * angle)[0]
 
 
 def transform(R: np.ndarray | None = None, t: Sequence[float] | np.ndarray | None = None

@@ -7,8 +7,8 @@ One stage per module:
 * :mod:`.gates` — per-view gates with reasons: sharpness / motion blur, size, stillness,
   novelty;
 * :mod:`.coverage` — corner heatmap, covered image regions, distance and tilt spreads;
-* :mod:`.solve` — the solve: per-view errors, outlier views, the k3 rule, covariance,
-  cross-validation;
+* :mod:`.solve` — the solve (a package, one subject per module): per-view errors, outlier
+  views, the k3 rule, ``auto``'s model choice, covariance, cross-validation;
 * :mod:`.uncertainty` — parameter covariance and the projection-uncertainty map;
 * :mod:`.verdict` — ok / not ok, with reasons naming image regions;
 * :mod:`.suggest` — where to hold the board next;
@@ -27,6 +27,7 @@ from drovisio.calibration.board import (
 )
 from drovisio.calibration.session import (
                                         CalibrationSession,
+                                        FrameCheck,
                                         FrameResult,
                                         SessionConfig,
                                         View,
@@ -43,7 +44,7 @@ from drovisio.calibration.verdict import Verdict, VerdictRules, judge
 
 __all__ = [
     "BoardSpec", "BoardSpecError", "Detection", "detect", "parse_board",
-    "CalibrationSession", "FrameResult", "SessionConfig", "View",
+    "CalibrationSession", "FrameCheck", "FrameResult", "SessionConfig", "View",
     "CalibrationError", "CalibrationResult", "SolveOptions", "ViewInput", "solve",
     "Suggestion", "suggest_next_pose", "Verdict", "VerdictRules", "judge",
 ]

@@ -167,9 +167,20 @@ def parse_board(spec: str, square: float) -> BoardSpec:
         raise BoardSpecError(f"board spec {spec!r}: unknown kind {parts[0]!r}; {form}")
     if len(parts) < 2:
         raise BoardSpecError(f"board spec {spec!r}: missing the size; {form}")
-    m = re.fullmatch(r"\s*(\d{1,6})\s*[xX×]\s*(\d{1,6})\s*", parts[1])
+    cols, rows = _parse_size(spec, parts[1], form)
+    sq = _parse_square(square)
+    if kind == "chessboard":
+        if len(parts) > 2:
+            raise BoardSpecError(f"board spec {spec!r}: a chessboard takes no options; {form}")
+        return BoardSpec("chessboard", cols, rows, sq)
+    return _parse_charuco(spec, parts, cols, rows, sq)
+
+
+def _parse_size(spec: str, size: str, form: str) -> tuple[int, int]:
+    """(cols, rows) of inner corners of a spec's ``COLSxROWS`` field."""
+    m = re.fullmatch(r"\s*(\d{1,6})\s*[xX×]\s*(\d{1,6})\s*", size)
     if not m:
-        raise BoardSpecError(f"board spec {spec!r}: size {parts[1]!r} is not COLSxROWS; {form}")
+        raise BoardSpecError(f"board spec {spec!r}: size {size!r} is not COLSxROWS; {form}")
     cols, rows = int(m.group(1)), int(m.group(2))
     if cols < 3 or rows < 3:
         raise BoardSpecError(f"board spec {spec!r}: needs at least 3x3 inner corners "
@@ -177,6 +188,11 @@ def parse_board(spec: str, square: float) -> BoardSpec:
     if cols > 200 or rows > 200:
         raise BoardSpecError(f"board spec {spec!r}: {cols}x{rows} inner corners is not a "
                              "plausible board")
+    return cols, rows
+
+
+def _parse_square(square: float) -> float:
+    """The square size, metres, checked to be a plausible length given in metres."""
     try:
         sq = float(square)
     except (TypeError, ValueError):
@@ -191,10 +207,13 @@ def parse_board(spec: str, square: float) -> BoardSpec:
     if sq > 1.0:
         raise BoardSpecError(f"square size {sq:g} m is implausible: give it in metres "
                              f"(did you mean {sq / 1000:g} m, i.e. {sq:g} mm?)")
-    if kind == "chessboard":
-        if len(parts) > 2:
-            raise BoardSpecError(f"board spec {spec!r}: a chessboard takes no options; {form}")
-        return BoardSpec("chessboard", cols, rows, sq)
+    return sq
+
+
+def _parse_charuco(spec: str, parts: list[str], cols: int, rows: int, sq: float
+                   ) -> BoardSpec:
+    """A ChArUco board's ``[:DICTIONARY[:MARKER_RATIO]]`` fields, checked against the
+    dictionary's size."""
     dictionary = _dictionary_name(parts[2]) if len(parts) > 2 and parts[2] else "DICT_4X4_50"
     try:
         dictionary_size(dictionary)

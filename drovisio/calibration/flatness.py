@@ -119,20 +119,8 @@ def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
         cur = _residuals(views, intr, poses, w, extent, n_dist)
         for _ in range(iterations):
             res, cost, JI, JP, JW = cur
-            # normal equations over (intrinsics, bow, poses); dense: a few hundred unknowns
-            P = nI + 2 + 6 * nV
-            A = np.zeros((P, P))
-            g = np.zeros(P)
-            for i in range(nV):
-                Jg = np.concatenate([JI[i], JW[i]], axis=1)
-                sl = slice(nI + 2 + 6 * i, nI + 8 + 6 * i)
-                A[:nI + 2, :nI + 2] += Jg.T @ Jg
-                A[:nI + 2, sl] += Jg.T @ JP[i]
-                A[sl, sl] += JP[i].T @ JP[i]
-                g[:nI + 2] += Jg.T @ res[i]
-                g[sl] += JP[i].T @ res[i]
-            A[nI + 2:, :nI + 2] = A[:nI + 2, nI + 2:].T
-            D = np.diag(np.diag(A)) + 1e-12 * np.eye(P)
+            A, g = _normal_equations(res, JI, JP, JW, nI)
+            D = np.diag(np.diag(A)) + 1e-12 * np.eye(len(A))
             try:
                 step = -np.linalg.solve(A + lam * D, g)
             except np.linalg.LinAlgError:
@@ -166,23 +154,49 @@ def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
     shift = (camera.fx - float(intr[0])) / float(intr[0])
     matters = significant and abs(camera.fx - float(intr[0])) > 2.0 * fx_std_px
 
+    summary = _summary(wx, wy, std, shift, fx_std_px / camera.fx, significant, matters)
+    return {"computed": True, "warp_x_mm": wx * 1000, "warp_y_mm": wy * 1000,
+            "warp_std_mm": [float(std[0]) * 1000, float(std[1]) * 1000],
+            "fx_shift_pct": shift * 100, "rms_px_flat": float(rms_px),
+            "rms_px_bowed": float(np.sqrt(cost / (n_obs / 2))),
+            "significant": significant, "matters": bool(matters), "summary": summary}
+
+
+def _normal_equations(res: list[np.ndarray], JI: list[np.ndarray], JP: list[np.ndarray],
+                      JW: list[np.ndarray], nI: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss–Newton's normal equations (A, g) over (intrinsics (nI), bow (2), poses (6 per
+    view)); dense: a few hundred unknowns."""
+    nV = len(res)
+    P = nI + 2 + 6 * nV
+    A = np.zeros((P, P))
+    g = np.zeros(P)
+    for i in range(nV):
+        Jg = np.concatenate([JI[i], JW[i]], axis=1)
+        sl = slice(nI + 2 + 6 * i, nI + 8 + 6 * i)
+        A[:nI + 2, :nI + 2] += Jg.T @ Jg
+        A[:nI + 2, sl] += Jg.T @ JP[i]
+        A[sl, sl] += JP[i].T @ JP[i]
+        g[:nI + 2] += Jg.T @ res[i]
+        g[sl] += JP[i].T @ res[i]
+    A[nI + 2:, :nI + 2] = A[:nI + 2, nI + 2:].T
+    return A, g
+
+
+def _summary(wx: float, wy: float, std: np.ndarray, shift: float, fx_rel_std: float,
+             significant: bool, matters: bool) -> str:
+    """The bow in one sentence: its size (metres in, millimetres said) and whether it moves
+    the focal length (``shift``, relative) beyond its uncertainty (``fx_rel_std``)."""
     def mm(m: float) -> str:
         return f"{m * 1000:.2f} mm"
 
     bow = (f"{mm(wx)} along its width and {mm(wy)} along its height (± {mm(std[0])}, "
            f"{mm(std[1])})")
     if matters:
-        summary = (f"the board bows by {bow}; taking it for flat moves the focal length by "
-                   f"{shift * 100:+.2f} %, more than its uncertainty ({fx_std_px / camera.fx * 100:.2f} %"
-                   "): glue the print to something flat and calibrate again")
-    elif significant:
-        summary = (f"the board bows by {bow}: measurable, but it moves the focal length by "
-                   f"{shift * 100:+.2f} % only, within its uncertainty "
-                   f"({fx_std_px / camera.fx * 100:.2f} %)")
-    else:
-        summary = f"the board is flat within the measurement (bow {bow})"
-    return {"computed": True, "warp_x_mm": wx * 1000, "warp_y_mm": wy * 1000,
-            "warp_std_mm": [float(std[0]) * 1000, float(std[1]) * 1000],
-            "fx_shift_pct": shift * 100, "rms_px_flat": float(rms_px),
-            "rms_px_bowed": float(np.sqrt(cost / (n_obs / 2))),
-            "significant": significant, "matters": bool(matters), "summary": summary}
+        return (f"the board bows by {bow}; taking it for flat moves the focal length by "
+                f"{shift * 100:+.2f} %, more than its uncertainty ({fx_rel_std * 100:.2f} %"
+                "): glue the print to something flat and calibrate again")
+    if significant:
+        return (f"the board bows by {bow}: measurable, but it moves the focal length by "
+                f"{shift * 100:+.2f} % only, within its uncertainty "
+                f"({fx_rel_std * 100:.2f} %)")
+    return f"the board is flat within the measurement (bow {bow})"

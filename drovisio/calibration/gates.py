@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -97,6 +98,45 @@ def _edge_list(det: Detection, board: BoardSpec) -> list[tuple[np.ndarray, np.nd
     return edges
 
 
+def _crossing(p: np.ndarray, s: np.ndarray, step: float, level: float, start: int,
+              direction: int) -> float:
+    """Where the rising profile ``p`` (sampled at ``s``, pixels) crosses ``level``, walking
+    from index ``start`` in ``direction``; interpolated between samples, pixels."""
+    i = start
+    if direction < 0:
+        while i > 0 and p[i] > level:
+            i -= 1
+        j = i + 1
+    else:
+        while i < p.size - 1 and p[i] < level:
+            i += 1
+        j, i = i, i - 1
+    if i < 0 or j >= p.size:
+        return math.nan
+    a, b = p[i], p[j]
+    return float(s[i] + (level - a) / (b - a) * step) if b != a else float(s[i])
+
+
+def _edge_positions(samp: np.ndarray, s: np.ndarray, step: float,
+                    levels: Callable[[np.ndarray], tuple[float, float]]
+                    ) -> list[tuple[np.ndarray, float]]:
+    """Each profile with contrast (8 grey levels) and its edge: the rising crossing of its
+    middle level nearest to s = 0, sub-pixel (pixels)."""
+    shifts = []
+    for p in samp:
+        lo, hi = levels(p)
+        if hi - lo < 8.0:
+            continue
+        mid = 0.5 * (lo + hi)
+        above = p >= mid
+        ups = np.flatnonzero(~above[:-1] & above[1:])   # rising crossings of the middle
+        if ups.size == 0:
+            continue
+        k = int(ups[np.argmin(np.abs(s[ups]))])
+        shifts.append((p, s[k] + (mid - p[k]) / max(p[k + 1] - p[k], 1e-9) * step))
+    return shifts
+
+
 def _esf_width(samp: np.ndarray, s: np.ndarray, white_lim: float | None, step: float
                ) -> float:
     """10–90 % rise of the edge-spread function of one board edge, pixels; NaN when the edge
@@ -132,34 +172,7 @@ def _esf_width(samp: np.ndarray, s: np.ndarray, white_lim: float | None, step: f
         hi = float(np.median(p[..., white])) if white_lim is None else float(p[..., white].max())
         return lo, hi
 
-    def crossing(p: np.ndarray, level: float, start: int, direction: int) -> float:
-        """Where ``p`` (rising) crosses ``level`` walking from index ``start``."""
-        i = start
-        if direction < 0:
-            while i > 0 and p[i] > level:
-                i -= 1
-            j = i + 1
-        else:
-            while i < p.size - 1 and p[i] < level:
-                i += 1
-            j, i = i, i - 1
-        if i < 0 or j >= p.size:
-            return math.nan
-        a, b = p[i], p[j]
-        return float(s[i] + (level - a) / (b - a) * step) if b != a else float(s[i])
-
-    shifts = []
-    for p in samp:
-        lo, hi = levels(p)
-        if hi - lo < 8.0:
-            continue
-        mid = 0.5 * (lo + hi)
-        above = p >= mid
-        ups = np.flatnonzero(~above[:-1] & above[1:])   # rising crossings of the middle
-        if ups.size == 0:
-            continue
-        k = int(ups[np.argmin(np.abs(s[ups]))])
-        shifts.append((p, s[k] + (mid - p[k]) / max(p[k + 1] - p[k], 1e-9) * step))
+    shifts = _edge_positions(samp, s, step, levels)
     if len(shifts) < max(2, len(samp) // 2):
         return math.nan
     xs = np.array([x for _, x in shifts])
@@ -174,7 +187,7 @@ def _esf_width(samp: np.ndarray, s: np.ndarray, white_lim: float | None, step: f
         return math.nan
     q = (esf - lo) / (hi - lo)
     i50 = int(np.argmin(np.abs(s - med)))
-    w = crossing(q, 0.9, i50, +1) - crossing(q, 0.1, i50, -1)
+    w = _crossing(q, s, step, 0.9, i50, +1) - _crossing(q, s, step, 0.1, i50, -1)
     if white_lim is None or not math.isfinite(w):
         return w
     # a margin narrow against the blur never reaches the white level: its peak is lower and

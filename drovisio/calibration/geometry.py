@@ -19,21 +19,17 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
 from drovisio.calibration.board import BoardSpec
 from drovisio.camera import Camera
+from drovisio.geometry import rotation_about
 
 __all__ = ["place_board", "fit_board", "board_outline_px", "board_pose_summary",
            "far_edge_name", "MARGIN_SQUARES"]
 
 #: White margin around the squares that detection needs to see, in squares.
 MARGIN_SQUARES = 0.6
-
-
-def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(axis, float).reshape(3, 1) * angle)[0]
 
 
 def place_board(camera: Camera, board: BoardSpec, target_px, distance: float,
@@ -47,10 +43,10 @@ def place_board(camera: Camera, board: BoardSpec, target_px, distance: float,
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z], axis=1)  # columns: board axes in the camera frame
-    R = R @ _rot(np.array([0.0, 0.0, 1.0]), math.radians(roll_deg))
+    R = R @ rotation_about(np.array([0.0, 0.0, 1.0]), math.radians(roll_deg))
     a = math.radians(tilt_axis_deg)
     axis_cam = math.cos(a) * x + math.sin(a) * y  # in-image direction of the tilt axis
-    R = _rot(axis_cam, math.radians(tilt_deg)) @ R
+    R = rotation_about(axis_cam, math.radians(tilt_deg)) @ R
     centre_b = np.array([(board.cols - 1) / 2 * board.square, (board.rows - 1) / 2 * board.square,
                          0.0])
     T = np.eye(4)

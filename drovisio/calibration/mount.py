@@ -9,11 +9,14 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
+from drovisio.detect.aruco import ArucoBrickDetector
 from drovisio.errors import InputError
-from drovisio.mount import MountError, measure_mount
+from drovisio.geometry import transform
+from drovisio.mount import BODY_FROM_ALIGNED_BRICK, MountError, angles_of, measure_mount
 
 __all__ = ["MountMeasurement", "measure_from_images"]
 
@@ -46,12 +49,33 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
     Raises:
         InputError: No layout has codes, or no picture showed a code lying flat.
     """
-    from drovisio.detect.aruco import ArucoBrickDetector
-
     coded = [lay for lay in layouts if lay.has_codes]
     if not coded:
         raise InputError("none of these layouts has ArUco codes; measuring the mount needs a "
                          "code lying flat (the shipped landing-pad.json is best)")
+    poses, names, lines = _flat_codes(images, camera, coded)
+    if not poses:
+        said = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
+        raise MountError("no code lying flat was found in view" + (f" ({said})" if said else "")
+                         + ": put a shipped code flat on the ground in front of the drone")
+    refused = None
+    if aligned:
+        refused = pan_refusal(poses, names)
+    result = measure_mount(poses, aligned=aligned and refused is None)
+    result["pan_refused"] = refused
+    if refused:
+        lines.insert(0, refused)
+    return MountMeasurement(result, lines)
+
+
+def _flat_codes(images: Iterable[tuple[str, np.ndarray | str]], camera: Any,
+                coded: list[Any]) -> tuple[list[np.ndarray], list[str], list[str]]:
+    """Per picture, the largest code brick lying flat (unambiguous) in view.
+
+    Returns:
+        (its ``camera_from_brick`` 4×4 per picture that showed one, its layout's name, one
+        line per picture in plain words).
+    """
     det, det_camera = None, None
     poses: list[np.ndarray] = []
     names: list[str] = []
@@ -75,18 +99,7 @@ def measure_from_images(images: Iterable[tuple[str, np.ndarray | str]], camera,
             best = max(found, key=lambda p: len(p.markers))
             poses.append(best.camera_from_brick())
             names.append(best.layout)
-    if not poses:
-        said = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
-        raise MountError("no code lying flat was found in view" + (f" ({said})" if said else "")
-                         + ": put a shipped code flat on the ground in front of the drone")
-    refused = None
-    if aligned:
-        refused = pan_refusal(poses, names)
-    result = measure_mount(poses, aligned=aligned and refused is None)
-    result["pan_refused"] = refused
-    if refused:
-        lines.insert(0, refused)
-    return MountMeasurement(result, lines)
+    return poses, names, lines
 
 
 #: Pan tolerance: pictures of one pad, its arrow toward the nose, agree within this (degrees).
@@ -106,9 +119,6 @@ def pan_refusal(poses: Sequence[np.ndarray], layout_names: Sequence[str]) -> str
     the code's x axis points to the nose. That is known of a landing pad laid with its arrow
     to the nose, never of a brick; and the pictures must agree on it.
     """
-    from drovisio.geometry import transform
-    from drovisio.mount import BODY_FROM_ALIGNED_BRICK, angles_of
-
     others = sorted({n for n in layout_names if not is_nose_marker(n)})
     if others:
         return ("pan not measured: the codes seen are on " + ", ".join(others)

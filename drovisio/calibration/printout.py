@@ -15,6 +15,9 @@ import numpy as np
 
 from drovisio.calibration.board import BoardSpec
 from drovisio.errors import InputError
+from drovisio.fileio import atomic_write_bytes
+from drovisio.layout import aruco_code_bits
+from drovisio.printing import Page, pdf_bytes
 
 __all__ = ["PAPER_MM", "board_pdf", "board_pdf_bytes", "fit_square_mm"]
 
@@ -63,8 +66,6 @@ def print_square_mm(board: BoardSpec, paper: str) -> float:
 def board_pdf(board: BoardSpec, path: str | Path, paper: str = "A4",
               square_mm: float | None = None) -> dict:
     """Write :func:`board_pdf_bytes` to ``path`` (atomically); returns its description."""
-    from drovisio.fileio import atomic_write_bytes
-
     data, info = board_pdf_bytes(board, paper, square_mm)
     atomic_write_bytes(Path(path), data)
     return info
@@ -87,9 +88,6 @@ def board_pdf_bytes(board: BoardSpec, paper: str = "A4", square_mm: float | None
     Raises:
         InputError: Unknown paper, or a square that does not fit it.
     """
-    from drovisio.layout import aruco_code_bits
-    from drovisio.printing import Page, pdf_bytes
-
     (W, H), landscape = _layout(board, paper)
     s = fit_square_mm(board, paper) if square_mm is None else float(square_mm)
     nx, ny = board.cols + 1, board.rows + 1

@@ -26,12 +26,12 @@ import concurrent.futures
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
-from drovisio.calibration.board import BoardSpec, Detection, detect, to_gray
+from drovisio.calibration.board import BoardSpec, Detection, detect, parse_board, to_gray
 from drovisio.calibration.coverage import Coverage, compute_coverage
 from drovisio.calibration.gates import (
     MAX_EDGE_WIDTH_PX,
@@ -46,18 +46,21 @@ from drovisio.calibration.gates import (
     gate_still,
 )
 from drovisio.calibration.geometry import board_pose_summary
+from drovisio.calibration.report import build_report
 from drovisio.calibration.solve import (
+    MODELS,
     CalibrationError,
     CalibrationResult,
     SolveOptions,
     ViewInput,
     solve,
+    unknown_model,
 )
 from drovisio.calibration.suggest import Suggestion, suggest_next_pose
 from drovisio.calibration.verdict import Verdict, VerdictRules, judge
 from drovisio.camera import Camera
 
-__all__ = ["CalibrationSession", "SessionConfig", "View", "FrameResult"]
+__all__ = ["CalibrationSession", "SessionConfig", "View", "FrameCheck", "FrameResult"]
 
 
 @dataclass
@@ -103,8 +106,9 @@ class View:
 
 
 @dataclass
-class FrameResult:
-    """What happened to one image or frame."""
+class FrameCheck:
+    """What happened to one image or frame offered to the calibration: its detection, its
+    gates, kept or why not."""
 
     name: str
     detection: Detection | None
@@ -127,6 +131,11 @@ class FrameResult:
                 "corners": None if self.detection is None else self.detection.n,
                 "kept": self.kept, "view_id": self.view_id, "reasons": list(self.reasons),
                 "gates": [g.to_json() for g in self.gates]}
+
+
+#: The former name, still imported by the web tool's calibration page (the detector's
+#: :class:`drovisio.detect.result.FrameResult` is another thing).
+FrameResult = FrameCheck
 
 
 class CalibrationSession:
@@ -196,11 +205,11 @@ class CalibrationSession:
         return self._result_error
 
     # ------------------------------------------------------------------------ adding views
-    def evaluate(self, image: np.ndarray, name: str = "") -> FrameResult:
+    def evaluate(self, image: np.ndarray, name: str = "") -> FrameCheck:
         """Detect the board and apply the per-image gates (size, sharpness). Changes nothing."""
         gray = to_gray(image)
         h, w = gray.shape
-        fr = FrameResult(name, None, [], image_size=(w, h))
+        fr = FrameCheck(name, None, [], image_size=(w, h))
         if self._size is not None and (w, h) != self._size:
             fr.reasons.append(f"image size {w}x{h} differs from the session's "
                               f"{self._size[0]}x{self._size[1]} (intrinsics belong to one "
@@ -218,13 +227,13 @@ class CalibrationSession:
         fr.reasons += [g.reason for g in (g_size, g_sharp) if not g.ok]
         return fr
 
-    def add_image(self, image: np.ndarray, name: str | None = None) -> FrameResult:
+    def add_image(self, image: np.ndarray, name: str | None = None) -> FrameCheck:
         """Add a still image (a file, a manual capture): kept when detected, big enough and
         sharp. No stillness or novelty check."""
         fr = self.evaluate(image, name or f"capture-{self._next_id:03d}")
         return self.keep(fr) if fr.usable else self._reject(fr)
 
-    def offer_frame(self, image: np.ndarray, name: str | None = None) -> FrameResult:
+    def offer_frame(self, image: np.ndarray, name: str | None = None) -> FrameCheck:
         """A live frame: kept automatically when detected, sharp, still since the previous
         frame and novel against the kept views."""
         fr = self.evaluate(image, name or f"capture-{self._next_id:03d}")
@@ -268,7 +277,7 @@ class CalibrationSession:
                 return v.id
         return None
 
-    def keep(self, fr: FrameResult) -> FrameResult:
+    def keep(self, fr: FrameCheck) -> FrameCheck:
         """Keep an evaluated frame as a view (also used for a manual capture)."""
         if fr.detection is None:
             raise ValueError("cannot keep a frame without a detection")
@@ -286,7 +295,7 @@ class CalibrationSession:
         fr.kept, fr.view_id, fr.reasons = True, v.id, []
         return fr
 
-    def _reject(self, fr: FrameResult) -> FrameResult:
+    def _reject(self, fr: FrameCheck) -> FrameCheck:
         with self._lock:
             self._rejected.append({"file": fr.name, "reason": "; ".join(fr.reasons)
                                    or "not usable"})
@@ -301,10 +310,6 @@ class CalibrationSession:
         """The lens model of the next solves (one of
         :data:`drovisio.calibration.solve.MODEL_CHOICES`); a result of another model is no
         longer current."""
-        from dataclasses import replace
-
-        from drovisio.calibration.solve import MODELS, unknown_model
-
         if model != "auto" and model not in MODELS:
             raise CalibrationError(unknown_model(model))
         with self._lock:
@@ -315,8 +320,6 @@ class CalibrationSession:
     def set_square(self, square_m: float) -> None:
         """The board's square size as measured on the print (metres). The views stay: the
         size scales the board poses only, never the intrinsics; the result is solved again."""
-        from drovisio.calibration.board import parse_board
-
         with self._lock:
             if abs(square_m - self.board.square) > 1e-12:
                 self.board = parse_board(self.board.spec(), square_m)
@@ -474,7 +477,6 @@ class CalibrationSession:
 
     def report(self) -> dict:
         """The report dict (see :func:`drovisio.calibration.report.build_report`)."""
-        from drovisio.calibration.report import build_report
         return build_report(self)
 
     # ------------------------------------------------------------------------ persistence
@@ -489,7 +491,6 @@ class CalibrationSession:
     @classmethod
     def from_state(cls, state: dict, config: SessionConfig | None = None,
                    camera_guess: Camera | None = None) -> CalibrationSession:
-        from drovisio.calibration.board import parse_board
         b = state["board"]
         s = cls(parse_board(b["spec"], b["square_m"]), state.get("image_size"), config,
                 camera_guess)

@@ -150,8 +150,7 @@ def suggest_next_pose(camera: Camera, board: BoardSpec, coverage: Coverage | Non
         grid_step_px: Spacing of the evaluation grid.
         free: Mask (P,) of the estimated intrinsics (default: all of the camera's model).
     """
-    have_model = bool(views) and bool(fits) and sigma2 is not None and len(views) >= 3
-    if not have_model:
+    if not views or not fits or sigma2 is None or len(views) < 3:     # no model yet
         return _coverage_hint(camera, board, coverage)
     free = (np.ones(len(param_names(camera)), bool) if free is None
             else np.asarray(free, bool))

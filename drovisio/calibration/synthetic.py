@@ -11,13 +11,14 @@ sensor noise, so its true corners are known exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from drovisio.calibration.board import BoardSpec
 from drovisio.calibration.geometry import board_pose_summary, fit_board
 from drovisio.camera import Camera
+from drovisio.synth import Effects, render_chessboard
 
 __all__ = ["SyntheticView", "render_calibration_views", "calibration_poses", "DEFAULT_BOARD"]
 
@@ -87,10 +88,6 @@ def render_calibration_views(camera: Camera, n: int = 20, seed: int = 0,
     Returns:
         The views, named ``view00.png`` … in order.
     """
-    from dataclasses import replace
-
-    from drovisio.synth import Effects, render_chessboard
-
     if board.kind != "chessboard":
         raise ValueError("render_calibration_views renders chessboards only")
     views = []

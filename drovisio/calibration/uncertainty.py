@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drovisio.camera import Camera
+from drovisio.camera import Camera, LensModel
 
 __all__ = ["PARAM_NAMES", "camera_model", "lens_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
            "UncertaintyMap", "image_grid", "grid_jacobians", "sigma_max",
@@ -75,10 +75,14 @@ def lens_key(camera: Camera) -> str:
             "rational_polynomial" if n >= 8 else "plumb_bob")
 
 
-def camera_model(key: str) -> str:
+def camera_model(key: str) -> LensModel:
     """The camera file's model name of a calibration model (thin_prism and tilted are OpenCV's
     model with 12 and 14 coefficients: ``rational_polynomial``); :func:`lens_key`'s inverse."""
-    return key if key in ("fisheye", "plumb_bob") else "rational_polynomial"
+    if key == "fisheye":
+        return "fisheye"
+    if key == "plumb_bob":
+        return "plumb_bob"
+    return "rational_polynomial"
 
 
 def param_names(model: str | Camera = "plumb_bob") -> tuple[str, ...]:

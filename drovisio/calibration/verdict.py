@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drovisio.calibration.coverage import REGION_COVERED, Coverage, region_boxes
+from drovisio.calibration.solve import CalibrationResult
 
 __all__ = ["Verdict", "VerdictRules", "judge"]
 
@@ -57,7 +58,8 @@ class Verdict:
                                               self.region_uncertainty_px.items()}}
 
 
-def _region_p95(result, roi) -> dict[str, float]:
+def _region_p95(result: CalibrationResult, roi: tuple[float, float, float, float] | None
+                ) -> dict[str, float]:
     um = result.uncertainty
     gx, gy = np.meshgrid(um.xs, um.ys)
     w, h = result.camera.width, result.camera.height
@@ -83,7 +85,8 @@ def _geometry_hints(coverage: Coverage, rules: VerdictRules) -> list[str]:
     return hints
 
 
-def judge(result, coverage: Coverage, rules: VerdictRules | None = None,
+def judge(result: CalibrationResult | None, coverage: Coverage,
+          rules: VerdictRules | None = None,
           roi: tuple[float, float, float, float] | None = None,
           n_views: int | None = None, suggested_region: str | None = None) -> Verdict:
     """Judge a :class:`~drovisio.calibration.solve.CalibrationResult` (or None: not solved).
@@ -108,32 +111,7 @@ def judge(result, coverage: Coverage, rules: VerdictRules | None = None,
     if p95 is None or p95 > r.max_uncertainty_p95_px:
         reasons.append(f"projection uncertainty too high: p95 {p95:.2f} px over {where} "
                        f"(limit {r.max_uncertainty_p95_px:g} px), max {stats['max']:.2f} px")
-        bad = {k: v for k, v in regions.items() if v > r.max_uncertainty_p95_px}
-        uncovered = [k for k in bad if coverage.regions.get(k, 0.0) < REGION_COVERED]
-        corners = sorted([k for k in uncovered if k in _CORNERS], key=lambda k: -bad[k])
-        edges = sorted([k for k in uncovered if k in _EDGES], key=lambda k: -bad[k])
-        if corners:
-            reasons.append("corners of the image not covered: " + ", ".join(
-                f"{k} ({bad[k]:.1f} px)" for k in corners) + f": move the board to the "
-                f"{suggested_region if suggested_region in corners else corners[0]}")
-        if edges:
-            reasons.append("edges of the image not covered: " + ", ".join(
-                f"{k} ({bad[k]:.1f} px)" for k in edges) + f": move the board to the "
-                f"{suggested_region if suggested_region in edges else edges[0]} edge")
-        if "centre" in uncovered:
-            reasons.append("the centre of the image is not covered: hold the board in the "
-                           "middle")
-        covered_bad = sorted([k for k in bad if k not in uncovered], key=lambda k: -bad[k])
-        hints = _geometry_hints(coverage, r)
-        if covered_bad or not uncovered:
-            where_bad = (" (" + ", ".join(f"{k} {bad[k]:.2f} px" for k in covered_bad) + ")"
-                         if covered_bad else "")
-            reasons.append(f"uncertainty is high where the image is covered{where_bad}: "
-                           "add views there" + ("" if hints else
-                                               ", tilted 30–45° and at other distances"))
-            reasons.extend(hints)
-        else:
-            advice.extend(hints)
+        _uncertain_regions(regions, coverage, r, suggested_region, reasons, advice)
     cv = result.cross_validation or {}
     z = cv.get("normalized_p95")
     if z is not None and z > r.max_cross_validation_z:
@@ -141,11 +119,56 @@ def judge(result, coverage: Coverage, rules: VerdictRules | None = None,
                        f"{z:.1f}x what their uncertainty allows (limit "
                        f"{r.max_cross_validation_z:g}x): the lens model does not fit or some "
                        "views are inconsistent (a bent board, a moving camera)")
-    for k, why in (result.fixed or {}).items():
-        advice.append(f"{k} {why}")
+    advice.extend(_advice(result, r))
+    return Verdict(not reasons, reasons, advice, regions)
+
+
+def _uncertain_regions(regions: dict[str, float], coverage: Coverage, r: VerdictRules,
+                       suggested_region: str | None, reasons: list[str],
+                       advice: list[str]) -> None:
+    """Why the uncertainty is too high, region by region: uncovered corners, edges and
+    centre (where to move the board), covered regions that need more or other views; the
+    geometry hints go to ``reasons`` when they explain it, else to ``advice``."""
+    bad = {k: v for k, v in regions.items() if v > r.max_uncertainty_p95_px}
+    uncovered = [k for k in bad if coverage.regions.get(k, 0.0) < REGION_COVERED]
+    corners = sorted([k for k in uncovered if k in _CORNERS], key=lambda k: -bad[k])
+    edges = sorted([k for k in uncovered if k in _EDGES], key=lambda k: -bad[k])
+    if corners:
+        reasons.append(_uncovered("corners", corners, bad, suggested_region, ""))
+    if edges:
+        reasons.append(_uncovered("edges", edges, bad, suggested_region, " edge"))
+    if "centre" in uncovered:
+        reasons.append("the centre of the image is not covered: hold the board in the "
+                       "middle")
+    covered_bad = sorted([k for k in bad if k not in uncovered], key=lambda k: -bad[k])
+    hints = _geometry_hints(coverage, r)
+    if covered_bad or not uncovered:
+        where_bad = (" (" + ", ".join(f"{k} {bad[k]:.2f} px" for k in covered_bad) + ")"
+                     if covered_bad else "")
+        reasons.append(f"uncertainty is high where the image is covered{where_bad}: "
+                       "add views there" + ("" if hints else
+                                           ", tilted 30–45° and at other distances"))
+        reasons.extend(hints)
+    else:
+        advice.extend(hints)
+
+
+def _uncovered(what: str, names: list[str], bad: dict[str, float],
+               suggested_region: str | None, suffix: str) -> str:
+    """One reason naming uncovered regions (``what``: corners or edges) with their
+    uncertainty and where to move the board: the hint's region when it is one of them, else
+    the worst."""
+    return (f"{what} of the image not covered: " + ", ".join(
+        f"{k} ({bad[k]:.1f} px)" for k in names) + f": move the board to the "
+        f"{suggested_region if suggested_region in names else names[0]}{suffix}")
+
+
+def _advice(result: CalibrationResult, r: VerdictRules) -> list[str]:
+    """The non-blocking remarks: fixed coefficients, rejected views, a high RMS."""
+    advice = [f"{k} {why}" for k, why in (result.fixed or {}).items()]
     for rej in result.rejected:
         advice.append(f"view {rej['file']} rejected: {rej['reason']}")
     if result.rms_px > r.high_rms_px:
         advice.append(f"RMS {result.rms_px:.2f} px is high for a chessboard: check the board is "
                       "flat and the images are sharp")
-    return Verdict(not reasons, reasons, advice, regions)
+    return advice

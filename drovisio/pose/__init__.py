@@ -6,7 +6,10 @@
 * :mod:`.batch` — many bricks at once in normalised coordinates: homographies, IPPE's two
   solutions, Levenberg–Marquardt and Gauss–Newton steps, covariances (the dot detector; the
   arithmetic runs in compiled kernels when numba is there, chosen inside these functions);
-* :mod:`.measures` — angles between poses.
+* :mod:`.candidate` — a pose hypothesis and the chosen pose with its alternatives;
+* :mod:`.refine` — Gauss–Newton in pixels through the lens model, robust weights, whole codes
+  left out, the covariance (the steps of :mod:`.solve`);
+* :mod:`.measures` — angles between poses, the rotation and yaw errors.
 
 Conventions: ``camera_from_brick``: ``X_cam = R · X_brick + t`` (rvec, tvec at the edges);
 metres, radians; gravity is a unit vector in the camera frame pointing down.
@@ -22,7 +25,14 @@ from drovisio.pose.ambiguity import (
     decide_flips,
     reference_up,
 )
-from drovisio.pose.measures import is_planar, rotation_angle_deg, tilt_deg, yaw_about_axis_deg
+from drovisio.pose.measures import (
+    is_planar,
+    rotation_angle_deg,
+    rotation_angles_deg,
+    tilt_deg,
+    yaw_about_axis_deg,
+    yaw_error_deg,
+)
 from drovisio.pose.solve import PoseCandidate, PoseResult, solve_brick_pose
 
 __all__ = [
@@ -38,7 +48,9 @@ __all__ = [
     "is_planar",
     "reference_up",
     "rotation_angle_deg",
+    "rotation_angles_deg",
     "solve_brick_pose",
     "tilt_deg",
     "yaw_about_axis_deg",
+    "yaw_error_deg",
 ]

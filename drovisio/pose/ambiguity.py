@@ -33,8 +33,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
+
+from drovisio.pose.measures import rotation_angles_deg
 
 __all__ = [
     "AmbiguityRule",
@@ -119,12 +122,6 @@ class PoseHistory:
                             np.asarray(tvec, np.float64).copy())
 
 
-def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
-    """Rotation angles between batches of rotations (..., 3, 3), degrees."""
-    c = (np.einsum("...ij,...ij->...", Ra, Rb) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def _tilt_deg(R: np.ndarray, down: np.ndarray, up_axis: np.ndarray) -> np.ndarray:
     """Angles (B, 2) between each candidate's up axis and −``down`` (one (3,) vector or one
     per brick (B, 3)), degrees."""
@@ -146,8 +143,6 @@ MIN_DOF_FOR_SCALE = 8
 
 def _chi2_quantile(p: float, dof: float) -> float:
     """The p-quantile of χ²(dof) (Wilson–Hilferty; within 1 % from 3 dof up)."""
-    from statistics import NormalDist
-
     z = NormalDist().inv_cdf(p)
     h = 2.0 / (9.0 * dof)
     return float(dof * (1.0 - h + z * np.sqrt(h)) ** 3)
@@ -196,6 +191,32 @@ def alternative_plausible(chi2: np.ndarray, dof: np.ndarray | float,
     return np.isfinite(other) & ((other - best < rule.chi2_margin) | (best > 3.0 * dof + 4.0))
 
 
+def _best_fit(chi2: np.ndarray, rmse_px: np.ndarray | None, rule: AmbiguityRule
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reprojection's part of the rule, for B bricks with two candidates each.
+
+    Returns:
+        (finite (B,): both χ² known; best (B,): the better-fitting candidate, by χ², else by
+        ``rmse_px``; fit_ok (B, 2): the candidates whose fit is not far worse than the best
+        one's: a candidate that is out stays out, whatever else is said).
+    """
+    B = chi2.shape[0]
+    finite = np.isfinite(chi2).all(axis=1)
+    ar = np.arange(B)
+    if finite.all():
+        best = (chi2[:, 1] < chi2[:, 0]).astype(np.int64)
+    else:
+        best = np.where(finite, np.argmin(np.where(np.isfinite(chi2), chi2, np.inf), axis=1),
+                        np.argmin(rmse_px, axis=1) if rmse_px is not None else 0)
+    if rmse_px is not None and not finite.all():
+        rb = rmse_px[ar, best]
+        fit_ok = rmse_px <= 3.0 * rb[:, None] + 1.0
+    else:
+        cb = chi2[ar, best]
+        fit_ok = chi2 - cb[:, None] <= np.maximum(9.0 * rule.chi2_margin, 3.0 * cb)[:, None]
+    return finite, best, fit_ok
+
+
 def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
                  gravity: np.ndarray | None = None, reference_up: np.ndarray | None = None,
                  previous: Sequence[np.ndarray | None] | None = None,
@@ -235,20 +256,8 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
     up = np.asarray(up_axis, np.float64)
     choice = np.full(B, -1, np.int64)
     why = [""] * B
-    finite = np.isfinite(chi2).all(axis=1)
     ar = np.arange(B)
-    if finite.all():
-        best = (chi2[:, 1] < chi2[:, 0]).astype(np.int64)
-    else:
-        best = np.where(finite, np.argmin(np.where(np.isfinite(chi2), chi2, np.inf), axis=1),
-                        np.argmin(rmse_px, axis=1) if rmse_px is not None else 0)
-    # a candidate whose fit is far worse than the best one's is out, whatever else is said
-    if rmse_px is not None and not finite.all():
-        rb = rmse_px[ar, best]
-        fit_ok = rmse_px <= 3.0 * rb[:, None] + 1.0
-    else:
-        cb = chi2[ar, best]
-        fit_ok = chi2 - cb[:, None] <= np.maximum(9.0 * rule.chi2_margin, 3.0 * cb)[:, None]
+    finite, best, fit_ok = _best_fit(chi2, rmse_px, rule)
 
     def settle(mask: np.ndarray, pick: np.ndarray, reason: str) -> None:
         m = mask & (choice < 0)
@@ -278,12 +287,12 @@ def decide_flips(R: np.ndarray, chi2: np.ndarray, dof: np.ndarray | float, *,
             ang = np.full((B, 2), np.inf)
             for b, Rp in enumerate(previous):
                 if Rp is not None:
-                    ang[b] = _angle_deg(Rp, R[b])
+                    ang[b] = rotation_angles_deg(Rp, R[b])
             agree(ang, rule.previous_tol_deg, "previous", separation=True)
     if use_fit:
         settle(finite & ~alternative_plausible(chi2, dof_a, rule), best, "reprojection")
         # closer than the pose's own uncertainty: one pose
-        settle(_angle_deg(R[:, 0], R[:, 1]) < rule.min_angle_deg, best, "close")
+        settle(rotation_angles_deg(R[:, 0], R[:, 1]) < rule.min_angle_deg, best, "close")
     if tilt is not None:
         # bricks lie roughly flat: a choice gravity contradicts is no decision (neither
         # candidate is then trustworthy: typically a pose from too few points)

@@ -7,9 +7,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import yaml
 
+from drovisio.camera import Camera
 from drovisio.fileio import atomic_write_text, write_image, write_video
+from drovisio.layout import load_layout, shipped_layouts_dir
+from drovisio.study.frames import step_frames
 from drovisio.study.protocol import PROTOCOL_SCHEMA, Step
 
 __all__ = ["write_recorded_example"]
@@ -22,12 +26,6 @@ STEPS = [("6.7", "code", "distance", 0.6, "code_60cm.mp4"),
 
 def write_recorded_example(out: Path, frames: int = 6) -> Path:
     """Write the example into ``out`` (videos, an image folder, ``protocol.yaml``)."""
-    import cv2
-
-    from drovisio.camera import Camera
-    from drovisio.layout import load_layout, shipped_layouts_dir
-    from drovisio.study.frames import step_frames
-
     out.mkdir(parents=True, exist_ok=True)
     cam = Camera.drone_webcam()
     names = {"code": "drick-aruco-centre", "dots": "drick-dots-2x3"}

@@ -11,16 +11,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from drovisio.fileio import save_figure
+from drovisio.study.analysis import ERRORS
+from drovisio.study.protocol import FIGURES
 
 __all__ = ["box_figure", "fps_figure", "memory_figure"]
 
 
 def _plt():
+    """matplotlib with its file backend (deferred: heavy, and only the report draws)."""
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -33,16 +38,11 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
                not_applicable: dict, path: Path) -> dict:
     """Draw thesis figure ``fig_id`` from the per-frame ``records``; returns what was drawn
     (panels, boxes per method and step) so a test can read it back."""
-    from drovisio.study.analysis import ERRORS
-    from drovisio.study.protocol import FIGURES
-
     plt = _plt()
     spec = FIGURES[fig_id]
-    err = spec["error"]
-    label, budget = ERRORS[err]
-    rows = sorted({r["layout"] for r in records if r["figure"] == fig_id})
-    cols = [v for v in spec["vary"] if any(r["vary"] == v and r["figure"] == fig_id
-                                           for r in records)]
+    recs = [r for r in records if r["figure"] == fig_id]
+    rows = sorted({r["layout"] for r in recs})
+    cols = [v for v in spec["vary"] if any(r["vary"] == v for r in recs)]
     drawn: dict = {"figure": fig_id, "panels": []}
     if not rows or not cols:
         return drawn
@@ -51,70 +51,13 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
     n_panels = len(rows) * len(cols)
     fig, grid = plt.subplots(n_panels, 1, figsize=(7.2, 4.6 * n_panels), squeeze=False)
     axes = [[grid[i * len(cols) + j][0] for j in range(len(cols))] for i in range(len(rows))]
-    names = [m for m in methods if any(r["method"] == m and r["figure"] == fig_id
-                                       for r in records)]
+    names = _methods_in(methods, recs)
     for i, lay in enumerate(rows):
         for j, vary in enumerate(cols):
-            ax = axes[i][j]
-            values = sorted({r["value"] for r in records if r["figure"] == fig_id
-                             and r["layout"] == lay and r["vary"] == vary})
-            panel = {"layout": lay, "vary": vary, "values": values, "boxes": {}}
-            here = [m for m in names if any(r["method"] == m and r["layout"] == lay
-                                            and r["figure"] == fig_id for r in records)]
-            width = 0.8 / max(1, len(here))
-            for k, m in enumerate(here):
-                data, pos = [], []
-                for s, v in enumerate(values):
-                    vals = [r["errors"][err] for r in records if r["figure"] == fig_id
-                            and r["layout"] == lay and r["vary"] == vary and r["value"] == v
-                            and r["method"] == m and r["found"]]
-                    if vals:
-                        data.append(vals)
-                        pos.append(s + (k - (len(here) - 1) / 2) * width)
-                panel["boxes"][m] = len(data)
-                if data:
-                    bp = ax.boxplot(data, positions=pos, widths=width * 0.9, patch_artist=True,
-                                    showfliers=True, manage_ticks=False)
-                    for b in bp["boxes"]:
-                        b.set_facecolor(methods[m].colour)
-                        b.set_alpha(0.75)
-                    ax.plot([], [], color=methods[m].colour, lw=6, alpha=0.75,
-                            label=methods[m].label)
-            if budget is not None:
-                ax.axhline(budget, color="k", ls="--", lw=1, label=f"budget {budget:g}")
-            elif vary == "distance":    # 5 cm as a share of the distance
-                ax.plot(range(len(values)), [5.0 / v for v in values], "k--", lw=1,
-                        label="5 cm")
-            ax.set_xticks(range(len(values)))
-            unit = "°" if vary.startswith("rot") else " m"
-            ax.set_xticklabels([f"{v:g}{unit}" for v in values])
-            ax.set_xlabel(vary.replace("_", " ") + (" (°)" if vary.startswith("rot")
-                                                    else " (m)"))
-            ax.set_ylabel(label)
-            ax.set_title(f"{lay} — {vary.replace('_', ' ')}", fontsize=11)
-            ax.grid(axis="y", alpha=0.3)
-            na = not_applicable.get(lay, {})
-            kind = "dots" if spec["kind"] == "dots" else "codes"
-            notes = [f"{methods[m].label}: not applicable ({why})" for m, why in na.items()
-                     if m in methods and (m.startswith("drovisio-dots") == (kind == "dots"))]
-            for m in here:
-                mine = [r for r in records if r["figure"] == fig_id and r["layout"] == lay
-                        and r["vary"] == vary and r["method"] == m and r["found"]]
-                flagged = sum(bool(r.get("ambiguous")) for r in mine)
-                if flagged:
-                    notes.append(f"{methods[m].label}: {flagged} of {len(mine)} poses flagged "
-                                 "ambiguous (drawn)")
-                panel.setdefault("flagged", {})[m] = flagged
-            if notes:        # room above the data and the budget line for the notes
-                lo, hi = ax.get_ylim()
-                ax.set_ylim(lo, hi + (hi - lo) * 0.12 * (len(notes) + 1))
-                ax.text(0.01, 0.98, "\n".join(notes), transform=ax.transAxes, va="top",
-                        fontsize=9, color="#444")
-            panel["not_applicable"] = sorted(na)
-            panel["xlabel"], panel["ylabel"] = ax.get_xlabel(), ax.get_ylabel()
-            # below the panel, not beside it: the figure stays one phone wide
-            ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
-            drawn["panels"].append(panel)
+            here = _methods_in(names, [r for r in recs if r["layout"] == lay])
+            panel_recs = [r for r in recs if r["layout"] == lay and r["vary"] == vary]
+            drawn["panels"].append(_box_panel(axes[i][j], spec, panel_recs, lay, vary, here,
+                                              methods, not_applicable.get(lay, {})))
     fig.suptitle(f"Fig. {fig_id}: {spec['title']}")
     fig.tight_layout()
     try:
@@ -123,6 +66,84 @@ def box_figure(fig_id: str, records: list[dict], methods: dict,
         plt.close(fig)
     drawn["file"] = str(path)
     return drawn
+
+
+def _methods_in(methods: Iterable[str], recs: list[dict]) -> list[str]:
+    """The ``methods`` (in their order) that have a record in ``recs``."""
+    return [m for m in methods if any(r["method"] == m for r in recs)]
+
+
+def _box_panel(ax: Any, spec: dict, recs: list[dict], lay: str, vary: str, here: list[str],
+               methods: dict, na: dict) -> dict:
+    """One panel of a box figure: layout ``lay`` against the varied axis ``vary``, a box per
+    method in ``here`` and step, the budget line, the notes; ``recs`` are the panel's
+    records. Returns what was drawn."""
+    err = spec["error"]
+    label, budget = ERRORS[err]
+    values = sorted({r["value"] for r in recs})
+    panel: dict = {"layout": lay, "vary": vary, "values": values, "boxes": {}}
+    width = 0.8 / max(1, len(here))
+    for k, m in enumerate(here):
+        panel["boxes"][m] = _method_boxes(ax, recs, values, m, err, methods[m],
+                                          (k - (len(here) - 1) / 2) * width, width)
+    _panel_axes(ax, values, vary, label, budget, lay)
+    kind = "dots" if spec["kind"] == "dots" else "codes"
+    notes = [f"{methods[m].label}: not applicable ({why})" for m, why in na.items()
+             if m in methods and (m.startswith("drovisio-dots") == (kind == "dots"))]
+    for m in here:
+        mine = [r for r in recs if r["method"] == m and r["found"]]
+        flagged = sum(bool(r.get("ambiguous")) for r in mine)
+        if flagged:
+            notes.append(f"{methods[m].label}: {flagged} of {len(mine)} poses flagged "
+                         "ambiguous (drawn)")
+        panel.setdefault("flagged", {})[m] = flagged
+    if notes:        # room above the data and the budget line for the notes
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(lo, hi + (hi - lo) * 0.12 * (len(notes) + 1))
+        ax.text(0.01, 0.98, "\n".join(notes), transform=ax.transAxes, va="top",
+                fontsize=9, color="#444")
+    panel["not_applicable"] = sorted(na)
+    panel["xlabel"], panel["ylabel"] = ax.get_xlabel(), ax.get_ylabel()
+    # below the panel, not beside it: the figure stays one phone wide
+    ax.legend(fontsize=9, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
+    return panel
+
+
+def _method_boxes(ax: Any, recs: list[dict], values: list[float], m: str, err: str,
+                  method: Any, offset: float, width: float) -> int:
+    """One method's boxes, one per step with a found pose, ``offset`` beside the step's
+    tick; returns how many were drawn."""
+    data, pos = [], []
+    for s, v in enumerate(values):
+        vals = [r["errors"][err] for r in recs if r["value"] == v
+                and r["method"] == m and r["found"]]
+        if vals:
+            data.append(vals)
+            pos.append(s + offset)
+    if data:
+        bp = ax.boxplot(data, positions=pos, widths=width * 0.9, patch_artist=True,
+                        showfliers=True, manage_ticks=False)
+        for b in bp["boxes"]:
+            b.set_facecolor(method.colour)
+            b.set_alpha(0.75)
+        ax.plot([], [], color=method.colour, lw=6, alpha=0.75, label=method.label)
+    return len(data)
+
+
+def _panel_axes(ax: Any, values: list[float], vary: str, label: str, budget: float | None,
+                lay: str) -> None:
+    """The budget line (for z in %, 5 cm at each distance), ticks, labels and title."""
+    if budget is not None:
+        ax.axhline(budget, color="k", ls="--", lw=1, label=f"budget {budget:g}")
+    elif vary == "distance":    # 5 cm as a share of the distance
+        ax.plot(range(len(values)), [5.0 / v for v in values], "k--", lw=1, label="5 cm")
+    ax.set_xticks(range(len(values)))
+    unit = "°" if vary.startswith("rot") else " m"
+    ax.set_xticklabels([f"{v:g}{unit}" for v in values])
+    ax.set_xlabel(vary.replace("_", " ") + (" (°)" if vary.startswith("rot") else " (m)"))
+    ax.set_ylabel(label)
+    ax.set_title(f"{lay} — {vary.replace('_', ' ')}", fontsize=11)
+    ax.grid(axis="y", alpha=0.3)
 
 
 def fps_figure(speed: list[dict], methods: dict, path: Path) -> dict:

@@ -16,10 +16,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from drovisio.errors import InputError
+from drovisio.geometry import rotation_about
+from drovisio.images import ImageError, read_image
 from drovisio.study.protocol import Step
+from drovisio.synth import (
+    BrickInstance,
+    Effects,
+    Ground,
+    Scene,
+    brick_mesh_for,
+    camera_over,
+    render,
+)
 
 __all__ = ["StepFrame", "step_frames", "truth_camera_from_brick"]
 
@@ -39,16 +51,13 @@ class StepFrame:
 
 
 def _rot(axis: np.ndarray, deg: float) -> np.ndarray:
-    import cv2
-
+    """Rotation by ``deg`` degrees about ``axis`` (any length)."""
     a = np.asarray(axis, np.float64)
-    return cv2.Rodrigues(a / np.linalg.norm(a) * math.radians(deg))[0]
+    return rotation_about(a / np.linalg.norm(a), math.radians(deg))
 
 
 def _camera_from_world(distance: float, height: float = 0.0) -> np.ndarray:
     """Straight down at the brick's origin, ``height`` above the ground, from ``distance``."""
-    from drovisio.synth import camera_over
-
     return camera_over((0.0, 0.0, height), distance, tilt_deg=0.0)
 
 
@@ -75,8 +84,6 @@ def truth_camera_from_brick(step: Step) -> np.ndarray:
 
 
 def _rendered(step: Step, layout, camera, seed: int, ss: int) -> Iterator[StepFrame]:
-    from drovisio.synth import BrickInstance, Effects, Ground, Scene, render
-
     # the brick stands on the ground (its body below its top face), whatever its turn; the
     # camera looks at its origin from the step's distance
     cw0 = _camera_from_world(step.at_distance)
@@ -104,8 +111,6 @@ def _rendered(step: Step, layout, camera, seed: int, ss: int) -> Iterator[StepFr
 
 def _brick_box(layout) -> np.ndarray:
     """The 8 corners of the brick's bounding box (brick frame, metres)."""
-    from drovisio.synth import brick_mesh_for
-
     mesh: Any = brick_mesh_for(layout)
     lo, hi = np.asarray(mesh.bounds, np.float64)
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
@@ -113,10 +118,6 @@ def _brick_box(layout) -> np.ndarray:
 
 
 def _recorded(step: Step, base: Path) -> Iterator[StepFrame]:
-    import cv2
-
-    from drovisio.images import ImageError, read_image
-
     src = Path(step.source or "")
     src = src if src.is_absolute() else base / src
     if step.value is None:

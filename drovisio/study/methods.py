@@ -21,7 +21,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
+
+from drovisio.detect.aruco import ArucoBrickDetector
+from drovisio.detect.dots import DotDetector
+from drovisio.layout import aruco_dictionary_id
 
 __all__ = ["METHODS", "Method", "apriltag_detector", "method_reason"]
 
@@ -64,12 +69,8 @@ def _drovisio(detector: str) -> Callable[[object, list], Estimator]:
     def make(camera, layouts) -> Estimator:
         det: Any
         if detector == "aruco":
-            from drovisio.detect.aruco import ArucoBrickDetector
-
             det = ArucoBrickDetector(camera, layouts)
         else:
-            from drovisio.detect.dots import DotDetector
-
             det = DotDetector(camera, layouts)
 
         def estimate(img: np.ndarray, g: np.ndarray | None = None) -> list:
@@ -90,8 +91,6 @@ def _needs_dots(layout) -> str | None:
 # ------------------------------------------------------------------------ plain OpenCV
 def _pnp_bricks(camera_K, dist, layouts, found: dict[int, np.ndarray]):
     """Pose every brick from its found codes' corners (ids → (4, 2) px)."""
-    import cv2
-
     out = []
     for lay in layouts:
         corners_m = lay.code_corners_m()
@@ -113,10 +112,6 @@ def _pnp_bricks(camera_K, dist, layouts, found: dict[int, np.ndarray]):
 
 
 def _opencv(camera, layouts) -> Estimator:
-    import cv2
-
-    from drovisio.layout import aruco_dictionary_id
-
     dets = []
     for d in sorted({dd for lay in layouts for dd in lay.dictionaries()}):
         dets.append(cv2.aruco.ArucoDetector(
@@ -143,7 +138,7 @@ def _apriltag_applies(layout) -> str | None:
     if other:
         return f"AprilTag 3 reads AprilTag families only, this layout has {', '.join(other)}"
     try:
-        import pupil_apriltags  # noqa: F401
+        import pupil_apriltags  # noqa: F401  (optional: the peers extra)
     except ImportError:
         return "AprilTag 3 is not installed: pip install drovisio[peers]"
     return None
@@ -183,8 +178,6 @@ def _forget_apriltag_detectors() -> None:
 
 
 def _apriltag(camera, layouts) -> Estimator:
-    import cv2
-
     fams = " ".join(sorted({APRILTAG_FAMILIES[d] for lay in layouts
                             for d in lay.dictionaries()}))
     det = apriltag_detector(fams)

@@ -7,13 +7,20 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 import platform
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from drovisio.fileio import atomic_write_bytes, atomic_write_text
+from drovisio.study.analysis import summarise
+from drovisio.study.figures import box_figure, fps_figure, memory_figure
+from drovisio.study.methods import METHODS
+from drovisio.study.run import figure_ids
 
 __all__ = ["THESIS", "write_report"]
 
@@ -33,14 +40,10 @@ THESIS = {
 
 
 def _versions() -> dict:
-    import cv2
-
     out = {"python": sys.version.split()[0], "opencv": cv2.__version__,
            "numpy": np.__version__}
     for mod in ("drovisio", "pupil_apriltags", "matplotlib"):
         try:
-            from importlib.metadata import version
-
             out[mod] = version(mod.replace("_", "-"))
         except Exception:  # noqa: BLE001 - not installed
             out[mod] = "not installed"
@@ -48,8 +51,6 @@ def _versions() -> dict:
 
 
 def _machine() -> dict:
-    import os
-
     return {"system": platform.platform(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "processor": platform.processor() or None}
 
@@ -71,11 +72,6 @@ def _ours(summary: list[dict], fig: str, methods) -> str:
 def write_report(result, out: Path, command: str, protocol_text: str) -> dict:
     """Write ``report.html``, ``frames.jsonl``, ``summary.json`` and the figures into ``out``;
     returns the summary."""
-    from drovisio.study.analysis import summarise
-    from drovisio.study.figures import box_figure, fps_figure, memory_figure
-    from drovisio.study.methods import METHODS
-    from drovisio.study.run import figure_ids
-
     out.mkdir(parents=True, exist_ok=True)
     summary = summarise(result.records)
     drawn = {}

@@ -8,16 +8,31 @@ frames) is skipped with its reason and the study goes on.
 
 from __future__ import annotations
 
+import gc
 import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+import cv2
 import numpy as np
 
+from drovisio.autopilot.blind import blind_height
+from drovisio.autopilot.precland import LandingParams, landing_summary
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.errors import InputError
-from drovisio.study.protocol import FIGURES, Protocol
+from drovisio.geometry import rotation_about
+from drovisio.layout import LayoutError, load_layout, shipped_layouts_dir, with_dictionary
+from drovisio.mount import Mount
+from drovisio.scenes import SceneSpec, random_scene
+from drovisio.study.analysis import frame_errors
+from drovisio.study.frames import StepFrame, step_frames
+from drovisio.study.methods import METHODS
+from drovisio.study.protocol import FIGURES, Protocol, Step
+from drovisio.synth import check_render_work, render
 
 __all__ = ["StudyResult", "resolve_layouts", "run_study"]
 
@@ -42,8 +57,6 @@ class StudyResult:
 def resolve_layouts(protocol: Protocol, base: Path) -> dict:
     """name → layout (shipped names, or paths relative to the protocol; a dictionary
     override applied)."""
-    from drovisio.layout import LayoutError, load_layout, shipped_layouts_dir, with_dictionary
-
     out = {}
     for ref in protocol.layouts:
         shipped = shipped_layouts_dir() / f"{ref.layout}.json"
@@ -61,7 +74,7 @@ def _rss_mb() -> float:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
     except OSError:  # not Linux: the peak is the best there is
-        import resource
+        import resource  # (Unix only: deferred)
 
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
@@ -69,11 +82,9 @@ def _rss_mb() -> float:
 def _imu_gravity(camera_from_brick: np.ndarray, seed: int, step: int, k: int) -> np.ndarray:
     """Gravity as a drone's autopilot gives it: the brick (lying on the ground) down in the
     camera frame, turned by a 1° attitude error (drawn per frame)."""
-    import cv2
-
     rng = np.random.default_rng([seed, step, k, 7])
     axis = rng.normal(size=3)
-    err = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(rng.normal(0.0, 1.0)))[0]
+    err = rotation_about(axis / np.linalg.norm(axis), np.radians(rng.normal(0.0, 1.0)))
     return err @ (camera_from_brick[:3, :3] @ np.array([0.0, 0.0, -1.0]))
 
 
@@ -101,12 +112,6 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
         InputError: an unknown method, or a protocol whose render memory or total work
             (steps × frames × image size, estimated first) is over its cap.
     """
-    from drovisio.camera import Camera
-    from drovisio.camera_file import load_camera
-    from drovisio.study.analysis import frame_errors
-    from drovisio.study.frames import step_frames
-    from drovisio.study.methods import METHODS
-
     t_start = time.perf_counter()
     say = progress or (lambda f, m: None)
     res = StudyResult(protocol)
@@ -117,61 +122,17 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
                          f"{', '.join(METHODS)}")
     camera = (load_camera(base / protocol.camera if not Path(protocol.camera).is_absolute()
                           else protocol.camera) if protocol.camera else Camera.drone_webcam())
-    from drovisio.synth import check_render_work
-
     # a render's memory and the whole protocol's work, before anything starts (recorded
     # steps are counted at the camera's size: their frames are checked when read)
     check_render_work(camera, 2, sum(s.frames for s in protocol.steps if s.source is None),
                       sum(s.frames for s in protocol.steps), len(names),
                       f"{where or 'the protocol'}: steps and camera")
     layouts = resolve_layouts(protocol, base)
-    try:
-        import pupil_apriltags  # noqa: F401
-    except ImportError:
-        if "apriltag3" in names:
-            res.left_out["apriltag3"] = ("AprilTag 3 is not installed: pip install "
-                                         "drovisio[peers] (or pip install pupil-apriltags)")
-    estimators: dict[tuple[str, str], Callable] = {}
-    for lname, lay in layouts.items():
-        for m in names:
-            why = METHODS[m].applies(lay)
-            if why is None:
-                estimators[(lname, m)] = METHODS[m].make(camera, [lay])
-            else:
-                res.not_applicable.setdefault(lname, {})[m] = why
-    total = sum(s.frames for s in protocol.steps)
-    done = 0
-    for i, step in enumerate(protocol.steps):
-        lay = layouts[step.layout]
-        turned = step.vary[-1] if step.vary in ("rot_x", "rot_y") else None
-        symmetric = getattr(lay, "symmetry", "none") not in (None, "none")
-        say(done / max(1, total) * 0.8, f"Fig. {step.figure} {step.layout} {step.label}")
-        try:
-            for k, fr in enumerate(step_frames(step, lay, camera, protocol.seed * 100_003 + i,
-                                               base)):
-                g_imu = _imu_gravity(fr.camera_from_brick, protocol.seed, i, k)
-                for m in names:
-                    est = estimators.get((step.layout, m))
-                    if est is None:
-                        continue
-                    t0 = time.perf_counter()
-                    g = g_imu if METHODS[m].gravity else None
-                    T, ambiguous = _pick(est(fr.image, g), lay)
-                    dt = time.perf_counter() - t0
-                    res.records.append({
-                        "step": i, "figure": step.figure, "layout": step.layout,
-                        "vary": step.vary, "value": step.value, "method": m, "frame": fr.name,
-                        "recorded": step.source is not None, "found": T is not None,
-                        "ambiguous": ambiguous,
-                        "time_ms": 1000 * dt,
-                        "errors": None if T is None else frame_errors(
-                            T, fr.camera_from_brick, symmetric, turned,
-                            "dots" if m.startswith("drovisio-dots") else "codes")})
-                done += 1
-        except InputError as e:
-            res.skipped.append(f"step {i + 1} (Fig. {step.figure}, {step.layout}, "
-                               f"{step.label}): {e}")
-            done += step.frames
+    if "apriltag3" in names and not _apriltag_installed():
+        res.left_out["apriltag3"] = ("AprilTag 3 is not installed: pip install "
+                                     "drovisio[peers] (or pip install pupil-apriltags)")
+    estimators = _estimators(layouts, names, camera, res)
+    _accuracy_runs(protocol, base, layouts, names, estimators, camera, res, say)
     if speed_bricks:
         say(0.8, "frame rate against the number of bricks")
         res.speed = _speed(layouts, names, estimators, camera, speed_bricks, speed_frames,
@@ -186,10 +147,79 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
     return res
 
 
-def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray]:
-    from drovisio.scenes import SceneSpec, random_scene
-    from drovisio.synth import render
+def _apriltag_installed() -> bool:
+    try:
+        import pupil_apriltags  # noqa: F401  (optional: the peers extra)
+    except ImportError:
+        return False
+    return True
 
+
+def _estimators(layouts: dict, names: list[str], camera: Camera, res: StudyResult
+                ) -> dict[tuple[str, str], Callable]:
+    """(layout name, method) → its estimator, for each method that can read the layout; the
+    others go to ``res.not_applicable`` with why."""
+    estimators: dict[tuple[str, str], Callable] = {}
+    for lname, lay in layouts.items():
+        for m in names:
+            why = METHODS[m].applies(lay)
+            if why is None:
+                estimators[(lname, m)] = METHODS[m].make(camera, [lay])
+            else:
+                res.not_applicable.setdefault(lname, {})[m] = why
+    return estimators
+
+
+def _accuracy_runs(protocol: Protocol, base: Path, layouts: dict, names: list[str],
+                   estimators: dict[tuple[str, str], Callable], camera: Camera,
+                   res: StudyResult, say: Progress) -> None:
+    """Every step's frames through every method that reads its layout, into ``res.records``;
+    a step that cannot be read goes to ``res.skipped`` with its reason."""
+    total = sum(s.frames for s in protocol.steps)
+    done = 0
+    for i, step in enumerate(protocol.steps):
+        lay = layouts[step.layout]
+        say(done / max(1, total) * 0.8, f"Fig. {step.figure} {step.layout} {step.label}")
+        try:
+            for k, fr in enumerate(step_frames(step, lay, camera, protocol.seed * 100_003 + i,
+                                               base)):
+                g_imu = _imu_gravity(fr.camera_from_brick, protocol.seed, i, k)
+                res.records += _frame_records(i, step, lay, fr, g_imu, names, estimators)
+                done += 1
+        except InputError as e:
+            res.skipped.append(f"step {i + 1} (Fig. {step.figure}, {step.layout}, "
+                               f"{step.label}): {e}")
+            done += step.frames
+
+
+def _frame_records(i: int, step: Step, lay: Any, fr: StepFrame, g_imu: np.ndarray,
+                   names: list[str], estimators: dict[tuple[str, str], Callable]
+                   ) -> list[dict]:
+    """One frame of step ``i`` through each method: one record per method."""
+    turned = step.vary[-1] if step.vary in ("rot_x", "rot_y") else None
+    symmetric = getattr(lay, "symmetry", "none") not in (None, "none")
+    out = []
+    for m in names:
+        est = estimators.get((step.layout, m))
+        if est is None:
+            continue
+        t0 = time.perf_counter()
+        g = g_imu if METHODS[m].gravity else None
+        T, ambiguous = _pick(est(fr.image, g), lay)
+        dt = time.perf_counter() - t0
+        out.append({
+            "step": i, "figure": step.figure, "layout": step.layout,
+            "vary": step.vary, "value": step.value, "method": m, "frame": fr.name,
+            "recorded": step.source is not None, "found": T is not None,
+            "ambiguous": ambiguous,
+            "time_ms": 1000 * dt,
+            "errors": None if T is None else frame_errors(
+                T, fr.camera_from_brick, symmetric, turned,
+                "dots" if m.startswith("drovisio-dots") else "codes")})
+    return out
+
+
+def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray]:
     spec = SceneSpec(layouts=[lay], n_bricks=n, distance=(1.2, 1.8),
                      instances=max(n, min(lay.instances or n, 20)))
     out = []
@@ -200,8 +230,6 @@ def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray
 
 
 def _speed(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
-    import cv2
-
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)        # one core, as on the drone's board; the process's own after
     try:
@@ -211,8 +239,6 @@ def _speed(layouts, names, estimators, camera, bricks, count, seed) -> list[dict
 
 
 def _speed_runs(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
-    from drovisio.study.methods import METHODS
-
     out = []
     for lname, lay in layouts.items():
         ms = [m for m in names if (lname, m) in estimators and not METHODS[m].accuracy_only]
@@ -247,10 +273,6 @@ def _landing(layouts, camera, speed: list[dict], runs: int, seed: int) -> list[d
     errors of ArduPilot's precision landing (:mod:`drovisio.autopilot.precland`) at the
     frame rate Drovisio reached on this machine for one brick (the camera's 30 at most;
     15 when not measured), in 3 m/s wind."""
-    from drovisio.autopilot.blind import blind_height
-    from drovisio.autopilot.precland import LandingParams, landing_summary
-    from drovisio.mount import Mount
-
     out = []
     for lname, lay in layouts.items():
         fps = [x["fps"] for x in speed if x["layout"] == lname and x["bricks"] == 1
@@ -269,10 +291,6 @@ def _landing(layouts, camera, speed: list[dict], runs: int, seed: int) -> list[d
 
 
 def _memory(layouts, names, estimators, camera, seconds, say) -> dict:
-    import gc
-
-    from drovisio.study.methods import METHODS
-
     out: dict[str, list[tuple[float, float]]] = {}
     for m in names:
         lname = next((ln for ln in layouts if (ln, m) in estimators), None)

@@ -123,7 +123,7 @@ def test_corner_noise_is_measured_without_a_lens_model(opencv_session, fisheye_v
 
 
 def test_a_folded_lens_model_is_refused_by_name(opencv_session):
-    from drovisio.calibration.solve import _fold_angle
+    from drovisio.calibration.solve import fold_angle as _fold_angle
 
     bad = Camera(K=np.array([[533.0, 0, 320], [0, 533, 240], [0, 0, 1]]),
                  dist=np.array([0.1, -0.9, 61.2, -318.3]), model="fisheye")
