@@ -1,7 +1,7 @@
 """The field guide's pages, driven in headless Chromium at phone (390×844) and laptop
 (1280×800) sizes: the camera mount page (preview, measure from the live camera, save), the
 square size asked before a camera's first solve, viser's own panel folded in the 3D views, and
-the Help page. The screenshots of the guide (docs/images/*.jpg) are taken here; they are
+the Help page, and a station's Fleet page with two drones. The screenshots of the guide (docs/images/*.jpg) are taken here; they are
 written into docs/images only by `make docs` (DROVISIO_DOCS_IMAGES=1), so that `make test`
 leaves the checkout as it found it."""
 
@@ -10,13 +10,22 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
+import threading
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 from drovisio.mount import body_from_camera_angles, load_mount
+from drovisio.pipeline import FrameOutput
+from drovisio.raw_frame import RawFrame
 from drovisio.resources import docs_dir
+from drovisio.ros.messages import RosMessages, namespace_for
+from drovisio.sinks.zenoh import ZenohSink
+from drovisio.tracking import TrackedBrick
 from webtool.app import create_app
 from webtool.calibration.service import CalibrationService
 from webtool.settings import Settings
@@ -28,6 +37,7 @@ IMAGES = docs_dir() / "images"
 #: `make docs` sets it: the screenshots replace the guide's pictures
 WRITE_DOCS = os.environ.get("DROVISIO_DOCS_IMAGES", "") == "1"
 SAMPLE_VIEWS = Path(__file__).resolve().parents[2] / "sample_sessions" / "calibration"
+SAMPLE_VIDEO = SAMPLE_VIEWS.parent / "approach" / "approach.mp4"
 #: viser's developer controls, which must not cover the tool's 3D views
 VISER_DEV = ("Save Canvas", "Reset View", "Dev Settings", "Scene tree")
 
@@ -149,7 +159,7 @@ def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, si
         page.wait_for_function("[...document.images].every(i => i.complete)")
         widths = dict(page.eval_on_selector_all(
             "article img", "is => is.map(i => [i.getAttribute('src'), i.naturalWidth])"))
-        assert len(widths) == 12
+        assert len(widths) == 14
         for src, w in widths.items():
             name = src.rsplit("/", 1)[-1]
             # every picture of the guide is shipped, at the width of the screen it shows
@@ -158,6 +168,78 @@ def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, si
         _no_sideways_scroll(page, size)
     finally:
         context.close()
+
+
+def _simulated_drones(port: int, rendered) -> list:
+    """Two drones publishing to a station on loopback (what ``drovisio run --sink zenoh:``
+    sends), each with a brick, its target and a camera picture."""
+    sinks = []
+    for k, drone_id in enumerate(("drone1", "drone2")):
+        ns, prefix = namespace_for(drone_id)
+        web = f"&web=http://192.168.1.{21 + k}:8080/"
+        sinks.append(ZenohSink(f"zenoh:connect=tcp/127.0.0.1:{port}{web}",
+                               RosMessages(None, None, (), namespace=ns, frame_prefix=prefix)))
+    return sinks
+
+
+def _feed(sinks, rendered, n: int) -> None:
+    for k, sink in enumerate(sinks):
+        t = time.time()
+        b = TrackedBrick(layout="drick-aruco-centre", instance=k + 1, track=k + 1,
+                         method="aruco", rvec=np.array([0.0, 0.0, 0.3 * k]),
+                         tvec=np.array([0.05 * k, 0.02, 0.9 + 0.3 * k]),
+                         covariance=np.eye(6) * 1e-6, t=t, t_measured=t, age=0.0,
+                         measured=True)
+        out = FrameOutput(source="cam", frame=n, seq=n, t=t, t_mono=time.monotonic(),
+                          bricks=[b], target=b)
+        sink.on_frame(RawFrame(image=rendered[k], index=n), out)
+        sink.send(out)
+
+
+@pytest.mark.parametrize("size", ["phone", "laptop"])
+def test_the_fleet_page_of_a_station(browser, live_server_factory, tmp_path, size):
+    port = _free_port()
+    base = live_server_factory(create_app(Settings(station_listen=[f"tcp/127.0.0.1:{port}"],
+                                                   data_dir=tmp_path)))
+    cap = cv2.VideoCapture(str(SAMPLE_VIDEO))
+    rendered = [cap.read()[1] for _ in range(121)][60::60]   # the bricks well in view
+    cap.release()
+    sinks = _simulated_drones(port, rendered)
+    stop = threading.Event()
+
+    def loop() -> None:
+        n = 0
+        while not stop.wait(1 / 15):
+            _feed(sinks, rendered, n)
+            n += 1
+
+    feeder = threading.Thread(target=loop, daemon=True)
+    feeder.start()
+    context = _context(browser, size)
+    try:
+        page = context.new_page()
+        page.set_default_timeout(40_000)
+        page.goto(base + "/fleet")
+        page.wait_for_function("document.querySelectorAll('#fleet-rows tr.live').length === 2"
+                               " && [...document.querySelectorAll('#fleet-rows img')]"
+                               ".filter(i => i.complete && i.naturalWidth > 0).length === 2")
+        assert page.locator('#fleet-rows tr[data-drone="drone2"] td.target').inner_text() \
+            .startswith("drick-aruco-centre #2 at ")
+        _wait_3d(page.frame_locator("#scene-frame"))
+        _no_sideways_scroll(page, size)
+        _shot(page, f"fleet-{size}", tmp_path / "shots")
+    finally:
+        stop.set()
+        feeder.join(2)
+        for sink in sinks:
+            sink.close()
+        context.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 class _NoCamera:

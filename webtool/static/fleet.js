@@ -3,6 +3,8 @@
   const $ = (id) => document.getElementById(id);
   const fmt = (v, unit, d) => (v === null || v === undefined) ? "–" : Number(v).toFixed(d) + unit;
 
+  const LABELS = ["State", "Frame rate", "Latency", "Bricks", "Target", "Camera", "Web tool"];
+
   function cell(text) { const td = document.createElement("td"); td.textContent = text; return td; }
 
   function targetText(t) {
@@ -41,6 +43,7 @@
       web.appendChild(a);
     } else web.textContent = "–";
     tr.appendChild(web);
+    [...tr.querySelectorAll("td")].forEach((td, i) => { td.dataset.label = LABELS[i]; });
     return tr;
   }
 
