@@ -127,6 +127,7 @@ def _stoppers(words: str, f: dict) -> list[str]:
     return {
         "run": ["--source", str(f["video"]), "--frames", "1", "--pace", "max", "--quiet"],
         "serve": ["--port", str(f["busy_port"])],
+        "station": ["--port", str(f["busy_port"])],
         "mission landing": ["--runs", "1"],
     }.get(words, [])
 

@@ -81,3 +81,58 @@ def test_a_drone_names_its_web_tool_only_as_an_http_address(web, ok):
     else:
         with pytest.raises(SinkError, match="web"):
             parse_spec(spec)
+
+
+def test_the_station_drops_what_it_cannot_read():
+    """A hostile or broken peer on the network: bytes that are no CDR, a JSON that is no
+    object, a key that names no drone: dropped and counted, the fleet untouched."""
+    import json
+    import socket
+    import time
+
+    import zenoh
+
+    from drovisio.ros.msgdefs import encoder
+    from drovisio.sinks.zenoh import topic_key
+    from drovisio.station import StationLink
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    fleet = Fleet()
+    link = StationLink(fleet, listen=[f"tcp/127.0.0.1:{port}"])
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    peer = zenoh.open(cfg)
+    try:
+        key = topic_key(0, "/drovisio/evil/output", "std_msgs/msg/String")
+        bad = [b"\x00\x01garbage", encoder("std_msgs/String")({"data": "[1, 2, 3]"}),
+               encoder("std_msgs/String")({"data": "{not json"})]
+        end = time.monotonic() + 10
+        while link.dropped < 3 and time.monotonic() < end:
+            for payload in bad:
+                peer.put(key, payload)
+            peer.put("0/drovisio", b"no drone here")
+            time.sleep(0.2)
+        assert link.dropped >= 3
+        assert fleet.status() == []
+        good = encoder("std_msgs/String")({"data": json.dumps({"t": time.time(), "bricks": []})})
+        assert _until_status(fleet, lambda: peer.put(key, good))
+    finally:
+        peer.close()
+        link.close()
+
+
+def _until_status(fleet: Fleet, poke) -> bool:
+    import time
+
+    end = time.monotonic() + 10
+    while time.monotonic() < end:
+        poke()
+        if [d.drone_id for d in fleet.status()] == ["evil"]:
+            return True
+        time.sleep(0.1)
+    return False

@@ -54,7 +54,7 @@ def test_the_app_has_the_writes_and_sockets_this_test_covers(app):
     writes = write_routes(app)
     assert len(writes) >= 25 and ("POST", "/api/live/target") in writes
     assert set(socket_routes(app)) == {"/api/live/ws", "/live/3d", "/designer/3d", "/replay/3d",
-                                      "/mount/3d"}
+                                      "/mount/3d", "/fleet/3d"}
 
 
 def test_every_write_from_another_site_is_refused_even_on_loopback(app):
