@@ -8,20 +8,26 @@ import argparse
 from drovisio.arguments import Command, port_number
 from drovisio.commands.run import add_pipeline_arguments
 
-__all__ = ["COMMAND", "add_arguments"]
+__all__ = ["COMMAND", "add_arguments", "add_web_arguments"]
 
 # --------------------------------------------------------------------------------------------
 # The command line
 # --------------------------------------------------------------------------------------------
 
 
+def add_web_arguments(p: argparse.ArgumentParser, of: str = "") -> None:
+    """``--host`` and ``--port`` of a web tool's server (``serve``, ``station``); ``of``
+    names the server where the command listens for something else too."""
+    p.add_argument("--host", default="127.0.0.1",
+                   help=f"address{of} to listen on (default: 127.0.0.1, this machine only; any "
+                        "other address turns on token access)")
+    p.add_argument("--port", type=port_number, default=8080,
+                   help=f"port{of} to listen on (default: 8080)")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``drovisio serve``'s arguments: the server's, then the pipeline of its live page."""
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default: 127.0.0.1, this machine only; any other "
-                        "address turns on token access)")
-    p.add_argument("--port", type=port_number, default=8080,
-                   help="port to listen on (default: 8080)")
+    add_web_arguments(p)
     p.add_argument("--source", metavar="SOURCE",
                    help="camera index, video file, folder of images or stream URL "
                         "(default: the built-in sample session)")

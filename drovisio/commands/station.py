@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 import re
 
-from drovisio.arguments import Command, port_number
+from drovisio.arguments import Command
 from drovisio.bounds import whole
+from drovisio.commands.serve import add_web_arguments
 
 __all__ = ["COMMAND", "add_arguments", "zenoh_endpoint"]
 
@@ -31,11 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(repeatable)")
     p.add_argument("--domain", type=whole(0, 232), default=0, metavar="N",
                    help="ROS domain id of the drones' keys (default 0)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address of the web tool (default: 127.0.0.1, this machine only; any "
-                        "other address turns on token access)")
-    p.add_argument("--port", type=port_number, default=8080,
-                   help="port of the web tool (default: 8080)")
+    add_web_arguments(p, of=" of the web tool")
     p.add_argument("--data", metavar="DIR",
                    help="this station's data folder (default: $DROVISIO_DATA, else "
                         "~/.local/share/drovisio)")
