@@ -139,6 +139,7 @@ def _near(q, pool):
 def test_multi_tag_photos_codes_kept_and_corners_agree_with_apriltag(multi):
     ok_codes = kept = n_cv = 0
     rms = []
+    missed = []
     for name, r in multi.items():
         good = [c for c in r["codes"] if c.refined.ok]
         ok_codes += len(good)
@@ -151,21 +152,47 @@ def test_multi_tag_photos_codes_kept_and_corners_agree_with_apriltag(multi):
                 rms.append(float(np.sqrt(np.mean(_match_corners(q, at[0]) ** 2))))
         for mid, q in r["opencv"]:
             n_cv += 1
-            kept += bool(_near(q, [c.refined.corners_px for c in good if c.marker_id == mid]))
+            got = bool(_near(q, [c.refined.corners_px for c in good if c.marker_id == mid]))
+            kept += got
+            missed += [] if got else [f"{name}:{mid}"]
         # every brick is one code, posed (a fit worse than 2 px is kept when OpenCV's own
         # corners fit the camera no better)
         assert sorted(p.markers[0] for p in r["poses"]) == sorted(c.marker_id for c in good)
-    # 54 read by OpenCV: 51 kept; the others: two codes of 10 and 12 px the first pass does
-    # not find, and the 108-px tag whose fitted corner went astray (next test)
-    assert n_cv == 54 and kept >= 51 and ok_codes >= 53
+    # 54 read by OpenCV: 53 kept; the one left is the 95-px tag whose fitted corner went
+    # astray (next test)
+    assert n_cv == 54 and kept == 53 and ok_codes == 55
+    assert missed == ["test_image_multiple_07.png:85"]
     rms_a = np.array(rms)
-    # measured: median 0.18 px, p90 0.49 px (OpenCV's corners: 0.80, 1.39)
-    assert np.median(rms_a) < 0.3 and np.mean(rms_a < 0.5) > 0.85
+    # measured: median 0.19 px, p90 0.53 px, max 1.00 px, 48 of 55 within 0.5 px (OpenCV's
+    # corners: 0.81, 1.35); of the 7 beyond, the border's outer edge lines (clean, codes
+    # >= 15 px) side with AprilTag's corners on every one that they can judge
+    assert np.median(rms_a) < 0.3 and np.mean(rms_a < 0.5) > 0.85 and rms_a.max() < 1.2
+
+
+def test_codes_of_twelve_pixels_opencv_reads_are_kept(multi):
+    """Two 36h11 codes of ~12 px (cells 1.5 px) that OpenCV's default pass reads: the
+    smallest code side is that of the code, while OpenCV's perimeter limit measures its
+    contour, a pixel and a half shorter a side; both are kept, their corners near
+    AprilTag's."""
+    for name, mid in [("test_image_multiple_06.png", 24), ("test_image_multiple_10.png", 85)]:
+        r = multi[name]
+        c = [c for c in r["codes"] if c.marker_id == mid and c.refined.ok]
+        assert len(c) == 1, name
+        q = c[0].refined.corners_px
+        assert 10.0 < np.linalg.norm(q[1] - q[0]) < 14.0
+        at = _near(q, [p for i, p in r["apriltag"] if i == mid])
+        # measured: RMS 0.34 px (12.7-px code) and 0.67 px (11.7 px)
+        assert np.sqrt(np.mean(_match_corners(q, at[0]) ** 2)) < 1.0, name
+        assert mid in [p.markers[0] for p in r["poses"]]
 
 
 def test_a_corner_far_from_its_quad_is_not_accepted(multi):
-    """On test_image_multiple_07 the 108-px tag 85 near the image edge: the fit slid one
-    corner 11 px onto the paper (AprilTag and OpenCV agree there within 4 px)."""
+    """On test_image_multiple_07 the 95-px tag 85 near the image edge: the fit slid one
+    corner 11 px onto the paper (AprilTag and OpenCV agree there within 4 px; the border's
+    outer edges, fitted as lines on the gradient, meet 0.8 px from AprilTag's corner and
+    7.9 px from the fit's). Converged further (8 iterations, 1000 samples) the interior fit
+    still puts it 12 px off: the code's cells are no homography of its outer border here
+    (even AprilTag's corners lie 3.6 px RMS from any square's image under this camera)."""
     r = multi["test_image_multiple_07.png"]
     c85 = [c for c in r["codes"] if c.marker_id == 85]
     assert len(c85) == 1 and not c85[0].refined.ok

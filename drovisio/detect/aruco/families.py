@@ -91,7 +91,10 @@ def detector_parameters(params: ArucoParams, camera: Camera) -> cv2.aruco.Detect
     p.adaptiveThreshConstant = float(params.threshold_constant)
     p.perspectiveRemovePixelPerCell = int(params.pixels_per_cell)
     side = max(camera.width, camera.height)
-    p.minMarkerPerimeterRate = float(4.0 * params.min_code_px / side)
+    # OpenCV measures its contour, which lies inside the code by the inset the corner fit's
+    # start undoes (initial_expand_px along each diagonal: sqrt(2) times that off each side)
+    contour_px = params.min_code_px - np.sqrt(2.0) * params.initial_expand_px
+    p.minMarkerPerimeterRate = float(4.0 * contour_px / side)
     p.errorCorrectionRate = float(params.error_correction_rate)
     p.polygonalApproxAccuracyRate = float(params.polygon_accuracy)
     p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE

@@ -29,9 +29,10 @@ class ArucoParams:
     pixels_per_cell: int = 8
     """Samples per cell when the bits are read (OpenCV's 4 misreads codes of ~3 px cells)."""
     min_code_px: float = 11.0
-    """Smallest code side, pixels; OpenCV's perimeter rate is set from it for the camera's
-    image size (0.07 at 640 px). The target is ≥ 15 px; fewer candidates than 8 px, same
-    recall."""
+    """Smallest code side, pixels (the code's outer border). OpenCV's perimeter limit
+    measures its contour, which lies inside the code by ``initial_expand_px`` along each
+    diagonal, so the rate is set from the contour of such a code for the camera's image
+    size (0.06 at 640 px). The target is ≥ 15 px; fewer candidates than 8 px, same recall."""
     error_correction_rate: float = 0.6
     polygon_accuracy: float = 0.03
     """OpenCV's ``polygonalApproxAccuracyRate``: how far (× the perimeter) a candidate's
