@@ -5,6 +5,7 @@ and ChArUco photos (the board's codes as one brick), Drovisio beside OpenCV's pl
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -13,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drovisio.bench.real_edges import EDGE_LINE_MAX_RMS_PX, outer_edge_corners
 from drovisio.bench.real_folder import (
     aruco_detector,
     best_dictionary,
@@ -93,6 +95,11 @@ class _TagFigures:
     """Codes (and bricks) counted per method."""
     c_ours_at: list[float] = field(default_factory=list)
     """Corner RMS per code (px), Drovisio against AprilTag 3."""
+    edges: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    """Per code whose outer edges are clean: (AprilTag's, Drovisio's) (4, 2) corners minus
+    the edge lines' intersections, px (:mod:`.real_edges`)."""
+    edges_unclean: int = 0
+    """Codes read by both whose outer edges are not clean enough to judge by."""
     c_cv_at: list[float] = field(default_factory=list)
     c_ours_cv: list[float] = field(default_factory=list)
     rot_ours_at: list[float] = field(default_factory=list)
@@ -135,7 +142,9 @@ def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
         codes, cv, ats = _read_tags(g, det, cv_det, at, repeat, fig)
         _opencv_kept(path, codes, cv, fig)
         _against_apriltag(camera, tag_size, codes, cv, ats, at is not None, fig)
+        _against_edges(g, codes, ats, fig)
     rep.update(codes=fig.n, missed_opencv_codes=fig.missed,
+               edge_reference=_edge_figures(fig),
                corners_rms_px={"drovisio_vs_apriltag": stats(fig.c_ours_at),
                                "opencv_vs_apriltag": stats(fig.c_cv_at),
                                "drovisio_vs_opencv": stats(fig.c_ours_cv)},
@@ -193,6 +202,40 @@ def _opencv_kept(path: Path, codes: list[Any], cv: Quads, fig: _TagFigures) -> N
             continue
         fig.n["opencv_kept"] += 1
         fig.c_ours_cv.append(float(np.sqrt(np.mean(match_corners(m.refined.corners_px, q) ** 2))))
+
+
+def _against_edges(g: np.ndarray, codes: list[Any], ats: Quads, fig: _TagFigures) -> None:
+    """Drovisio's and AprilTag's corners against the code's outer edge lines, where the
+    code is at least 15 px and its four edges are clean."""
+    for c in codes:
+        q = c.refined.corners_px
+        other = _near(q, [(i, p) for i, p in ats if i == c.marker_id])
+        if other is None or np.linalg.norm(q[1] - q[0]) < 15.0:
+            continue
+        ap = roll_like(other[1], q)
+        e = outer_edge_corners(g, ap)
+        if e is None or e[1] > EDGE_LINE_MAX_RMS_PX:
+            fig.edges_unclean += 1
+            continue
+        fig.edges.append((ap - e[0], q - e[0]))
+
+
+def _edge_figures(fig: _TagFigures) -> dict[str, Any]:
+    """The edge reference's figures: each method's corner RMS per code against the edges,
+    AprilTag's mean offset from them (the pixel convention), and of the codes where the
+    two methods differ by over 0.5 px RMS, which one the edges side with."""
+    rms = [(float(np.sqrt(np.mean((a * a).sum(1)))), float(np.sqrt(np.mean((o * o).sum(1)))))
+           for a, o in fig.edges]
+    apart = [(a, o) for (a, o), (ea, eo) in zip(fig.edges, rms)
+             if np.sqrt(np.mean(((a - o) ** 2).sum(1))) > 0.5]
+    off = np.concatenate([a for a, _ in fig.edges]).mean(0) if fig.edges else None
+    return {"apriltag_vs_edges": stats(ea for ea, _ in rms),
+            "drovisio_vs_edges": stats(eo for _, eo in rms),
+            "apriltag_mean_offset_px": None if off is None else [float(v) for v in off],
+            "unclean": fig.edges_unclean,
+            "apart_over_half_px": len(apart),
+            "apart_edges_side_with_apriltag": sum(
+                float(np.sum(a * a)) < float(np.sum(o * o)) for a, o in apart)}
 
 
 def _against_apriltag(camera: Camera, tag_size: float, codes: list[Any], cv: Quads,
@@ -272,7 +315,9 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
     for g in grays:
         _charuco_photo(g, camera, det, cv_det, ch_det, obj, chess, repeat, fig)
     rep.update(codes=fig.n,
-               corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv)},
+               corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv),
+                                    "drovisio_vs_homography": stats(fig.e_hom)},
+               board_pose_rms_px=stats(fig.ref_rms),
                pose_vs_board={"trans_mm": stats(fig.dt_mm), "rot_deg": stats(fig.dr_deg)},
                ms_per_photo=_ms_per_photo(fig.times))
     return rep
@@ -287,6 +332,10 @@ class _CharucoFigures:
     e_ours: list[float] = field(default_factory=list)
     """Distances (px) of Drovisio's code corners from the board pose's prediction."""
     e_cv: list[float] = field(default_factory=list)
+    e_hom: list[float] = field(default_factory=list)
+    """Distances (px) of Drovisio's code corners from the board plane's homography."""
+    ref_rms: list[float] = field(default_factory=list)
+    """The board pose's own reprojection RMS (px) on the ChArUco corners it was posed from."""
     dt_mm: list[float] = field(default_factory=list)
     """The brick pose's translation from the board pose's, mm."""
     dr_deg: list[float] = field(default_factory=list)
@@ -313,13 +362,17 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
     if cid is None or len(cid) < 6:
         return
     n["charuco_corners"] += len(cid)
-    ok, rv, tv = cv2.solvePnP(chess[np.ravel(cid)], np.asarray(cc, np.float64).reshape(-1, 2),
-                              camera.K, camera.dist)
+    cc = np.asarray(cc, np.float64).reshape(-1, 2)
+    ok, rv, tv = cv2.solvePnP(chess[np.ravel(cid)], cc, camera.K, camera.dist)
     if not ok:
         return
+    p, _ = cv2.projectPoints(chess[np.ravel(cid)], rv, tv, camera.K, camera.dist)
+    fig.ref_rms.append(float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - cc) ** 2, axis=1)))))
+    plane = _board_homography(camera, chess[np.ravel(cid)], cc)
     for c in codes:
         p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
         fig.e_ours.extend(np.linalg.norm(p.reshape(4, 2) - c.refined.corners_px, axis=1))
+        fig.e_hom.extend(np.linalg.norm(plane(obj[c.marker_id]) - c.refined.corners_px, axis=1))
     if ci is not None:
         fig.e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
     if poses:
@@ -328,6 +381,27 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
         n["ambiguous"] += bool(b.ambiguous)
         fig.dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
         fig.dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
+
+
+def _board_homography(camera: Camera, board_pts: np.ndarray, px: np.ndarray
+                      ) -> Callable[[np.ndarray], np.ndarray]:
+    """A prediction of board points that trusts neither the camera's focal length nor the
+    board pose: the homography of the board plane fitted to the ChArUco corners in
+    undistorted normalised coordinates (only the lens distortion is the camera file's).
+
+    Args:
+        board_pts: (N, 3) ChArUco corners in the brick frame, m (z = 0).
+        px: (N, 2) their detected pixels.
+
+    Returns:
+        A function of (K, 3) board points (z = 0) giving their (K, 2) predicted pixels.
+    """
+    H, _ = cv2.findHomography(board_pts[:, :2], camera.normalize(px), 0)
+
+    def predict(pts: np.ndarray) -> np.ndarray:
+        xn = cv2.perspectiveTransform(np.asarray(pts, np.float64)[None, :, :2], H)[0]
+        return camera.project(np.concatenate([xn, np.ones((len(xn), 1))], axis=1))
+    return predict
 
 
 def _opencv_vs_board(camera: Camera, obj: dict[int, np.ndarray], cq: Any, ci: np.ndarray,
