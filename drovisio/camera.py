@@ -28,7 +28,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-__all__ = ["BROWN_LENGTHS", "Camera", "LensModel", "MODEL_ALIASES"]
+__all__ = ["BROWN_LENGTHS", "Camera", "LensModel", "MODEL_ALIASES", "check_coefficients", "skew_problem"]
 
 LensModel = Literal["plumb_bob", "rational_polynomial", "fisheye"]
 BROWN_LENGTHS = (4, 5, 8, 12, 14)
@@ -41,6 +41,16 @@ MODEL_ALIASES: dict[str, LensModel] = {
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 # central differences of one pixel: the point, then ±x, then ±y
 PIXEL_STENCIL = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+
+
+def skew_problem(skew: float, fx: float) -> str | None:
+    """Why a camera matrix's skew ``K[0][1]`` cannot be used (None when it is zero): OpenCV's
+    projection and undistortion, which every path here goes through, take none, so a skewed
+    matrix would be used as if it had none."""
+    if abs(skew) <= 1e-9 * abs(fx):
+        return None
+    return (f"skew K[0][1] = {skew:.6g} is not supported (OpenCV's projection takes none): "
+            "calibrate with zero skew, as OpenCV's and ROS's calibrators do")
 
 
 def check_coefficients(model: str, n: int) -> str | None:
@@ -92,6 +102,9 @@ class Camera:
         why = check_coefficients(model, dist.size)
         if why:
             raise ValueError(f"distortion has {why}")
+        why = skew_problem(K[0, 1], K[0, 0])
+        if why:
+            raise ValueError(why)
         K.flags.writeable = False
         dist.flags.writeable = False
         object.__setattr__(self, "K", K)
@@ -360,7 +373,8 @@ class Camera:
         return self.normalize(pixels)
 
     def _distorted_normalized(self, px: np.ndarray) -> np.ndarray:
-        """Pixels (N, 2) → distorted normalised coordinates (K⁻¹, skew included)."""
+        """Pixels (N, 2) → distorted normalised coordinates (K⁻¹; no skew, see
+        :func:`skew_problem`)."""
         Kinv = np.linalg.inv(self.K)
         return px @ Kinv[:2, :2].T + Kinv[:2, 2]
 

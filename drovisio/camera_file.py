@@ -39,7 +39,7 @@ from pydantic import (
     model_validator,
 )
 
-from drovisio.camera import MODEL_ALIASES, Camera, check_coefficients
+from drovisio.camera import MODEL_ALIASES, Camera, check_coefficients, skew_problem
 from drovisio.errors import LIMITS, InputError, one_line
 from drovisio.fileio import atomic_write
 from drovisio.textfile import BoundedYamlLoader as _BoundedYaml
@@ -113,6 +113,9 @@ class CameraFile(BaseModel):
             raise ValueError("not a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
         if K[0][0] > 1e6 or K[1][1] > 1e6:
             raise ValueError("focal lengths above 1e6 pixels are not a real camera")
+        why = skew_problem(K[0][1], K[0][0])
+        if why:
+            raise ValueError(why)
         return K
 
     @field_validator("distortion_coefficients")

@@ -130,6 +130,25 @@ def test_project_matches_opencv_and_undistort_inverts_it():
     np.testing.assert_allclose(und, xy @ cam.K[:2, :2].T + cam.K[:2, 2])
 
 
+def test_a_skewed_pixel_grid_is_refused_in_one_line(tmp_path: Path):
+    """OpenCV's projection (and so every path here) takes no skew: a camera matrix with one
+    would be used as if it had none. The file is refused, naming the field and the fix."""
+    f = tmp_path / "skew.yaml"
+    f.write_text("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n"
+                 "   dt: d\n   data: [ 500., 4., 320., 0., 500., 240., 0., 0., 1. ]\n"
+                 "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n"
+                 "   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n")
+    with pytest.raises(CameraFileError) as e:
+        load_camera(f)
+    msg = str(e.value)
+    assert "\n" not in msg and str(f) in msg and "camera_matrix" in msg
+    assert "skew" in msg and "zero skew" in msg
+    K = Camera.drone_webcam().K.copy()
+    K[0, 1] = 4.0
+    with pytest.raises(ValueError, match="skew"):
+        Camera(K, np.zeros(5), 640, 480)
+
+
 def test_scaled_keeps_pixel_centre_convention():
     cam = Camera.drone_webcam()
     half = cam.scaled(320, 240)

@@ -95,7 +95,13 @@ def board_flatness(views, camera: Camera, model: str, rms_px: float, fits,
         "fx_shift_pct", "rms_px_flat", "rms_px_bowed", "significant", "matters",
         "summary"}``, or
         ``{"computed": False, "reason"}``.
+
+    Raises:
+        ValueError: ``iterations`` below 1 (the covariance comes from the last iteration's
+            normal equations).
     """
+    if iterations < 1:
+        raise ValueError(f"board_flatness: iterations {iterations}, at least 1")
     if model == "fisheye":
         return _not_computed("not for the fisheye model")
     if len(views) < min_views:

@@ -108,7 +108,11 @@ def judge(result: CalibrationResult | None, coverage: Coverage,
     where = "the region of interest" if roi else "the image"
     regions = _region_p95(result, roi)
     p95 = stats["p95"]
-    if p95 is None or p95 > r.max_uncertainty_p95_px:
+    if p95 is None:
+        # no point of the image has a finite uncertainty: the solve determines nothing there
+        reasons.append(f"projection uncertainty unknown over {where} (no point of it has a "
+                       "finite uncertainty): add views that cover it and solve again")
+    elif p95 > r.max_uncertainty_p95_px:
         reasons.append(f"projection uncertainty too high: p95 {p95:.2f} px over {where} "
                        f"(limit {r.max_uncertainty_p95_px:g} px), max {stats['max']:.2f} px")
         _uncertain_regions(regions, coverage, r, suggested_region, reasons, advice)

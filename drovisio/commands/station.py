@@ -4,22 +4,20 @@
 from __future__ import annotations
 
 import argparse
-import re
 
 from drovisio.arguments import Command
 from drovisio.bounds import whole
 from drovisio.commands.serve import add_web_arguments
+from drovisio.zenoh_endpoint import ENDPOINT_HELP, endpoint_problem
 
 __all__ = ["COMMAND", "add_arguments", "zenoh_endpoint"]
-
-_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/[A-Za-z0-9.\-\[\]:]{1,200}:[0-9]{1,5}$")
 
 
 def zenoh_endpoint(text: str) -> str:
     """argparse type: a Zenoh endpoint ``tcp/HOST:PORT``."""
-    if not _ENDPOINT.match(text) or not 0 < int(text.rsplit(":", 1)[1]) < 65536:
-        raise argparse.ArgumentTypeError(
-            f"{text[:80]!r}: write a Zenoh endpoint as tcp/HOST:PORT, e.g. tcp/0.0.0.0:7447")
+    problem = endpoint_problem(text)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{text[:80]!r} {problem}: {ENDPOINT_HELP}")
     return text
 
 

@@ -135,7 +135,7 @@ def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, An
             continue
         if not n.endswith(".json") and lay.name != n:
             problems.append(f"{src}: layouts[{i}]: file {p} holds layout {lay.name!r}")
-        out[lay.name] = lay
+        out[n] = lay   # keyed as the scenario names it: bricks[].layout repeats that entry
     if problems:
         raise ScenarioError("\n".join(problems))
     try:

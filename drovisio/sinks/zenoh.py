@@ -49,6 +49,7 @@ from drovisio.ros.messages import TOPIC_TYPES, RosMessages
 from drovisio.ros.msgdefs import encoder
 from drovisio.ros.type_hash import dds_type_name, full_name, rihs01
 from drovisio.sinks.base import SinkError
+from drovisio.zenoh_endpoint import ENDPOINT_HELP, endpoint_problem
 
 __all__ = ["ZenohSink", "parse_spec", "topic_key"]
 
@@ -89,11 +90,9 @@ def parse_spec(spec: str) -> dict:
                             "listen=tcp/HOST:PORT, mode=peer|client, domain=N)")
         if key in ("connect", "listen"):
             for ep in value.split(","):
-                proto, slash, addr = ep.partition("/")
-                if not slash or proto not in ("tcp", "udp", "tls", "quic", "ws") or \
-                        ":" not in addr:
-                    raise SinkError(f"{spec}: {key}: {ep!r} is not a Zenoh endpoint; write "
-                                    "it as tcp/HOST:PORT")
+                problem = endpoint_problem(ep)
+                if problem:
+                    raise SinkError(f"{spec}: {key}: {ep[:80]!r} {problem}: {ENDPOINT_HELP}")
                 opts[key].append(ep)
         elif key == "mode":
             if value not in ("peer", "client"):

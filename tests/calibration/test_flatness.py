@@ -92,6 +92,8 @@ def test_what_cannot_be_measured_is_named():
               for i, v in enumerate(views)]
     assert board_flatness(lifted, CAM, "plumb_bob", 0.1, fits, 1.0)["reason"] == \
         "the board points are not in one plane"
+    with pytest.raises(ValueError, match="iterations 0, at least 1"):
+        board_flatness(views, CAM, "plumb_bob", 0.1, fits, 1.0, iterations=0)
 
 
 def test_calibrate_board_flatness_in_the_report(capsys, tmp_path):

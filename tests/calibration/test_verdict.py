@@ -31,3 +31,21 @@ def test_same_distance_facing_views_are_not_ok(true_camera):
     assert "corners of the image not covered" in text
     hint = s.suggestion()
     assert hint.tilt_deg > 0 and hint.predicted_p95_px < 0.6 * hint.current_p95_px
+
+
+def test_unknown_uncertainty_is_a_reason_not_a_crash(true_camera):
+    """A solve whose uncertainty is finite nowhere (every grid point unprojectable) is not ok,
+    and says so in words instead of formatting a missing number."""
+    from drovisio.calibration.verdict import judge
+
+    rng = np.random.default_rng(1)
+    s = CalibrationSession(DEFAULT_BOARD)
+    for i, (xy, d) in enumerate([((320, 240), 0.5), ((200, 150), 0.7), ((450, 330), 0.9),
+                                 ((180, 340), 0.6), ((460, 140), 0.8), ((330, 250), 1.0)]):
+        T = place_board(true_camera, DEFAULT_BOARD, xy, d)
+        s.keep(FrameResult(f"f{i}", _projected(true_camera, T, rng), []))
+    res = s.solve()
+    res.uncertainty.sigma[:] = np.nan
+    v = judge(res, s.coverage())
+    assert not v.ok
+    assert any("uncertainty unknown over the image" in r for r in v.reasons)

@@ -117,7 +117,7 @@ def test_edit_markers_and_undo_redo(designed):
     for _ in range(6):
         assert doc.undo()
     assert doc.markers == before
-    assert not doc.undo() or True  # earlier placements are undoable too
+    assert doc.undo() and len(doc.markers) == len(before) - 1  # the last placement, too
     while doc.redo():
         pass
     assert len(doc.markers) == 7 and doc.markers[0].size == pytest.approx(0.05)
@@ -199,3 +199,15 @@ def test_read_mesh_gltf_scene_is_flattened():
     buf = io.BytesIO(scene.export(file_type="glb"))
     mesh = read_mesh(buf.getvalue(), "two.glb")
     assert len(mesh.faces) == 68 + 12
+
+
+def test_a_refused_marker_leaves_no_undo_step(designed):
+    """A dot of a colour the palette lacks is refused and leaves the history as it was: the
+    next undo undoes the last real edit, not a step that changed nothing."""
+    doc = designed
+    doc.set_marker(0, size=0.05)
+    face = doc.faces.faces.index(next(f for f in doc.faces.faces if f.normal[2] > 0.9))
+    point = doc.faces.centre(doc.faces.faces[face])
+    with pytest.raises(DesignError):
+        doc.add_marker("dot", face, point, color="no-such-colour")
+    assert doc.undo() and doc.markers[0].size != pytest.approx(0.05)

@@ -3,6 +3,7 @@ symmetry, gravity, and bad input. Heavy evaluation lives in ``drovisio bench dot
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from pathlib import Path
@@ -419,3 +420,18 @@ def test_bench_help():
     with pytest.raises(SystemExit) as e:
         main(["--help"])
     assert e.value.code == 0
+
+
+def test_the_cached_detector_is_one_per_lens_model():
+    """Two cameras that differ only by their lens model (same K, same four coefficients) get
+    their own detectors: one that projects through the other's model would be wrong."""
+    from drovisio.detect.dots.detector import _detector_for
+
+    lay = load_layout(shipped_layouts_dir() / "drick-dots-2x3.json")
+    d = [0.03, -0.012, 0.004, -0.0008]
+    fish = Camera.from_fov(640, 480, 90.0, dist=d, model="fisheye")
+    pin = dataclasses.replace(fish, model="plumb_bob")
+    assert np.array_equal(pin.K, fish.K) and np.array_equal(pin.dist, fish.dist)
+    a, b = _detector_for(pin, [lay], None), _detector_for(fish, [lay], None)
+    assert a is not b and a.camera.model == "plumb_bob" and b.camera.model == "fisheye"
+    assert _detector_for(pin, [lay], None) is a

@@ -68,3 +68,20 @@ def test_recording_round_trip(small, tmp_path):
     assert sum(1 for x in ticks for e in x["events"] if e["kind"] == "transition") == n_trans
     assert (out / "scenario.yaml").exists()
     json.dumps(manifest)
+
+
+def test_a_layout_named_by_its_file_flies_like_the_shipped_one(tmp_path):
+    """``layouts: [my.json]`` (a layout file beside the scenario) is checked and flown: the
+    detector names what it sees by the layout's own name, the scenario by the file."""
+    from drovisio.layout import shipped_layouts_dir
+    from drovisio.mission.scenario import load_scenario, shipped_scenario
+
+    (tmp_path / "my.json").write_bytes(
+        (shipped_layouts_dir() / "drick-aruco-pyramids.json").read_bytes())
+    text = shipped_scenario().read_text(encoding="utf-8").replace(
+        "drick-aruco-pyramids", "my.json")
+    (tmp_path / "s.yaml").write_text(text, encoding="utf-8")
+    scn = load_scenario(tmp_path / "s.yaml")
+    assert scn.layouts == ["my.json"] and scn.layout_of("b1").name == "drick-aruco-pyramids"
+    tr = simulate(scn.subset(["b1", "b2", "b6"]), params=SimParams(seed=3))
+    assert tr.final_state == "DONE" and sorted(tr.placements) == ["b1", "b2", "b6"]

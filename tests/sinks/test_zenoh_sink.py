@@ -201,3 +201,26 @@ def test_a_bad_drone_id_is_refused(capsys):
     assert main(["run", "--source", "x.mp4", *BASE, "--drone-id", "drone 1/../x"]) == 2
     err = capsys.readouterr().err
     assert "--drone-id" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("endpoint, ok", [
+    ("tcp/127.0.0.1:7447", True), ("udp/drone-3.local:7447", True), ("tcp/[::1]:7447", True),
+    ("ws/10.0.0.2:8000", True), ("tcp/127.0.0.1:0", False), ("tcp/127.0.0.1:70000", False),
+    ("127.0.0.1:7447", False), ("tcp/127.0.0.1", False), ("http/127.0.0.1:80", False),
+    ("tcp/a b:7447", False), ("tcp/" + "a" * 201 + ":7447", False)])
+def test_the_station_and_the_sink_read_an_endpoint_alike(endpoint, ok):
+    """One rule: what ``drovisio station --listen`` accepts, ``--sink zenoh:listen=`` accepts,
+    and both refuse the rest with the same words."""
+    import argparse
+
+    from drovisio.commands.station import zenoh_endpoint
+
+    if ok:
+        assert zenoh_endpoint(endpoint) == endpoint
+        assert parse_spec(f"zenoh:listen={endpoint}")["listen"] == [endpoint]
+        return
+    with pytest.raises(argparse.ArgumentTypeError) as a:
+        zenoh_endpoint(endpoint)
+    with pytest.raises(SinkError) as s:
+        parse_spec(f"zenoh:listen={endpoint}")
+    assert str(a.value) in str(s.value) and "tcp/HOST:PORT" in str(a.value)

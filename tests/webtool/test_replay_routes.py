@@ -102,3 +102,20 @@ def test_serve_replays_the_shipped_demo_mission_by_default():
             ("wall-first-3-bricks", True, 3)]
         st = c.post("/api/replay/load", json={"name": "wall-first-3-bricks"}).json()
         assert st["loaded"] and st["bricks_total"] == 3 and st["duration"] > 30
+
+
+def test_events_read_in_words_and_odd_fields_do_not_break_them():
+    """Each kind of tick event in plain words; a recording's odd field (an error that is not
+    a number, an unknown kind) is shown as it is, never a crash."""
+    from webtool.replay.service import _describe
+
+    assert _describe({"kind": "placed", "brick": "b3", "error_m": 0.0123}) == \
+        "brick b3 placed (1.2 cm off)"
+    assert _describe({"kind": "placed", "brick": "b3", "error_m": "n/a"}) == \
+        "brick b3 placed (n/a off)"
+    assert _describe({"kind": "transition", "source": "PICK", "target": "LIFT",
+                      "trigger": "grabbed"}) == "PICK → LIFT (grabbed)"
+    assert _describe({"kind": "acquired", "brick": "b1", "frames": 3}) == \
+        "brick b1 seen (3 frames)"
+    assert _describe({"t": 1.0, "kind": "gust", "speed": 4}) == "gust: speed=4"
+    assert _describe({"kind": ["x"]}) == "['x']"

@@ -38,33 +38,30 @@ def _count(v: object) -> int:
     return len(v) if isinstance(v, list) else 0
 
 
+_EVENT_WORDS = {
+    "grabbed": "brick {b} grabbed",
+    "released": "brick {b} released",
+    "acquired": "brick {b} seen ({frames} frames)",
+    "aligned": "aligned over {b}",
+    "contact": "contact with {b}",
+    "blind": "blind descent onto {b}",
+    "transition": "{source} → {target} ({trigger})",
+}
+"""How each kind of tick event reads; a kind not listed reads as its fields."""
+
+
 def _describe(e: dict) -> str:
-    """An event of a tick in plain words."""
+    """An event of a tick in plain words (its fields as the recording has them)."""
     k = e.get("kind")
-    b = e.get("brick")
-    if k == "transition":
-        return f"{e.get('source')} → {e.get('target')} ({e.get('trigger')})"
+    fields = {a: e.get(a) for a in ("source", "target", "trigger", "frames")}
     if k == "placed":
-        return f"brick {b} placed ({float(e.get('error_m', 0)) * 100:.1f} cm off)"
-    if k == "grabbed":
-        return f"brick {b} grabbed"
-    if k == "released":
-        return f"brick {b} released"
-    if k == "acquired":
-        return f"brick {b} seen ({e.get('frames')} frames)"
-    if k == "aligned":
-        return f"aligned over {b}"
-    if k == "contact":
-        return f"contact with {b}"
-    if k == "blind":
-        return f"blind descent onto {b}"
+        off = e.get("error_m", 0)
+        cm = f"{float(off) * 100:.1f} cm off" if isinstance(off, (int, float)) else f"{off} off"
+        return f"brick {e.get('brick')} placed ({cm})"
+    if isinstance(k, str) and k in _EVENT_WORDS:
+        return _EVENT_WORDS[k].format(b=e.get("brick"), **fields)
     rest = ", ".join(f"{a}={v}" for a, v in e.items() if a not in ("t", "kind"))
     return f"{k}" + (f": {rest}" if rest else "")
-
-
-# ------------------------------------------------------------------------------------------
-# The 3D scene
-# ------------------------------------------------------------------------------------------
 
 
 # ------------------------------------------------------------------------------------------

@@ -132,6 +132,23 @@ def _timing_row(fr_list: list[Frame], samples: _Samples, found: list[int], nb: i
     return row
 
 
+def _time_pair(fast, ref, repeats: int) -> tuple[float, float]:
+    """Median seconds of ``fast`` and of ``ref`` over ``repeats`` interleaved runs (after
+    one warm-up run of each)."""
+    fast()
+    ref()
+    fast_s: list[float] = []
+    ref_s: list[float] = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fast()
+        fast_s.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        ref()
+        ref_s.append(time.perf_counter() - t)
+    return float(np.median(fast_s)), float(np.median(ref_s))
+
+
 def part_kernels(src, det, args, n, repeats) -> dict:
     """Median time of each compiled kernel and of what it replaces, on the same inputs (the
     stages of the 20-brick timing frames), in this process."""
@@ -141,10 +158,11 @@ def part_kernels(src, det, args, n, repeats) -> dict:
     cfg = det.config
     m = det.models[0]
     T = m.plane_from_brick
-    cases: dict[str, list[tuple]] = {}
+    cases: dict[str, list[tuple[float, float]]] = {}
 
     def both(name, fast, ref):
-        cases.setdefault(name, []).append((fast, ref))
+        # timed at once: the closures read this frame's inputs, which the next frame rebinds
+        cases.setdefault(name, []).append(_time_pair(fast, ref, repeats))
 
     for fr in timing_frames(src, args, 20, n):
         img = fr.image
@@ -208,24 +226,11 @@ def part_kernels(src, det, args, n, repeats) -> dict:
                                               20, 1e-12)))
     out = {}
     for name, pairs in cases.items():
-        tf, tr = [], []
-        for fast, ref in pairs:
-            fast()
-            ref()
-            fast_s: list[float] = []
-            ref_s: list[float] = []
-            for _ in range(repeats):
-                t = time.perf_counter()
-                fast()
-                fast_s.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                ref()
-                ref_s.append(time.perf_counter() - t)
-            tf.append(float(np.median(fast_s)))
-            tr.append(float(np.median(ref_s)))
+        tf = np.array([p[0] for p in pairs])
+        tr = np.array([p[1] for p in pairs])
         out[name] = {"compiled_us": 1e6 * float(np.median(tf)),
                      "reference_us": 1e6 * float(np.median(tr)),
-                     "speedup": float(np.median(np.asarray(tr) / np.asarray(tf)))}
+                     "speedup": float(np.median(tr / tf))}
     return out
 
 

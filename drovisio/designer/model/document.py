@@ -239,7 +239,6 @@ class DesignDocument(DesignState):
         f = self.faces.faces[face]
         p = self.snap(f, point) if snap else np.asarray(point, np.float64)
         up = self._default_up(f.normal)
-        self._push()
         if kind == "aruco":
             m = DesignMarker("aruco", t3(p), t3(f.normal), t3(up),
                              float(size or self.code_size), slot=self._next_slot(), face=face)
@@ -248,6 +247,8 @@ class DesignDocument(DesignState):
             check_colour(colour, self.palette())
             m = DesignMarker("dot", t3(p), t3(f.normal), t3(up),
                              float(size or self.dot_diameter), color=colour, face=face)
+        # recorded for undo only once the marker is valid: a refused one leaves no step
+        self._push()
         self.markers.append(m)
         self.selected = len(self.markers) - 1
         self._changed()

@@ -304,7 +304,8 @@ def _detector_for(camera: Camera, layouts: Sequence[MarkerLayout], config: DotsC
     """A cached detector per thread (a detector reuses frame buffers: one thread each; it
     takes ~5 ms to build, a frame's detection about as long). Layouts are compared by content
     (the same object first, at no cost), so equal layouts share a detector."""
-    key = (camera.K.tobytes(), camera.dist.tobytes(), camera.width, camera.height, config)
+    key = (camera.model, camera.K.tobytes(), camera.dist.tobytes(), camera.width, camera.height,
+           config)
     cache = getattr(_LOCAL, "cache", None)
     if cache is None:
         cache = _LOCAL.cache = []

@@ -61,8 +61,9 @@ def target_sightings(c: StepContext, brick: str, expected_xy: Sequence[float] | 
     scn = c.scn
     b = scn.brick_by_id[brick]
     poses = []
+    name = scn.layout_of(brick).name   # sightings carry the layout's name, not the entry
     for s in c.readings.vision:
-        if s.layout != b.layout:
+        if s.layout != name:
             continue
         if scn.has_ids(brick):
             if s.instance == b.instance:
@@ -87,10 +88,11 @@ def _known_positions(c: StepContext) -> dict[tuple[str, int | None], Pose4]:
     for b in scn.bricks:
         if not scn.has_ids(b.id):
             continue
+        key = (scn.layout_of(b.id).name, b.instance)   # as a sighting names it
         if b.id in built:
-            out[(b.layout, b.instance)] = built[b.id]
+            out[key] = built[b.id]
         elif b.id not in c.mem.placed and (b.id != cur or c.mem.state in PICK_STATES):
-            out[(b.layout, b.instance)] = scn.pick_pose(b.id)
+            out[key] = scn.pick_pose(b.id)
     return out
 
 

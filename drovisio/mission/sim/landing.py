@@ -61,10 +61,11 @@ class Landings:
         """The current brick's centre in the body frame (FRD, m) in this frame's sightings:
         what Drovisio sends as its ``LANDING_TARGET``."""
         b = self.scn.brick_by_id[brick]
-        has_ids = self.scn.layout_of(brick).has_codes
+        lay = self.scn.layout_of(brick)
+        has_ids = lay.has_codes
         best: np.ndarray | None = None
         for sgt in vis:
-            if sgt.layout != b.layout or (has_ids and sgt.instance != b.instance):
+            if sgt.layout != lay.name or (has_ids and sgt.instance != b.instance):
                 continue
             v = np.asarray(sgt.body_from_brick, float)[:3, 3]
             if best is None or math.hypot(v[0], v[1]) < math.hypot(best[0], best[1]):
