@@ -164,7 +164,8 @@ def _read_tags(g: np.ndarray, det: ArucoBrickDetector, cv_det: cv2.aruco.ArucoDe
     times["drovisio"].append(t)
     (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
     times["opencv"].append(t)
-    codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
+    codes: list[Any] = [c for c in det.last_codes
+                       if c.refined is not None and c.refined.ok and not c.guided]
     n["drovisio"] += len(codes)
     n["drovisio_bricks"] += len(poses)
     n["duplicate_bricks"] += sum(bool(p.duplicate) for p in poses)
@@ -356,7 +357,8 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
     times["opencv"].append(t)
     (cc, cid, _, _), t = timed(partial(ch_det.detectBoard, g), repeat)
     times["charuco"].append(t)
-    codes: list[Any] = [c for c in det.last_codes if c.refined is not None and c.refined.ok]
+    codes: list[Any] = [c for c in det.last_codes
+                       if c.refined is not None and c.refined.ok and not c.guided]
     n["drovisio"] += len(codes)
     n["opencv"] += 0 if ci is None else len(ci)
     if cid is None or len(cid) < 6:

@@ -32,3 +32,6 @@ class CodeDetection:
     refined: RefinedCode | None = None
     info: np.ndarray | None = None
     """(8, 8) inverse covariance of the refined corners (x0, y0, ... x3, y3), px⁻²."""
+    guided: bool = False
+    """Not read: fitted where its brick's pose put it (:mod:`.guided`), its bits known from
+    the id. Not counted as read (duplicates, codes found)."""

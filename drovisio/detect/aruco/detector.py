@@ -8,7 +8,9 @@
 4. the corner fit of every code (:mod:`.corner_fit`),
 5. the grouping into bricks, duplicated ids apart (:mod:`.grouping`),
 6. the joint pose of each brick, flips resolved (:mod:`.pose`),
-7. the output as :class:`BrickPose` records (:mod:`.output`),
+7. the guided codes: a posed brick's unread codes fitted where its pose puts them, and the
+   brick solved again with them (:mod:`.guided`),
+8. the output as :class:`BrickPose` records (:mod:`.output`),
 
 and adds each stage's time to :attr:`ArucoBrickDetector.timing`.
 """
@@ -28,10 +30,11 @@ from drovisio.detect.aruco.codes import BrickKey, CodeDetection, CodeOwner
 from drovisio.detect.aruco.corner_fit import fit_corners
 from drovisio.detect.aruco.families import CodeFamily, code_families
 from drovisio.detect.aruco.grouping import group_by_brick, split_duplicates
+from drovisio.detect.aruco.guided import guided_codes
 from drovisio.detect.aruco.opencv_pass import opencv_codes
 from drovisio.detect.aruco.output import brick_poses
 from drovisio.detect.aruco.params import ArucoParams
-from drovisio.detect.aruco.pose import BrickSolver
+from drovisio.detect.aruco.pose import BrickSolver, Solved
 from drovisio.detect.aruco.rescue import rescue_codes
 from drovisio.detect.aruco.second_look import second_look
 from drovisio.detect.base import unit_gravity
@@ -58,6 +61,8 @@ class ArucoTiming:
     """Grouping codes into bricks."""
     pose_s: float = 0.0
     """The bricks' poses and flips."""
+    guided_s: float = 0.0
+    """The guided codes and the poses solved again with them."""
     output_s: float = 0.0
     """The output records and the stream's history."""
     frames: int = 0
@@ -137,14 +142,37 @@ class ArucoBrickDetector:
         t = time.perf_counter()
         groups, self.last_duplicates = split_duplicates(group_by_brick(codes))
         t = self.timing.lap("grouping_s", t)
-        results = self._solver.solve_frame(groups, unit_gravity(gravity), self._previous)
+        g = unit_gravity(gravity)
+        results = self._solver.solve_frame(groups, g, self._previous)
         t = self.timing.lap("pose_s", t)
+        if self.params.guided and results:
+            codes, results = self._guided(gray, codes, groups, results, g)
+            t = self.timing.lap("guided_s", t)
         self.last_codes = codes
         self.last_results = {(key[:2] if key[2] == 0 else key): r[0]
                              for key, r in results.items()}
         out = brick_poses(results, self.history)
         self.timing.lap("output_s", t)
         return out
+
+    def _guided(self, gray: np.ndarray, codes: list[CodeDetection],
+                groups: dict[BrickKey, list[CodeDetection]], results: dict[BrickKey, Solved],
+                gravity: np.ndarray | None
+                ) -> tuple[list[CodeDetection], dict[BrickKey, Solved]]:
+        """Stage 7: the guided codes, and the bricks that got one solved again (a brick
+        keeps its pose from the read codes when the new solve leaves one of them out)."""
+        more = guided_codes(gray, results, codes, self.camera, self.params, self._family_of,
+                            self._solver.corners_m_by_layout())
+        if not more:
+            return codes, results
+        for c in more:
+            groups[(c.layout.name, c.instance, 0)].append(c)
+        again = self._solver.solve_frame(groups, gravity, self._previous)
+        for key, (res, used) in again.items():
+            before = results.get(key)
+            if before is None or {id(c) for c in before[1]} <= {id(c) for c in used}:
+                results[key] = (res, used)
+        return codes + more, results
 
     def _gray(self, image: np.ndarray) -> np.ndarray:
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)

@@ -115,6 +115,31 @@ class ArucoParams:
     against the reported covariance was 2.0 on rendered scenes (χ²(6): 5.35), with 1.0 it is
     3.8–4.7 (``tests/pose/test_covariance_honesty.py``)."""
 
+    # -- guided codes: a posed brick's unread codes fitted where the pose puts them -------
+    guided: bool = True
+    """Fit the unread codes of bricks posed from fewer codes than their layout carries, at
+    their predicted place (:mod:`drovisio.detect.aruco.guided`). A second code 150 mm from
+    the first turns a one-code pose's baseline of 65 mm into 215 mm."""
+    guided_chance: float = 1e-3
+    """Least χ²(8) chance of a guided code's corners against their prediction (under the
+    pose's and the fit's covariance): a right code falls outside with this chance."""
+    guided_blur_share: float = 0.5
+    """Unmodelled corner error, per axis, as a share of the code's fitted blur (Gaussian σ,
+    px): the fit's covariance holds pixel noise only, but a real spot (motion, a defocus
+    disc, a fisheye rim's stretched spot) is not the model's separable Gaussian, and corners
+    move by part of its width. Without it a one-code pose at a fisheye's rim predicted the
+    other code 5σ off (1.7 px at σ 0.36 px) where it was."""
+    guided_min_side_px: float = 8.0
+    """Smallest predicted side (px) fitted: below, a 4×4 code's cells are under 1.4 px and
+    the fit cannot read them back."""
+    guided_margin_px: float = 3.0
+    """Predicted corners must lie this far inside the image: the fit samples a band of
+    ``band_px`` around the outer edge, plus a pixel of blur."""
+    guided_coarse_iterations: int = 1
+    """Corner-fit iterations with a wide blur before the usual ones: a one-code pose
+    predicts the other code's corners to about a pixel, a wider basin than OpenCV's
+    corrected corners need."""
+
     # -- the brick's pose -----------------------------------------------------------------
     max_rmse_px: float = 2.0
     """Bricks whose joint fit is worse than this (px RMS) are dropped (a wrong grouping or a

@@ -55,6 +55,10 @@ class BrickSolver:
         self._corners_m: dict[int, dict[int, np.ndarray]] = {
             id(lay): lay.code_corners_m() for lay in layouts}
 
+    def corners_m_by_layout(self) -> dict[int, dict[int, np.ndarray]]:
+        """``id(layout)`` -> code slot -> (4, 3) corners in the brick frame, m."""
+        return self._corners_m
+
     def _code_corners_m(self, lay: MarkerLayout) -> dict[int, np.ndarray]:
         """Code slot -> (4, 3) corners in the brick frame, m (cached per layout)."""
         corners_m = self._corners_m.get(id(lay))
