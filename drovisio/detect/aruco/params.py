@@ -138,7 +138,8 @@ class ArucoParams:
     guided_coarse_iterations: int = 1
     """Corner-fit iterations with a wide blur before the usual ones: a one-code pose
     predicts the other code's corners to about a pixel, a wider basin than OpenCV's
-    corrected corners need."""
+    corrected corners need (fisheye periphery, 40 scenes: 0 accepted 11 codes, 1: 14, 2: 15
+    with the same errors)."""
 
     # -- the brick's pose -----------------------------------------------------------------
     max_rmse_px: float = 2.0
