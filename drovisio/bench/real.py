@@ -259,9 +259,11 @@ def _opencv_calibration(pts_obj: list[np.ndarray], pts_img: list[np.ndarray],
         K: Any = np.eye(3)
         D: Any = np.zeros(4)
         if fisheye:
+            # OpenCV 5's fisheye solve takes each view as one row of points (1, N, 3) and
+            # (1, N, 2); another shape fails in its argument checks, not in the solve
             rms, K, D, _, _ = cv2.fisheye.calibrate(
-                [o.reshape(-1, 1, 3).astype(np.float64) for o in pts_obj],
-                [i.astype(np.float64) for i in pts_img], wh, K, D,
+                [o.reshape(1, -1, 3).astype(np.float64) for o in pts_obj],
+                [i.reshape(1, -1, 2).astype(np.float64) for i in pts_img], wh, K, D,
                 flags=cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW)
         else:
             rms, K, D, _, _ = cv2.calibrateCamera(pts_obj, pts_img, wh, K, np.zeros(5))

@@ -128,3 +128,30 @@ def test_outer_edge_corners_find_a_blurred_squares_corners():
     corners, line_rms = got
     # measured: 0.08 px; the points scatter 0.13 px RMS about their lines (clean: < 0.3)
     assert np.abs(corners - truth).max() < 0.1 and line_rms < EDGE_LINE_MAX_RMS_PX
+
+
+def test_plain_opencv_fisheye_solve_is_called_as_opencv_5_wants_it():
+    """The peer's fisheye calibration gets its points in the shape OpenCV 5 reads (one row a
+    view): on exact fisheye projections it recovers the focal length, so a failure the bench
+    reports on real views is OpenCV's solve, not our call."""
+    import cv2
+    import numpy as np
+
+    from drovisio.bench.real import _opencv_calibration
+
+    K = np.array([[290.0, 0, 400.0], [0, 290.0, 252.0], [0, 0, 1]])
+    D = np.array([-0.03, -0.02, 0.002, 0.001])
+    grid = np.zeros((48, 3))
+    grid[:, :2] = np.mgrid[0:8, 0:6].T.reshape(-1, 2) * 0.1
+    grid -= grid.mean(axis=0)
+    rng = np.random.default_rng(3)
+    objs, imgs = [], []
+    for _ in range(12):
+        rv = rng.uniform(-0.5, 0.5, 3)
+        tv = np.r_[rng.uniform(-0.4, 0.4, 2), rng.uniform(0.8, 1.4)]
+        px, _ = cv2.fisheye.projectPoints(grid.reshape(-1, 1, 3), rv, tv, K, D)
+        objs.append(grid.copy())
+        imgs.append(px.reshape(-1, 1, 2))
+    got = _opencv_calibration(objs, imgs, (800, 504), fisheye=True)
+    assert "failed" not in got, got
+    assert abs(got["fx"] - 290.0) < 0.5 and got["rms_px"] < 0.01
