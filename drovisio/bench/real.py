@@ -26,8 +26,8 @@ holds:
   the focal length nor the pose (the board plane's homography fitted to the ChArUco corners
   in undistorted coordinates). On OpenCV's tutorial photo the pose reprojects its corners to
   0.22 px RMS (the homography 0.21 px) and the two predictions of the code corners agree
-  within 0.06 px (median; 0.23 px at most): the board pose is the better-founded reference (it uses the
-  square shape), and the remaining distance is the code corners' own.
+  within 0.06 px (median; 0.23 px at most): the board pose is the better-founded reference
+  (it uses the square shape), and the remaining distance is the code corners' own.
 * **chessboard** — a calibration set: expected corners (OpenCV's ``*.dat``) and/or a
   reference camera file. Corners of Drovisio's finder and of ``findChessboardCorners`` +
   ``cornerSubPix`` (11×11) against the expected ones; ``drovisio calibrate`` (the model of

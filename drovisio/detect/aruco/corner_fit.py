@@ -21,7 +21,25 @@ from drovisio.detect.aruco.params import ArucoParams
 from drovisio.detect.corners import refine_codes
 from drovisio.layout import aruco_code_bits
 
-__all__ = ["fit_corners", "fit_starts"]
+__all__ = ["CORNER_FLOOR_PX", "corner_covariance", "fit_corners", "fit_starts"]
+
+CORNER_FLOOR_PX = 0.03
+"""Least standard deviation of a fitted corner, px per axis: no fit places a corner better,
+however many pixels it fits."""
+
+
+def corner_covariance(cov_px: np.ndarray, params: ArucoParams) -> np.ndarray:
+    """The covariance the pose uses for a fit's corners: the fit's own, scaled to the
+    measured noise, with the floor.
+
+    Args:
+        cov_px: (..., 8, 8) the fit's covariance of (x0, y0, ... x3, y3), px².
+        params: The detector's tuning (``corner_noise_scale``).
+
+    Returns:
+        (..., 8, 8) covariance, px².
+    """
+    return cov_px * params.corner_noise_scale ** 2 + np.eye(8) * CORNER_FLOOR_PX ** 2
 
 
 def fit_starts(raw_corners: np.ndarray, expand_px: float) -> np.ndarray:
@@ -63,10 +81,8 @@ def fit_corners(gray: np.ndarray, codes: list[CodeDetection], camera: Camera,
                        band_px=p.band_px,
                        tolerable_cells=np.array([family_of[c.marker_id].rescue_errors
                                                  for c in codes]))
-    # the corners' information matrices (inverse covariances) for the pose: the
-    # fit's covariance scaled to the measured noise, with a 0.03 px floor
-    cov = np.array([r.cov_px for r in ref]) * p.corner_noise_scale ** 2
-    cov += np.eye(8) * 0.03 ** 2
+    # the corners' information matrices (inverse covariances) for the pose
+    cov = corner_covariance(np.array([r.cov_px for r in ref]), p)
     try:
         info = np.linalg.inv(cov)
     except np.linalg.LinAlgError:

@@ -34,6 +34,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect.aruco.codes import BrickKey, CodeDetection
+from drovisio.detect.aruco.corner_fit import corner_covariance
 from drovisio.detect.aruco.families import CodeFamily
 from drovisio.detect.aruco.params import ArucoParams
 from drovisio.detect.corners import RefinedCode, refine_codes
@@ -183,8 +184,8 @@ def _consistent(r: RefinedCode, pred: GuidedPrediction, params: ArucoParams) -> 
     if not r.ok or r.cell_margin <= 0.0:
         return False
     d = (r.corners_px - pred.corners_px).ravel()
-    S = (pred.cov_px + r.cov_px * params.corner_noise_scale ** 2
-         + np.eye(8) * (0.03 ** 2 + (params.guided_blur_share * r.blur_px) ** 2))
+    S = (pred.cov_px + corner_covariance(r.cov_px, params)
+         + np.eye(8) * (params.guided_blur_share * r.blur_px) ** 2)
     try:
         m2 = float(d @ np.linalg.solve(S, d))
     except np.linalg.LinAlgError:
@@ -256,7 +257,7 @@ def guided_codes(gray: np.ndarray, results: Mapping[BrickKey, Solved],
         if not good:
             continue
         g, r = good[0]
-        cov = r.cov_px * params.corner_noise_scale ** 2 + np.eye(8) * 0.03 ** 2
+        cov = corner_covariance(r.cov_px, params)
         out.append(CodeDetection(g.marker_id, g.layout, g.instance, g.slot, g.corners_px,
                                  refined=r, info=np.linalg.inv(cov), guided=True))
     return out
