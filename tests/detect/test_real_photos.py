@@ -80,8 +80,9 @@ def test_charuco_tutorial_photo_keeps_every_code_opencv_reads(charuco):
     theirs = np.concatenate([np.linalg.norm(np.asarray(q).reshape(4, 2)
                                             - _board_prediction(charuco, int(i)), axis=1)
                              for q, i in zip(cv_c, np.ravel(cv_i))])
-    # measured: median 0.68 px (OpenCV's corners 1.03 px)
-    assert np.median(ours) < 0.8 and np.median(ours) < 0.8 * np.median(theirs)
+    # measured: median 0.38 px, p90 0.71 (OpenCV's corners 1.03 px; from the code's
+    # interior alone, without its outer edges against the paper around it, 0.68 px)
+    assert np.median(ours) < 0.5 and np.median(ours) < 0.5 * np.median(theirs)
     b = poses[0]
     R = cv2.Rodrigues(np.ravel(b.rvec))[0] @ np.diag([1.0, -1.0, -1.0])  # brick y, z flipped
     Rb = cv2.Rodrigues(charuco["rvec"])[0]
@@ -163,10 +164,14 @@ def test_multi_tag_photos_codes_kept_and_corners_agree_with_apriltag(multi):
     assert n_cv == 54 and kept == 53 and ok_codes == 55
     assert missed == ["test_image_multiple_07.png:85"]
     rms_a = np.array(rms)
-    # measured: median 0.19 px, p90 0.53 px, max 1.00 px, 48 of 55 within 0.5 px (OpenCV's
-    # corners: 0.81, 1.35); of the 7 beyond, the border's outer edge lines (clean, codes
-    # >= 15 px) side with AprilTag's corners on every one that they can judge
-    assert np.median(rms_a) < 0.3 and np.mean(rms_a < 0.5) > 0.85 and rms_a.max() < 1.2
+    # measured: median 0.14 px, p90 0.34 px, max 1.01 px, 53 of 55 within 0.5 px (OpenCV's
+    # corners: 0.81, 1.35; from the codes' interior alone, without their outer edges: 0.19,
+    # 0.53, 48 of 55). The two beyond: a 25-px tag on a bent card seen at a grazing angle
+    # (1.01 px; neither its edges nor AprilTag's corners fit a flat square there) and a
+    # 19-px tag whose one-cell white ring meets a dark ground within the blur (its outer
+    # edges left out: 0.54 px)
+    assert np.median(rms_a) < 0.2 and np.percentile(rms_a, 90) < 0.4
+    assert np.sum(rms_a < 0.5) >= 53 and rms_a.max() < 1.2
 
 
 def test_codes_of_twelve_pixels_opencv_reads_are_kept(multi):

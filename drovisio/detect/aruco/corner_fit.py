@@ -79,6 +79,7 @@ def fit_corners(gray: np.ndarray, codes: list[CodeDetection], camera: Camera,
                        lm_lambda=p.refine_lambda,
                        max_samples=p.max_samples,
                        band_px=p.band_px,
+                       outer_edge=p.outer_edge,
                        tolerable_cells=np.array([family_of[c.marker_id].rescue_errors
                                                  for c in codes]))
     # the corners' information matrices (inverse covariances) for the pose

@@ -107,6 +107,9 @@ class ArucoParams:
     """Pixels per code in the corner fit (bigger codes: a random subset)."""
     band_px: float = 2.0
     """Only pixels within this distance of a modelled edge enter the corner fit."""
+    outer_edge: bool = True
+    """Refit each kept code with its outer edges where a uniform paper surround shows
+    (:mod:`drovisio.detect.corners.outer`); off: the corners come from the interior alone."""
     corner_noise_scale: float = 1.0
     """Multiplies the corner standard deviations predicted by the photometric fit (which
     takes the noise from its own residuals). The pose solve then inflates the covariance by

@@ -3,9 +3,9 @@
 Why not OpenCV's corner refinement: the outer edge of a printed code sits between its black
 border and whatever is around it (a thin strip of paper, then the brick); once blurred, that
 neighbourhood pulls every local edge or corner estimator (gradient peak, threshold crossing,
-``cornerSubPix``) by 0.3–0.7 px, a bias measured on renders. Here the outer edge is not used
-at all. Each code is fitted *as a whole* from the inside: knowing the code's bits (from its
-decoded id), the model predicts every pixel of the code's interior,
+``cornerSubPix``) by 0.3–0.7 px, a bias measured on renders. So each code is first fitted *as
+a whole* from the inside: knowing the code's bits (from its decoded id), the model predicts
+every pixel of the code's interior,
 
     I(p) = B + (W − B) · S(u, v),        (u, v) = G(x(p))
 
@@ -28,6 +28,16 @@ read cells at 0.7 / 0.3 that still lie 15+ spreads apart); a corner that moved f
 its start than the frame's measured start noise allows is refused too
 (:func:`.fit._move_limits`).
 
+Where the code *is* surrounded by uniform paper (a printed sheet, a ChArUco square, an
+AprilTag's white ring), its outer edges are the best-placed evidence there is, and the
+interior fit's extrapolation to them carries the model's error (a camera's tone curve after
+the optics' blur moves every edge toward the dark side: the interior sees its white cells
+grown and places the outer corners outward, 0.4 px on OpenCV's ChArUco photo). So every kept
+code is refitted with its surround as one more level (:mod:`.outer`), and the refit is kept
+only where the data say the surround is uniform paper: each side's residuals beyond the edge
+no larger than inside it, and the surround as bright as the white cells. A thin margin on a
+darker brick (every rendered drick) fails those tests and keeps the interior fit.
+
 Measured on rendered drick scenes (``drovisio bench aruco``, blur σ ≤ 1 px, 2852 corners):
 mean signed radial error +0.004 px, RMS 0.20 px; OpenCV's corners at the detector's settings
 −1.04 px and 1.21 px.
@@ -36,7 +46,8 @@ The package, one subject per module: :mod:`.fit` (:func:`refine_codes`, its stag
 :mod:`.model` (the photometric model and its Jacobian), :mod:`.samples` (which pixels enter
 the fit; compiled in :mod:`.samples_kernels`, numba, where numba is installed, the same
 samples as the numpy reference; the fit stays numpy: its dense float32 arithmetic is faster
-vectorised), :mod:`.cells` (the read-back of the cells).
+vectorised), :mod:`.cells` (the read-back of the cells), :mod:`.outer` (the refit with the
+outer edges).
 
 Conventions: pixel (0, 0) is the centre of the top-left pixel; corners in OpenCV order TL, TR,
 BR, BL of the printed code (the order of ``cv2.aruco`` and of the layout file).

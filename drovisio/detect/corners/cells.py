@@ -90,9 +90,9 @@ def cell_verdict(a: np.ndarray, expected: np.ndarray, tolerable: int,
     Returns:
         (accepted, cells read wrong, cells undecided, class separation in spreads).
     """
-    ok, wrong, undecided, sep = cell_verdicts(np.asarray(a, np.float64)[None],
-                                              np.asarray(expected, np.float64)[None],
-                                              np.array([tolerable]), false_rate)
+    ok, wrong, undecided, sep, _ = cell_verdicts(np.asarray(a, np.float64)[None],
+                                                 np.asarray(expected, np.float64)[None],
+                                                 np.array([tolerable]), false_rate)
     return bool(ok[0]), int(wrong[0]), int(undecided[0]), float(sep[0])
 
 
@@ -114,10 +114,10 @@ def _z_quantile(cells: int, false_rate: float) -> float:
 
 def cell_verdicts(a: np.ndarray, expected: np.ndarray, tolerable: np.ndarray,
                   false_rate: float = 0.01
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`cell_verdict` for C codes at once: ``a`` and ``expected`` (C, cells), NaN
     where a cell is not the code's; ``tolerable`` (C,). Returns (accepted, wrong, undecided,
-    separation), each (C,)."""
+    separation, spread), each (C,); spread: the classes' common spread of whiteness."""
     own = np.isfinite(a)
     white = (expected > 0.5) & own
     black = ~white & own
@@ -139,4 +139,4 @@ def cell_verdicts(a: np.ndarray, expected: np.ndarray, tolerable: np.ndarray,
     undecided = (own & (d > 0) & (sep[:, None] * d < odds[:, None])).sum(axis=1)
     sep = np.where(both & np.isfinite(sep), sep, 0.0)
     ok = both & (wrong == 0) & (undecided <= np.asarray(tolerable)) & (sep >= 2.0 * z)
-    return ok, wrong, undecided, sep
+    return ok, wrong, undecided, sep, spread

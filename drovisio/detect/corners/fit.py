@@ -8,12 +8,14 @@
 6. the parameters' covariance,
 7. the outer corners and their covariance in pixels,
 8. the checks that keep or refuse each code (fit, contrast, blur, how far a corner moved,
-   the cells read back: :mod:`.cells`).
+   the cells read back: :mod:`.cells`),
+9. the kept codes refitted with their outer edges where uniform paper surrounds them
+   (:mod:`.outer`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,6 +28,7 @@ from drovisio.detect.corners.model import (
     model,
     solve_batched,
 )
+from drovisio.detect.corners.outer import Interior, fit_outer
 from drovisio.detect.corners.samples import grid_lookup, normalized_grid, select_samples
 
 __all__ = ["MAX_SAMPLES", "RefinedCode", "refine_codes"]
@@ -65,6 +68,9 @@ class RefinedCode:
     estimate of each cell's whiteness a (0 black .. 1 white) at the fitted geometry and blur:
     min over cells of (a - 0.5) for white cells and (0.5 - a) for black ones. Below 0 some
     cell reads wrong: a decoy or another code."""
+    surround: bool = False
+    """The corners come from the refit with the code's outer edges against a uniform paper
+    surround (:mod:`.outer`), not from the interior alone."""
 
 
 def _move_limits(moved: np.ndarray, use: np.ndarray, floor_px: float, cell_px: np.ndarray
@@ -340,21 +346,21 @@ def _levenberg_marquardt(b: _Batch, smp: _Samples, lev: np.ndarray, iterations: 
 
 
 def _parameter_covariance(A: np.ndarray, sig2: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Stage 6: (C, 12, 12) covariance of the parameters from the last Jacobian and the final
-    residuals' variance ``sig2`` (C,)."""
-    C = len(A)
-    eye12 = np.eye(12)
-    A = A + 1e-9 * eye12
-    A[~valid] = eye12
+    """Stage 6: (C, k, k) covariance of the parameters from the last Gauss–Newton matrix
+    (C, k, k) and the final residuals' variance ``sig2`` (C,)."""
+    C, k = A.shape[:2]
+    eye = np.eye(k)
+    A = A + 1e-9 * eye
+    A[~valid] = eye
     try:
         return np.linalg.inv(A) * sig2[:, None, None]
     except np.linalg.LinAlgError:
-        cov_p = np.zeros((C, 12, 12))
+        cov_p = np.zeros((C, k, k))
         for c in range(C):
             try:
                 cov_p[c] = np.linalg.inv(A[c]) * sig2[c]
             except np.linalg.LinAlgError:
-                cov_p[c] = np.eye(12) * 1e6
+                cov_p[c] = eye * 1e6
         return cov_p
 
 
@@ -404,6 +410,8 @@ class _Checks:
     cells_wrong: np.ndarray
     cells_undecided: np.ndarray
     cells_sep: np.ndarray
+    cells_spread: np.ndarray
+    """(C,) the cells' common spread of whiteness (fraction of the contrast)."""
 
 
 def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
@@ -432,9 +440,10 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
                  chord_from: int | None = None, max_samples: int = MAX_SAMPLES,
                  band_px: float = 3.0, coarse_min_cell_px: float = 0.0,
                  lm_lambda: float = 0.1, tolerable_cells: int | np.ndarray = 0,
-                 blur_iterations: int = 99, start_sigma_px: float = 0.85
-                 ) -> list[RefinedCode]:
-    """Refine the outer corners of decoded codes by a photometric fit of their interior.
+                 blur_iterations: int = 99, start_sigma_px: float = 0.85,
+                 outer_edge: bool = True) -> list[RefinedCode]:
+    """Refine the outer corners of decoded codes by a photometric fit of their interior
+    (and of their outer edges, where paper surrounds them).
 
     All codes of a frame are fitted together (batched arrays), so the cost grows slowly with
     their number.
@@ -466,6 +475,8 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
             corner that moves farther than the frame's start noise allows is refused
             (:func:`_move_limits`). 0.85: OpenCV's corners at the detector's settings,
             1.21 px RMS (both axes) on the rendered bench.
+        outer_edge: Refit the kept codes with their outer edges where a uniform paper
+            surround shows (:mod:`.outer`; ``RefinedCode.surround``).
 
     Returns:
         One :class:`RefinedCode` per input code, in order.
@@ -495,15 +506,44 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     checks = _Checks(lev[:, 1] - lev[:, 0], np.sqrt(sig2), np.sqrt(s[:, 0] * s[:, 1]) * cell_px,
                      moved, _move_limits(moved, valid & np.isfinite(moved).all(axis=1),
                                          start_sigma_px, cell_px), *cells)
+    whys = ["" if not valid[c] else _refusal(c, px_c, cell_px, checks) for c in range(C)]
+    kept = valid & np.array([not w for w in whys])
+    surround = np.zeros(C, bool)
+    if outer_edge and kept.any():
+        surround = _with_surround(grid, gray, camera, b, region, fit, smp, sig2, M, kept,
+                                  np.nan_to_num(checks.cells_spread, nan=1.0), px_c, xn_c,
+                                  cov_px)
     out: list[RefinedCode] = []
     for c in range(C):
         if not valid[c]:
             out.append(RefinedCode(b.q[c], np.full((4, 2), np.nan), np.eye(8), float("inf"),
                                    float("inf"), 0.0, 0.0, False, b.reasons[c]))
             continue
-        why = _refusal(c, px_c, cell_px, checks)
+        why = whys[c]
         sig = float(np.sqrt(max(np.trace(cov_px[c]), 0.0) / 8))
         out.append(RefinedCode(px_c[c], xn_c[c], cov_px[c], sig, float(checks.resid[c]),
                                float(checks.contrast[c]), float(checks.blur[c]), not why, why,
-                               float(margin[c])))
+                               float(margin[c]), bool(surround[c])))
     return out
+
+
+def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch,
+                   region: _Region, fit: _Fit, smp: _Samples, sig2: np.ndarray, M: int,
+                   kept: np.ndarray, white_spread: np.ndarray, px_c: np.ndarray,
+                   xn_c: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
+    """Stage 9: the kept codes refitted with their surround (:mod:`.outer`); where the
+    surround is uniform paper, their corners and covariance are replaced in place.
+
+    Returns:
+        (C,) bool, the codes whose corners now come from the refit.
+    """
+    interior = Interior(b.g, fit.lev, fit.s, smp.xs, smp.ys, smp.vals, smp.wts, sig2,
+                        white_spread)
+    of = fit_outer(grid, gray, b.q, b.centre, b.scale, b.ns, b.bits_pad, region.band, kept,
+                   interior, M)
+    used = of.used
+    if used.any():
+        b_o = replace(b, g=of.g)
+        px_o, xn_o, cov_o = _corners(b_o, camera, _parameter_covariance(of.A, of.sig2, used))
+        px_c[used], xn_c[used], cov_px[used] = px_o[used], xn_o[used], cov_o[used]
+    return used

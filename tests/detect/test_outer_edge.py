@@ -1,0 +1,153 @@
+"""The outer edge joins the code fit where a uniform paper surround shows, and only there
+(:mod:`drovisio.detect.corners.outer`).
+
+The codes here are drawn by a small renderer of their own: supersampled, blurred in linear
+light, then the camera's tone curve, noise and 8 bits, with paper reaching a chosen number of
+cells beyond each side and a darker ground beyond that.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from drovisio.camera import Camera
+from drovisio.detect.corners import refine_codes
+from drovisio.detect.corners.outer import f_quantile, model_outer
+from drovisio.layout import aruco_code_bits
+
+CAM = Camera(K=np.array([[400.0, 0, 80], [0, 400.0, 60], [0, 0, 1]]), width=160, height=120)
+BITS = aruco_code_bits("DICT_6X6_250", 7).astype(np.float64)
+
+
+def _render(corners: np.ndarray, margins: tuple[float, float, float, float], gamma: float,
+            seed: int, blur_px: float = 0.9, noise: float = 1.5, ss: int = 8) -> np.ndarray:
+    """A 6×6 code whose outer corners (TL, TR, BR, BL, px) are ``corners``, on paper that
+    reaches ``margins`` cells beyond its left, right, top and bottom sides, ground of a
+    quarter of the paper's reflectance beyond; blurred in linear light, then ``x**gamma``."""
+    n = BITS.shape[0]
+    H = cv2.getPerspectiveTransform(np.float32(corners),
+                                    np.float32([[0, 0], [n, 0], [n, n], [0, n]]))
+    ys, xs = np.mgrid[0:CAM.height * ss, 0:CAM.width * ss]
+    p = np.stack([(xs.ravel() + 0.5) / ss - 0.5, (ys.ravel() + 0.5) / ss - 0.5,
+                  np.ones(xs.size)])
+    q = H @ p
+    u, v = q[0] / q[2], q[1] / q[2]
+    left, right, top, bottom = margins
+    paper = (u >= -left) & (u < n + right) & (v >= -top) & (v < n + bottom)
+    inside = (u >= 0) & (u < n) & (v >= 0) & (v < n)
+    ui = np.clip(np.floor(u).astype(int), 0, n - 1)
+    vi = np.clip(np.floor(v).astype(int), 0, n - 1)
+    refl = np.where(inside, np.where(BITS[vi, ui] > 0, 0.9, 0.05), np.where(paper, 0.9, 0.22))
+    img = cv2.resize(refl.reshape(CAM.height * ss, CAM.width * ss), (CAM.width, CAM.height),
+                     interpolation=cv2.INTER_AREA)
+    img = cv2.GaussianBlur(img, (0, 0), blur_px)
+    rng = np.random.default_rng(seed)
+    out = 255.0 * np.clip(img, 0.0, 1.0) ** gamma + rng.normal(0.0, noise, img.shape)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def _code(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """True corners of a ~27-px code (3.4 px cells) in slight perspective, and a start
+    0.5 px off them."""
+    rng = np.random.default_rng(100 + seed)
+    c = (np.array([[50, 30], [104, 33], [101, 86], [47, 83]], np.float64)
+         + rng.uniform(-3, 3, (4, 2))) * 0.5 + [40, 30]
+    return c, c + rng.normal(0.0, 0.5, (4, 2))
+
+
+def _fit(img: np.ndarray, start: np.ndarray, outer: bool):
+    r = refine_codes(img, CAM, start[None], [BITS], iterations=2, lm_lambda=0.03,
+                     max_samples=200, band_px=2.0, outer_edge=outer)[0]
+    assert r.ok, r.reason
+    return r
+
+
+def _rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(((a - b) ** 2).sum(axis=1).mean()))
+
+
+@pytest.mark.parametrize("gamma", [1.0, 1 / 2.2])
+def test_a_paper_surround_joins_the_fit_and_the_corners_get_closer(gamma):
+    # a camera's tone curve after the optics' blur moves every edge toward the dark side:
+    # the interior alone sees its white cells grown and extrapolates the outer corners
+    # outward (measured 0.33 px RMS); with the outer edges, which move inward, the border's
+    # two sides balance
+    interior, surround = [], []
+    for seed in range(4):
+        truth, start = _code(seed)
+        img = _render(truth, (3.0, 3.0, 3.0, 3.0), gamma, seed)
+        a, b = _fit(img, start, False), _fit(img, start, True)
+        assert b.surround and not a.surround
+        interior.append(_rms(a.corners_px, truth))
+        surround.append(_rms(b.corners_px, truth))
+    if gamma == 1.0:  # measured 0.071 -> 0.021 px
+        assert np.mean(surround) < 0.045 and np.mean(surround) < 0.6 * np.mean(interior)
+    else:             # measured 0.328 -> 0.177 px
+        assert np.mean(interior) > 0.25
+        assert np.mean(surround) < 0.22 and np.mean(surround) < 0.65 * np.mean(interior)
+
+
+@pytest.mark.parametrize("margins", [(0.2, 0.2, 0.2, 0.2),     # a thin margin on a brick
+                                     (3.0, 0.25, 3.0, 3.0)])   # a card's edge on one side
+def test_a_surround_that_is_not_uniform_paper_is_left_out(margins):
+    for seed in range(4):
+        truth, start = _code(seed)
+        img = _render(truth, margins, 1.0, seed)
+        a, b = _fit(img, start, False), _fit(img, start, True)
+        assert not b.surround
+        assert np.array_equal(a.corners_px, b.corners_px)   # the interior fit, untouched
+        assert _rms(b.corners_px, truth) < 0.15
+
+
+def test_the_refit_is_not_worse_where_the_paper_is_uniform_but_the_ground_near():
+    # paper one cell wide all round (AprilTag's white ring): the band (half a cell here)
+    # stays on the paper, so the refit is kept and exact
+    errs = []
+    for seed in range(4):
+        truth, start = _code(seed)
+        b = _fit(_render(truth, (1.0, 1.0, 1.0, 1.0), 1.0, seed), start, True)
+        errs.append(_rms(b.corners_px, truth) if b.surround else np.inf)
+    assert np.mean(np.isfinite(errs)) >= 0.75
+    assert np.median(errs) < 0.05
+
+
+def test_the_model_jacobian_is_its_derivative():
+    rng = np.random.default_rng(3)
+    C, M = 2, 300
+    n = BITS.shape[0]
+    bits = np.ascontiguousarray(np.stack([BITS[1:-1, 1:-1]] * C), np.float32)
+    bits_t = np.ascontiguousarray(bits.transpose(0, 2, 1))
+    g = np.array([[1.1, 0.05, 4.0, -0.03, 0.95, 4.1, 0.01, -0.02]] * C)
+    g[1] += rng.normal(0, 0.01, 8)
+    lev = np.array([[30.0, 200.0, 190.0], [20.0, 180.0, 185.0]])
+    s = np.array([[0.3, 0.25], [0.2, 0.35]])
+    x = rng.uniform(-5.5, 5.5, (C, M))
+    y = rng.uniform(-5.5, 5.5, (C, M))
+    nf = np.full(C, float(n))
+    _, J = model_outer(g, lev, s, x, y, bits, bits_t, n, nf)
+    assert J is not None
+
+    def I_of(p):
+        I, _ = model_outer(p[:, :8], p[:, [8, 9, 12]], p[:, 10:12], x, y, bits, bits_t, n, nf,
+                           jacobian=False)
+        return I
+    p0 = np.concatenate([g, lev[:, :2], s, lev[:, 2:]], axis=1)
+    for k in range(13):
+        h = 1e-4 * max(1.0, abs(p0[0, k]))
+        pp, pm = p0.copy(), p0.copy()
+        pp[:, k] += h
+        pm[:, k] -= h
+        num = (I_of(pp) - I_of(pm)) / (2 * h)
+        # the interior part runs in float32: compare at its precision
+        assert np.abs(num - J[:, k]).max() < 2e-3 * (np.abs(num).max() + 1.0), k
+
+
+def test_f_quantile_matches_the_exact_quantiles():
+    # exact values: scipy.stats.f.ppf(0.999, d1, d2)
+    exact = {(20, 200): 2.4243, (50, 100): 2.0756, (100, 300): 1.6205, (400, 400): 1.3632,
+             (30, 30): 3.2171, (8, 200): 3.4343, (4, 200): 4.8116}
+    for (d1, d2), f in exact.items():
+        got = float(f_quantile(0.001, np.array([float(d1)]), np.array([float(d2)]))[0])
+        assert abs(got / f - 1.0) < 0.02, (d1, d2, got)
