@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["g_to_matrix", "homographies", "inverse_3x3", "model", "phi_cdf", "solve_batched"]
+__all__ = ["g_to_matrix", "homographies", "inverse_3x3", "model", "phi_and_density", "phi_cdf",
+           "solve_batched"]
 
 
 def phi_cdf(z: np.ndarray) -> np.ndarray:
@@ -18,6 +19,13 @@ def phi_cdf(z: np.ndarray) -> np.ndarray:
     h = z.dtype.type(0.5)
     return h + h * np.tanh(z * (z.dtype.type(0.7978845608028654)
                                 + z.dtype.type(0.035677408136300125) * z * z))
+
+
+def phi_and_density(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tanh form of the normal CDF (:func:`phi_cdf`) and its exact derivative."""
+    c1, c3 = 0.7978845608028654, 0.035677408136300125
+    th = np.tanh(z * (c1 + c3 * z * z))
+    return 0.5 + 0.5 * th, 0.5 * (1.0 - th * th) * (c1 + 3.0 * c3 * z * z)
 
 
 def g_to_matrix(g: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from drovisio.detect.corners.model import model, phi_cdf, solve_batched
+from drovisio.detect.corners.model import model, phi_and_density, phi_cdf, solve_batched
 from drovisio.detect.corners.samples import select_samples
 
 __all__ = ["Interior", "OuterFit", "f_quantile", "fit_outer", "model_outer"]
@@ -47,14 +47,6 @@ __all__ = ["Interior", "OuterFit", "f_quantile", "fit_outer", "model_outer"]
 PROBE_SAMPLES = 48
 """Pixels along a code's outer side that judge, before the refit, whether its surround can
 be paper (a level from 48 pixels is good to a seventh of the noise)."""
-
-_C1, _C3 = 0.7978845608028654, 0.035677408136300125  # the tanh form of Phi (model.phi_cdf)
-
-
-def _phi_and_density(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Phi(z) in the model's tanh form and its exact derivative."""
-    th = np.tanh(z * (_C1 + _C3 * z * z))
-    return 0.5 + 0.5 * th, 0.5 * (1.0 - th * th) * (_C1 + 3 * _C3 * z * z)
 
 
 def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.ndarray,
@@ -81,10 +73,10 @@ def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y:
     v = (g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) * invD
     su, sv = s[:, 0, None], s[:, 1, None]
     n = nf[:, None]
-    Fu0, fu0 = _phi_and_density(u / su)
-    Fu1, fu1 = _phi_and_density((u - n) / su)
-    Fv0, fv0 = _phi_and_density(v / sv)
-    Fv1, fv1 = _phi_and_density((v - n) / sv)
+    Fu0, fu0 = phi_and_density(u / su)
+    Fu1, fu1 = phi_and_density((u - n) / su)
+    Fv0, fv0 = phi_and_density(v / sv)
+    Fv1, fv1 = phi_and_density((v - n) / sv)
     Pu, Pv = Fu0 - Fu1, Fv0 - Fv1
     out = 1.0 - Pu * Pv
     amp_o = (lev[:, 2] - lev[:, 0])[:, None]
