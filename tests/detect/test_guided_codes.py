@@ -13,7 +13,12 @@ import pytest
 
 from drovisio.bench.lens import FISHEYE_150
 from drovisio.detect.aruco import ArucoBrickDetector, ArucoParams
-from drovisio.detect.aruco.guided import chi2_8_chance, predict_missing
+from drovisio.detect.aruco.guided import (
+    GuidedPrediction,
+    chi2_8_chance,
+    predict_missing,
+    start_shifts,
+)
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.pose import PoseResult
 from drovisio.scenes import SceneSpec, gravity_in_camera, render_random
@@ -141,3 +146,58 @@ def test_code_hidden_by_a_stacked_brick_is_not_accepted():
                             det.params, [], LAYOUT.code_corners_m(), LAYOUT.code_normals())
     assert [g[0].marker_id for g in preds] == [29]            # it was looked for
     assert not any(c.guided for c in det.last_codes)
+
+
+def test_code_predicted_beyond_the_fits_basin_is_found_by_the_search():
+    """Scene 25: brick 14 (ids 48, 49) 63° off-axis; OpenCV reads only code 49 (18 px), and
+    the one-code pose is 3.3 cm off laterally. It predicts code 48 (17 px, cells of 2.8 px)
+    2.3 px from where it is, beyond the fit's basin of half a cell: from the predicted
+    corners the fit fails. From the starts shifted over the prediction's uncertainty one
+    converges on the code (0.73 px RMS from the truth), and the brick posed from both codes
+    is within 1 cm (0.83 cm measured)."""
+    r = _periphery(25)
+    truth = next(b for b in r.bricks if 48 in b.code_corners_px)
+    det0, poses0 = _detect(r, guided=False)
+    assert 48 not in {c.marker_id for c in det0.last_codes}      # the premise: not read
+    before = next(p for p in poses0 if p.instance == truth.instance)
+    assert before.markers == [49] and _lateral_m(before, truth) > 0.025
+
+    det1, poses1 = _detect(r, guided=True)
+    after = next(p for p in poses1 if p.instance == truth.instance)
+    guided = next(c for c in det1.last_codes if c.marker_id == 48)
+    assert guided.guided and after.markers == [48, 49]
+    # the prediction was farther off than the basin: the first start alone fails
+    res0 = det0.last_results[(LAYOUT.name, truth.instance)]
+    read = next(c for c in det0.last_codes if c.marker_id == 49)
+    pred = predict_missing((LAYOUT.name, truth.instance, 0), res0, [read], FISHEYE_150,
+                           ArucoParams(), [], LAYOUT.code_corners_m(),
+                           LAYOUT.code_normals())[0][0]
+    off = np.sqrt(((pred.corners_px - truth.code_corners_px[48]) ** 2).sum(axis=1).mean())
+    assert off > 0.5 * 17.0 / 6, off
+    err = np.sqrt(((guided.refined.corners_px - truth.code_corners_px[48]) ** 2)
+                  .sum(axis=1).mean())
+    assert err < 1.0, err
+    assert _lateral_m(after, truth) < 0.01, _lateral_m(after, truth)
+
+
+def _prediction(cov_px: np.ndarray, side_px: float = 18.0) -> GuidedPrediction:
+    q = np.array([[0.0, 0.0], [side_px, 0.0], [side_px, side_px], [0.0, side_px]]) + 100.0
+    return GuidedPrediction((LAYOUT.name, 0, 0), 48, 1, LAYOUT, 0, q, cov_px)
+
+
+def test_start_shifts_span_the_uncertainty_in_half_cells():
+    """A prediction good to a tenth of a cell is fitted from itself alone; one uncertain
+    by 1.5 px along x and 0.3 px along y (cells of 3 px, basin 1.5 px) gets shifts of
+    1.5 px out to 2.5 σ along x only, the likeliest first; the budget caps the grid."""
+    p = ArucoParams()
+    tight = start_shifts(_prediction(np.eye(8) * 0.3 ** 2), 6, p)
+    assert tight.shape == (1, 2) and np.allclose(tight, 0.0)
+    # corners' errors fully correlated: the centre has the corners' variance
+    cov = np.kron(np.ones((4, 4)), np.diag([1.5 ** 2, 0.3 ** 2])) + np.eye(8) * 1e-6
+    s = start_shifts(_prediction(cov), 6, p)
+    assert np.allclose(s[0], 0.0)
+    assert np.allclose(s[:, 1], 0.0, atol=1e-9)                  # y within the basin
+    assert sorted(np.round(s[:, 0], 6)) == [-3.0, -1.5, 0.0, 1.5, 3.0]   # 2.5 σ = 3.75 px
+    assert np.all(np.diff(np.abs(s[:, 0])) >= 0)                 # nearest first
+    wide = np.kron(np.ones((4, 4)), np.eye(2) * 5.0 ** 2)
+    assert len(start_shifts(_prediction(wide), 6, p)) <= p.guided_search_max

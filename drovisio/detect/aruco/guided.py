@@ -19,6 +19,13 @@ bits its id must carry: nothing is decoded. It is accepted only if
   (a share of the fitted blur: :func:`_blur_covariance`), is χ²(8) at a chance of at least
   :attr:`~drovisio.detect.aruco.params.ArucoParams.guided_chance`.
 
+The fit converges on a code only from a start within about half a cell of it, and a pose
+from one small code predicts the other to a pixel or two: more than half a 2.5-px cell. A
+code whose fit from the predicted corners fails these checks is fitted again from the
+predicted quad shifted in half-cell steps over the uncertainty of the code's centre, as far
+as the prediction's covariance reaches (:func:`start_shifts`); of those fits that pass the
+checks, the one nearest the prediction (least Mahalanobis distance) is taken.
+
 An ambiguous brick is predicted with each of its planar candidates; the first whose
 prediction fits is taken. Accepted codes carry ``guided=True``; the brick is then solved
 again from all its codes by the same solver (weights, ambiguity, covariance).
@@ -41,7 +48,8 @@ from drovisio.detect.corners import RefinedCode, refine_codes
 from drovisio.layout import MarkerLayout, aruco_code_bits
 from drovisio.pose import PoseResult
 
-__all__ = ["GuidedPrediction", "chi2_8_chance", "guided_codes", "predict_missing"]
+__all__ = ["GuidedPrediction", "chi2_8_chance", "guided_codes", "predict_missing",
+           "start_shifts"]
 
 Solved = tuple[PoseResult, list[CodeDetection]]
 
@@ -178,33 +186,105 @@ def predict_missing(key: BrickKey, res: PoseResult, group: list[CodeDetection],
     return out
 
 
-def _consistent(r: RefinedCode, pred: GuidedPrediction, params: ArucoParams) -> bool:
-    """The fit is ok, every cell reads right, and its corners lie where the pose put them
-    (χ²(8) of the difference under both covariances at ≥ ``guided_chance``)."""
+def _mahalanobis2(r: RefinedCode, pred: GuidedPrediction, params: ArucoParams) -> float:
+    """Squared Mahalanobis distance of the fitted corners from the predicted ones, under both
+    covariances (the prediction's, the fit's with its unmodelled share of the blur); inf
+    when the fit is not ``ok`` or a cell reads wrong."""
     if not r.ok or r.cell_margin <= 0.0:
-        return False
+        return float("inf")
     d = (r.corners_px - pred.corners_px).ravel()
     S = (pred.cov_px + corner_covariance(r.cov_px, params)
          + np.eye(8) * (params.guided_blur_share * r.blur_px) ** 2)
     try:
-        m2 = float(d @ np.linalg.solve(S, d))
+        return float(d @ np.linalg.solve(S, d))
     except np.linalg.LinAlgError:
-        return False
-    return chi2_8_chance(m2) >= params.guided_chance
+        return float("inf")
 
 
-def _fit(gray: np.ndarray, camera: Camera, preds: list[GuidedPrediction], params: ArucoParams,
-         family_of: Mapping[int, CodeFamily]) -> list[RefinedCode]:
-    """The photometric corner fit of every prediction, in one batch, from the predicted
-    corners, with no tolerated cell."""
+def start_shifts(pred: GuidedPrediction, cells: int, params: ArucoParams) -> np.ndarray:
+    """Shifts (px) of a predicted quad that the fit starts from.
+
+    The fit's basin is about half a cell (a start farther off aligns the model's cells with
+    the wrong ones). The code's centre is uncertain by the mean of the predicted corners'
+    covariance; along each principal axis of that 2×2 covariance the shifts step by half a
+    cell out to ``guided_search_sigmas`` standard deviations, so that some start lies within
+    the basin wherever the code is with that confidence. A prediction within the basin gets
+    the single shift (0, 0).
+
+    Args:
+        pred: The prediction (its corners, px, and their (8, 8) covariance, px²).
+        cells: Cells per side of the code, border included.
+        params: The detector's tuning (``guided_search_sigmas``, ``guided_search_max``).
+
+    Returns:
+        (K, 2) shifts, px, the likeliest first ((0, 0)).
+    """
+    q = pred.corners_px
+    step = 0.5 * float(np.sqrt(((q - np.roll(q, -1, axis=0)) ** 2).sum(axis=1)).mean()) / cells
+    avg = np.kron(np.full((1, 4), 0.25), np.eye(2))            # (2, 8): the corners' mean
+    w, V = np.linalg.eigh(avg @ pred.cov_px @ avg.T)
+    k = np.floor(params.guided_search_sigmas * np.sqrt(np.maximum(w, 0.0)) / step)
+    while (2 * k[0] + 1) * (2 * k[1] + 1) > params.guided_search_max:
+        k[np.argmax(k)] -= 1                                   # the budget: fewer steps
+    i, j = np.meshgrid(np.arange(-k[0], k[0] + 1), np.arange(-k[1], k[1] + 1), indexing="ij")
+    grid = np.stack([i.ravel(), j.ravel()], axis=1) * step
+    # the likeliest first: by Mahalanobis distance under the centre's covariance
+    order = np.argsort(((grid ** 2) / np.maximum(w, 1e-12)).sum(axis=1), kind="stable")
+    return grid[order] @ V.T
+
+
+def _fit(gray: np.ndarray, camera: Camera, starts: np.ndarray, marker_ids: list[int],
+         params: ArucoParams, family_of: Mapping[int, CodeFamily]) -> list[RefinedCode]:
+    """The photometric corner fit from every start ((K, 4, 2) px), in one batch, with no
+    tolerated cell."""
     p = params
-    bits = [aruco_code_bits(family_of[g.marker_id].dvalue, g.marker_id).astype(np.float64)
-            for g in preds]
-    return refine_codes(gray, camera, np.array([g.corners_px for g in preds]), bits,
+    bits = [aruco_code_bits(family_of[m].dvalue, m).astype(np.float64) for m in marker_ids]
+    return refine_codes(gray, camera, starts, bits,
                         iterations=p.refine_iterations + p.guided_coarse_iterations,
                         coarse_iterations=p.guided_coarse_iterations,
                         lm_lambda=p.refine_lambda, max_samples=p.max_samples,
                         band_px=p.band_px, tolerable_cells=0)
+
+
+def _nearest_fits(gray: np.ndarray, camera: Camera, flat: list[GuidedPrediction],
+                  shifts: list[np.ndarray], params: ArucoParams,
+                  family_of: Mapping[int, CodeFamily]) -> list[RefinedCode | None]:
+    """Per prediction, the fits from its quad moved by each of its ``shifts`` ((K, 2) px),
+    all in one batch; of those that pass the checks, the one nearest the prediction (least
+    Mahalanobis distance: the likeliest place under the pose), or None."""
+    owner = np.repeat(np.arange(len(flat)), [len(d) for d in shifts])
+    if not len(owner):
+        return [None] * len(flat)
+    starts = np.concatenate([g.corners_px[None] + d[:, None] for g, d in zip(flat, shifts)])
+    fits = _fit(gray, camera, starts, [flat[n].marker_id for n in owner], params, family_of)
+    best: list[RefinedCode | None] = [None] * len(flat)
+    best_m2 = [float("inf")] * len(flat)
+    for n, r in zip(owner, fits):
+        m2 = _mahalanobis2(r, flat[n], params)
+        if m2 < best_m2[n] and chi2_8_chance(m2) >= params.guided_chance:
+            best[n], best_m2[n] = r, m2
+    return best
+
+
+def _guided_fits(gray: np.ndarray, camera: Camera, per_code: list[list[GuidedPrediction]],
+                 params: ArucoParams, family_of: Mapping[int, CodeFamily]
+                 ) -> list[list[RefinedCode | None]]:
+    """Per code, per candidate prediction, its accepted fit or None: first from the
+    predicted corners; the codes none of whose candidates fit there are fitted again from
+    the shifted starts of :func:`start_shifts`."""
+    flat = [g for preds in per_code for g in preds]
+    zero = [np.zeros((1, 2))] * len(flat)
+    first = iter(_nearest_fits(gray, camera, flat, zero, params, family_of))
+    out = [[next(first) for _ in preds] for preds in per_code]
+    failed = [all(f is None for f in fits) for fits in out]
+    again = [g for preds, f in zip(per_code, failed) if f for g in preds]
+    if again:
+        shifts = [start_shifts(g, len(aruco_code_bits(family_of[g.marker_id].dvalue,
+                                                      g.marker_id)), params)[1:]
+                  for g in again]
+        second = iter(_nearest_fits(gray, camera, again, shifts, params, family_of))
+        out = [[next(second) for _ in fits] if f else fits for fits, f in zip(out, failed)]
+    return out
 
 
 def _predictions(results: Mapping[BrickKey, Solved], codes: list[CodeDetection],
@@ -246,14 +326,11 @@ def guided_codes(gray: np.ndarray, results: Mapping[BrickKey, Solved],
         The accepted codes (``guided=True``, refined, with their information matrix).
     """
     per_code = _predictions(results, codes, camera, params, family_of, corners_m)
-    flat = [g for preds in per_code for g in preds]
-    if not flat:
+    if not per_code:
         return []
-    fits = iter(_fit(gray, camera, flat, params, family_of))
     out: list[CodeDetection] = []
-    for preds in per_code:
-        good = [(g, r) for g, r in [(g, next(fits)) for g in preds]
-                if _consistent(r, g, params)]
+    for preds, fits in zip(per_code, _guided_fits(gray, camera, per_code, params, family_of)):
+        good = [(g, r) for g, r in zip(preds, fits) if r is not None]
         if not good:
             continue
         g, r = good[0]

@@ -144,6 +144,15 @@ class ArucoParams:
     corrected corners need (fisheye periphery, 40 scenes: 0 accepted 11 codes, 1: 14, 2: 15
     with the same errors)."""
 
+    guided_search_sigmas: float = 2.5
+    """A prediction whose centre is uncertain beyond the fit's basin (half a cell) is fitted
+    from shifted starts, half a cell apart, out to this many standard deviations along each
+    axis of the centre's uncertainty (:func:`drovisio.detect.aruco.guided.start_shifts`;
+    2.5: the true place lies inside the searched box with a chance of ~98 %)."""
+    guided_search_max: int = 49
+    """Most starts per prediction (a 7×7 grid): a bound on the time, reached only when the
+    pose predicts a small code to several cells."""
+
     # -- the brick's pose -----------------------------------------------------------------
     max_rmse_px: float = 2.0
     """Bricks whose joint fit is worse than this (px RMS) are dropped (a wrong grouping or a
