@@ -243,7 +243,7 @@ def _fit(gray: np.ndarray, camera: Camera, starts: np.ndarray, marker_ids: list[
                         iterations=p.refine_iterations + p.guided_coarse_iterations,
                         coarse_iterations=p.guided_coarse_iterations,
                         lm_lambda=p.refine_lambda, max_samples=p.max_samples,
-                        band_px=p.band_px, tolerable_cells=0)
+                        band_px=p.band_px, outer_edge=p.outer_edge, tolerable_cells=0)
 
 
 def _nearest_fits(gray: np.ndarray, camera: Camera, flat: list[GuidedPrediction],
