@@ -12,8 +12,9 @@ every pixel of the code's interior,
 where ``x(p)`` is the undistorted, normalised image coordinate of pixel ``p`` (exact, from
 the camera model), ``G`` the 8-parameter homography from the image plane to the code plane in
 cell units (the outer border spans [0, n]², n = bits + 2), and ``S`` the code's white cells
-blurred by a separable Gaussian (``s_u``, ``s_v`` in cells: defocus, motion, pixel area). The
-twelve parameters (G, B, W, s_u, s_v) are fitted by Levenberg–Marquardt to the pixels of the
+blurred by a Gaussian (``s_u``, ``s_v`` in cells and their correlation ``rho``: defocus,
+motion, pixel area, seen through the code's own obliquity, :mod:`.model`). The thirteen
+parameters (G, B, W, s_u, s_v, rho) are fitted by Levenberg–Marquardt to the pixels of the
 region [1 − a, n − 1 + a]² (the inner edges of the border and every bit edge) that lie within
 a couple of pixels of a modelled edge (a random subset for big codes: a regular one aliases
 with the edges), batched over all codes of a frame. Blur acts symmetrically on every modelled

@@ -4,7 +4,7 @@
 2. each code's fit region and the box of pixels around it,
 3. the samples (:mod:`.samples`),
 4. the start levels,
-5. the Levenberg–Marquardt fit of (G, B, W, s_u, s_v) (:mod:`.model`),
+5. the Levenberg–Marquardt fit of (G, B, W, s_u, s_v, rho) (:mod:`.model`),
 6. the parameters' covariance,
 7. the outer corners and their covariance in pixels,
 8. the checks that keep or refuse each code (fit, contrast, blur, how far a corner moved,
@@ -35,6 +35,9 @@ __all__ = ["MAX_SAMPLES", "RefinedCode", "refine_codes"]
 
 #: samples (pixels) per code in the fit; bigger codes are subsampled on a regular grid
 MAX_SAMPLES = 280
+
+#: the largest blur correlation fitted (the series of the bivariate normal is kept to rho²)
+RHO_MAX = 0.6
 
 
 @dataclass
@@ -169,10 +172,12 @@ class _Fit:
     """(C, 2) black and white levels, grey levels."""
     s: np.ndarray
     """(C, 2) blur along u and v, cells."""
+    rho: np.ndarray
+    """(C,) the blur's correlation of u and v."""
     cost: np.ndarray
     """(C,) sum of squared residuals."""
     A: np.ndarray
-    """(C, 12, 12) the last Gauss–Newton matrix JᵀJ."""
+    """(C, 13, 13) the last Gauss–Newton matrix JᵀJ."""
 
 
 def _batch(grid: np.ndarray, corners: list[np.ndarray] | np.ndarray, bits: list[np.ndarray]
@@ -279,16 +284,17 @@ class _Step:
     cost: np.ndarray
     """(C,) their sum of squares."""
     Jw: np.ndarray
-    """(C, 12, M) the weighted transposed Jacobian."""
+    """(C, 13, M) the weighted transposed Jacobian."""
     A: np.ndarray
-    """(C, 12, 12) JᵀJ."""
+    """(C, 13, 13) JᵀJ."""
 
 
-def _linearise(b: _Batch, smp: _Samples, lev: np.ndarray, s: np.ndarray, bits_in: np.ndarray,
-               bits_t: np.ndarray, fit_blur: bool) -> _Step:
+def _linearise(b: _Batch, smp: _Samples, lev: np.ndarray, s: np.ndarray, rho: np.ndarray,
+               bits_in: np.ndarray, bits_t: np.ndarray, fit_blur: bool) -> _Step:
     """The model's residuals and Jacobian at the current parameters (the blur's columns zero
     unless ``fit_blur``)."""
-    I, J = model(b.g, lev, s, smp.xs, smp.ys, bits_in, bits_t, b.n_max, blur_jacobian=fit_blur)
+    I, J = model(b.g, lev, s, smp.xs, smp.ys, bits_in, bits_t, b.n_max, blur_jacobian=fit_blur,
+                 rho=rho)
     assert J is not None  # asked for
     r = (smp.vals - I) * smp.wts
     cost = (r * r).sum(axis=1)
@@ -302,17 +308,18 @@ def _linearise(b: _Batch, smp: _Samples, lev: np.ndarray, s: np.ndarray, bits_in
 def _levenberg_marquardt(b: _Batch, smp: _Samples, lev: np.ndarray, iterations: int,
                          coarse_iterations: int, chord_from: int | None, lm_lambda: float,
                          blur_iterations: int, coarse_min_cell_px: float) -> _Fit:
-    """Stage 5: the fit of (G, B, W, s_u, s_v), every code at once; ``b.g`` and ``lev`` are
+    """Stage 5: the fit of (G, B, W, s_u, s_v, rho), every code at once; ``b.g`` and ``lev`` are
     updated in place. Blur starts at ~0.9 px; the first ``coarse_iterations`` keep it wide
     (a wide basin of convergence)."""
     C, cell_px, valid = len(b.q), b.cell_px, b.valid
     g = b.g
     s = np.repeat((0.9 / np.maximum(cell_px, 1e-9))[:, None], 2, axis=1)
+    rho = np.zeros(C)
     bits_in = np.ascontiguousarray(b.bits_pad[:, 1:-1, 1:-1], np.float32)
     bits_t = np.ascontiguousarray(bits_in.transpose(0, 2, 1))
     s_floor = np.minimum(1.5 / np.maximum(cell_px, 1e-9), 0.25)  # coarse start: wide basin
     lam = np.full(C, lm_lambda)
-    eye12 = np.eye(12)
+    eye = np.eye(13)
     step: _Step | None = None
     if not np.any(valid & (cell_px >= coarse_min_cell_px)):
         coarse_iterations = 0  # small codes only: their blur is wide enough already
@@ -323,26 +330,28 @@ def _levenberg_marquardt(b: _Batch, smp: _Samples, lev: np.ndarray, iterations: 
         fresh = chord_from is None or it <= max(coarse_iterations, chord_from - 1)
         if fresh or step is None:  # new Jacobian; in between, its last value (chord steps)
             fit_blur = not coarse and it < blur_iterations
-            step = _linearise(b, smp, lev, s, bits_in, bits_t, fit_blur)
+            step = _linearise(b, smp, lev, s, rho, bits_in, bits_t, fit_blur)
         r, cost, A = step.r, step.cost, step.A
         rhs = np.matmul(step.Jw, r[..., None])[..., 0]
         diag = np.einsum("cii->ci", A)
-        A_d = A + lam[:, None, None] * diag[:, :, None] * eye12 + 1e-9 * eye12
-        A_d[~valid] = eye12
+        A_d = A + lam[:, None, None] * diag[:, :, None] * eye + 1e-9 * eye
+        A_d[~valid] = eye
         rhs[~valid] = 0.0
         dp = solve_batched(A_d, rhs)
         g_n, lev_n = g + dp[:, :8], lev + dp[:, 8:10]
         s_n = s if not fit_blur else np.minimum(np.maximum(s + dp[:, 10:12], 0.03), 0.8)
+        rho_n = rho if not fit_blur else np.clip(rho + dp[:, 12], -RHO_MAX, RHO_MAX)
         I_n, _ = model(g_n, lev_n, s_n, smp.xs, smp.ys, bits_in, bits_t, b.n_max,
-                       jacobian=False)
+                       jacobian=False, rho=rho_n)
         r_n = (smp.vals - I_n) * smp.wts
         cost_n = (r_n * r_n).sum(axis=1)
         better = (cost_n <= cost) & np.isfinite(cost_n)
         g[better], lev[better], s[better] = g_n[better], lev_n[better], s_n[better]
+        rho[better] = rho_n[better]
         r[better], cost[better] = r_n[better], cost_n[better]
         lam = np.where(better, np.maximum(lam / 3.0, 1e-6), lam * 5.0)
     assert step is not None, "refine_codes needs at least one iteration"
-    return _Fit(lev, s, step.cost, step.A)
+    return _Fit(lev, s, rho, step.cost, step.A)
 
 
 def _parameter_covariance(A: np.ndarray, sig2: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -496,7 +505,7 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     fit = _levenberg_marquardt(b, smp, _start_levels(smp), iterations, coarse_iterations,
                                chord_from, lm_lambda, blur_iterations, coarse_min_cell_px)
     lev, s, valid, cell_px = fit.lev, fit.s, b.valid, b.cell_px
-    sig2 = fit.cost / np.maximum(smp.cnt - 12.0, 1.0)
+    sig2 = fit.cost / np.maximum(smp.cnt - 13.0, 1.0)
     margin, cell_a, cell_bits = cell_margins(b.g, lev, s, smp.xs, smp.ys, smp.vals, smp.wts,
                                              b.bits_pad, b.ns)
     tol_cells = np.broadcast_to(np.asarray(tolerable_cells, np.int64), (C,))
@@ -537,7 +546,7 @@ def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch
     Returns:
         (C,) bool, the codes whose corners now come from the refit.
     """
-    interior = Interior(b.g, fit.lev, fit.s, smp.xs, smp.ys, smp.vals, smp.wts, sig2,
+    interior = Interior(b.g, fit.lev, fit.s, fit.rho, smp.xs, smp.ys, smp.vals, smp.wts, sig2,
                         white_spread)
     of = fit_outer(grid, gray, b.q, b.centre, b.scale, b.ns, b.bits_pad, region.band, kept,
                    interior, M)

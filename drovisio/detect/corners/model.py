@@ -3,7 +3,13 @@
 A code's pixels are modelled as ``I(p) = B + (W − B) · S(u, v)`` with ``(u, v) = G(x(p))``
 (see :mod:`drovisio.detect.corners`): ``G`` the 8-parameter homography from the local,
 normalised image frame to the code plane in cell units, ``S`` the code's white cells blurred by
-a separable Gaussian. Every function works on a batch of C codes at once.
+a Gaussian of widths ``s_u``, ``s_v`` and correlation ``rho`` in the code's frame. A blur round
+in the image is an ellipse in the frame of an oblique code, whose axes are not the code's
+(so is a motion streak): without ``rho``, codes far off-axis through a fisheye came out 1 %
+small and their corners 1–2 px off. Each cell's blurred box is the bivariate normal's, by
+its tetrachoric series to ``rho²``: every term is a product of a function of ``u`` and one of
+``v``, so the model stays two matrix products per term. Every function works on a batch of
+C codes at once.
 """
 
 from __future__ import annotations
@@ -71,8 +77,10 @@ def solve_batched(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.ndarray,
           bits: np.ndarray, bits_t: np.ndarray, n_max: int, jacobian: bool = True,
-          blur_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """Model intensity (C, M) and, with ``jacobian``, its transposed Jacobian (C, 12, M).
+          blur_jacobian: bool = True, rho: np.ndarray | None = None
+          ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Model intensity (C, M) and, with ``jacobian``, its transposed Jacobian (C, 13, M)
+    (the last row: d/d rho, zero without ``rho``).
 
     Args:
         g: (C, 8) homographies, local normalised frame -> cells.
@@ -86,6 +94,10 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
         n_max: Cells per side (border included) of the largest code.
         jacobian: Also return the Jacobian (parameters g, B, W, s_u, s_v).
         blur_jacobian: Fill the blur's rows of the Jacobian (zeros otherwise).
+        rho: (C,) correlation of the blur's u and v (an oblique view or a motion streak
+            makes the blur an ellipse whose axes are not the code's): each cell's blurred
+            box is the bivariate normal's, by its tetrachoric series to the second order in
+            rho (separable terms; 0.3 % of the contrast at rho 0.5).
 
     The heavy arrays are laid out (C, 2, boundaries, M) (u/v, cell boundary, sample) in
     float32 so that every reduction runs over a middle axis with contiguous samples.
@@ -104,6 +116,9 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     col, row = w[:, 0], w[:, 1]
     T = np.matmul(bits_t, row)  # (C, n, M): T[j] = sum_r bits[r, j] row_r
     S = (T * col).sum(axis=1, dtype=np.float64)
+    corr = None if rho is None else _correlated(z, th, bits_t, rho)
+    if corr is not None:
+        S = S + corr[0]
     B, W = lev[:, 0, None], lev[:, 1, None]
     amp = W - B
     I = B + amp * S
@@ -118,6 +133,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     dS = np.empty((x.shape[0], 2, x.shape[1]))  # dS/du, dS/dv
     dS[:, 0] = (T * dw[:, 0]).sum(axis=1, dtype=np.float64)
     dS[:, 1] = (Tv * dw[:, 1]).sum(axis=1, dtype=np.float64)
+    if corr is not None:
+        dS += corr[1] * (1.0 / s)[:, :, None]
     if blur_jacobian:
         qz = pz * z
         dws = (qz[:, :, 1:] - qz[:, :, :-1]) * inv_s  # d/ds Phi((u-k)/s) = -phi z / s
@@ -126,7 +143,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
         dSs[:, 1] = (Tv * dws[:, 1]).sum(axis=1, dtype=np.float64)
     else:
         dSs = np.zeros_like(dS)
-    J = np.empty((x.shape[0], 12, x.shape[1]))
+    J = np.empty((x.shape[0], 13, x.shape[1]))
+    J[:, 12] = 0.0 if corr is None else amp * corr[2]
     a = (amp * invD)[:, None] * dS  # (C, 2, M)
     a_u, a_v = a[:, 0], a[:, 1]
     J[:, 0] = a_u * x
@@ -142,6 +160,41 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     J[:, 9] = S
     J[:, 10:12] = amp[:, None] * dSs
     return I, J
+
+
+def _correlated(z: np.ndarray, th: np.ndarray, bits_t: np.ndarray, rho: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cells' blurred boxes' terms in the blur's correlation ``rho``.
+
+    With ``h1 = φ`` and ``h2(α) = α φ(α)`` differenced across each cell (α = −z), the
+    bivariate normal's box is the product of the marginal ones plus
+    ``rho · D1(u) D1(v) + rho² / 2 · D2(u) D2(v)``.
+
+    Args:
+        z: (C, 2, n - 1, M) the standardised distances to the cell boundaries (model's).
+        th: The tanh of the model's Φ form at ``z``.
+        bits_t: (C, n - 2, n - 2) the inner cells, transposed (column, row).
+        rho: (C,) the correlation.
+
+    Returns:
+        (the terms' sum (C, M); their derivative along u and v times the blur, (C, 2, M),
+        to the first order in rho; their derivative in rho (C, M)).
+    """
+    # φ in the model's tanh form (its derivative), so that rho = 0 is the model exactly
+    p = np.float32(0.5) * (np.float32(1.0) - th * th) * (
+        np.float32(0.7978845608028654) + np.float32(3 * 0.035677408136300125) * z * z)
+    q = z * p
+    d1 = p[:, :, 1:] - p[:, :, :-1]   # (C, 2, n - 2, M): h1 at the far side minus the near
+    d2 = q[:, :, :-1] - q[:, :, 1:]   # h2 likewise (h2(α) = -z φ(z))
+    T1 = np.matmul(bits_t, d1[:, 1])  # (C, n - 2, M): sum_r bits[r, j] D1_r(v)
+    T2 = np.matmul(bits_t, d2[:, 1])
+    s11 = (T1 * d1[:, 0]).sum(axis=1, dtype=np.float64)
+    s22 = (T2 * d2[:, 0]).sum(axis=1, dtype=np.float64)
+    r = rho[:, None]
+    # d D1 / d(u or v) = D2 / s: the first-order term's derivative
+    du = (T1 * d2[:, 0]).sum(axis=1, dtype=np.float64)
+    dv = (T2 * d1[:, 0]).sum(axis=1, dtype=np.float64)
+    return r * s11 + 0.5 * r * r * s22, np.stack([r * du, r * dv], axis=1), s11 + r * s22
 
 
 def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:

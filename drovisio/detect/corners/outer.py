@@ -51,7 +51,8 @@ be paper (a level from 48 pixels is good to a seventh of the noise)."""
 
 def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.ndarray,
                 bits: np.ndarray, bits_t: np.ndarray, n_max: int, nf: np.ndarray,
-                jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                jacobian: bool = True, rho: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
     """The interior model (:func:`.model.model`) plus the surround outside the code.
 
     Args:
@@ -62,11 +63,12 @@ def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y:
         bits, bits_t, n_max: As :func:`.model.model`.
         nf: (C,) cells per side, border included (the outer edges lie at 0 and n).
         jacobian: Also return the transposed Jacobian (C, 13, M) (g, B, W, s_u, s_v, O).
+        rho: (C,) the blur's correlation, held (the interior fit's; :func:`.model.model`).
 
     Returns:
         (intensity (C, M), Jacobian or None).
     """
-    I, J = model(g, lev[:, :2], s, x, y, bits, bits_t, n_max, jacobian=jacobian)
+    I, J = model(g, lev[:, :2], s, x, y, bits, bits_t, n_max, jacobian=jacobian, rho=rho)
     D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
     invD = 1.0 / D
     u = (g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) * invD
@@ -88,7 +90,7 @@ def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y:
     a_v = -amp_o * invD * Pu * (fv0 - fv1) / sv
     wq = -(a_u * u + a_v * v)
     J13 = np.empty((J.shape[0], 13, J.shape[2]))
-    J13[:, :12] = J
+    J13[:, :12] = J[:, :12]
     J13[:, 0] += a_u * x
     J13[:, 1] += a_u * y
     J13[:, 2] += a_u
@@ -270,12 +272,13 @@ def _paper(lev3: np.ndarray, var_ow: np.ndarray, white_spread: np.ndarray, z: fl
     return np.abs(d) <= z * np.sqrt(white_spread ** 2 + np.maximum(var_ow, 0.0) / amp ** 2)
 
 
-def _start_surround(g: np.ndarray, lev: np.ndarray, s: np.ndarray, xs: np.ndarray,
+def _start_surround(g: np.ndarray, lev: np.ndarray, s: np.ndarray, rho: np.ndarray,
+                    xs: np.ndarray,
                     ys: np.ndarray, vals: np.ndarray, wts: np.ndarray, bits_in: np.ndarray,
                     bits_t: np.ndarray, n_max: int, nf: np.ndarray) -> np.ndarray:
     """(C, 3) the interior fit's levels and the surround's, the latter by linear least
     squares with everything else held at the interior fit."""
-    I0, _ = model(g, lev, s, xs, ys, bits_in, bits_t, n_max, jacobian=False)
+    I0, _ = model(g, lev, s, xs, ys, bits_in, bits_t, n_max, jacobian=False, rho=rho)
     D = g[:, 6, None] * xs + g[:, 7, None] * ys + 1.0
     u = (g[:, 0, None] * xs + g[:, 1, None] * ys + g[:, 2, None]) / D
     v = (g[:, 3, None] * xs + g[:, 4, None] * ys + g[:, 5, None]) / D
@@ -301,7 +304,8 @@ def _var_o_minus_w(A: np.ndarray, sig2: np.ndarray, live: np.ndarray) -> np.ndar
     return out
 
 
-def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, xs: np.ndarray,
+def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, rho: np.ndarray,
+                         xs: np.ndarray,
                          ys: np.ndarray, vals: np.ndarray, wts: np.ndarray,
                          bits_in: np.ndarray, bits_t: np.ndarray, n_max: int, nf: np.ndarray,
                          iterations: int, lm_lambda: float
@@ -318,7 +322,7 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, xs: np.
     A = np.tile(eye, (len(g), 1, 1))
     r = np.zeros_like(vals)
     for _ in range(iterations):
-        I, J = model_outer(g, lev3, s, xs, ys, bits_in, bits_t, n_max, nf)
+        I, J = model_outer(g, lev3, s, xs, ys, bits_in, bits_t, n_max, nf, rho=rho)
         assert J is not None  # asked for
         r = (vals - I) * wts
         cost = (r * r).sum(axis=1)
@@ -330,7 +334,7 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, xs: np.
         g_n, lev_n = g + dp[:, :8], lev3 + dp[:, [8, 9, 12]]
         s_n = np.minimum(np.maximum(s + dp[:, 10:12], 0.03), 0.8)
         I_n, _ = model_outer(g_n, lev_n, s_n, xs, ys, bits_in, bits_t, n_max, nf,
-                             jacobian=False)
+                             jacobian=False, rho=rho)
         r_n = (vals - I_n) * wts
         better = ((r_n * r_n).sum(axis=1) <= cost) & np.isfinite(r_n).all(axis=1)
         g[better], lev3[better], s[better] = g_n[better], lev_n[better], s_n[better]
@@ -349,6 +353,8 @@ class Interior:
     """(C, 2) black and white levels."""
     s: np.ndarray
     """(C, 2) blur, cells."""
+    rho: np.ndarray
+    """(C,) the blur's correlation of u and v (held in the refit)."""
     xs: np.ndarray
     ys: np.ndarray
     vals: np.ndarray
@@ -396,7 +402,8 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
     xo, yo, vo, wo = _outer_samples(grid, gray, q, it.g, centre, scale, ns, band, fit,
                                     PROBE_SAMPLES)
     live = fit & (wo.sum(axis=1) >= 8)
-    lev3 = _start_surround(it.g, it.lev, it.s, xo, yo, vo, wo, bits_in, bits_t, n_max, nf)
+    lev3 = _start_surround(it.g, it.lev, it.s, it.rho, xo, yo, vo, wo, bits_in, bits_t, n_max,
+                           nf)
     live &= _paper(lev3, np.zeros(C), it.white_spread, 2.0 * z)
     g, s = it.g.copy(), it.s.copy()
     used = np.zeros(C, bool)
@@ -413,7 +420,7 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
     vals = np.concatenate([it.vals[k], vo[k]], axis=1)
     wts = np.concatenate([it.wts[k], wo[k]], axis=1)
     g_k, lev_k, s_k, A_k, r_k = _levenberg_marquardt(
-        g[k], lev3[k], s[k], xs, ys, vals, wts, bits_in[k], bits_t[k], n_max, nf[k],
+        g[k], lev3[k], s[k], it.rho[k], xs, ys, vals, wts, bits_in[k], bits_t[k], n_max, nf[k],
         iterations, lm_lambda)
     sig2_k = (r_k * r_k).sum(axis=1) / np.maximum(wts.sum(axis=1) - 13.0, 1.0)
     f_k, ok = _sides_uniform(g_k, xs, ys, r_k, wts, nf[k], band[k],
