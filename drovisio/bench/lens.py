@@ -4,14 +4,12 @@
   150° Kannala–Brandt lens at 1280×960; per detector: bricks found of those in the working
   range (≤ 2 m, markers inside the image, codes ≥ 15 px across), lateral / depth / yaw p95,
   flips not flagged ambiguous, and the same by the bricks' angle off the optical axis
-  (``--spread 4`` puts bricks out to ~80°: on 40 scenes code bricks reach lateral p95 1.4 cm
-  and yaw p95 0.84°; 2.8 cm before a brick read from one code was given its other code in
-  view, 1.7 cm before that code was also searched for where its prediction is off by more
-  than the fit's basin (:mod:`drovisio.detect.aruco.guided`); what remains are bricks
-  whose 15–19 px codes, oblique and blurred at the rim, were fitted with corners 0.3–2 px off
-  (the blurred codes there come out ~1 % small), and one-code bricks whose other code is
-  out of view; with their true corners the poses are exact; at the default spread lateral
-  p95 0.54 cm, yaw p95 0.31°);
+  (``--spread 4`` puts bricks out to ~80°: on 40 scenes code bricks reach lateral p95
+  0.6 cm and yaw p95 0.23°; 1.4 cm and 0.84° before the code fit's blur could be an ellipse
+  across the cells (an oblique code at the rim blurs along a diagonal of its own frame:
+  :mod:`drovisio.detect.corners.model`), 2.8 cm before a brick read from one code was given
+  its other code in view (:mod:`drovisio.detect.aruco.guided`); at the default spread
+  lateral p95 0.42 cm, yaw p95 0.20°);
 * ``calibrate`` — rendered chessboard views of the same lens, solved with the fisheye model
   and with ``auto``: relative intrinsics errors, and where the true model lies within 2σ of
   the estimate (share of the image grid).
