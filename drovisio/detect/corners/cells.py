@@ -13,7 +13,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from drovisio.detect.corners.model import phi_cdf, solve_batched
+from drovisio.detect.corners.model import code_coords, phi_cdf, solve_batched
 
 __all__ = ["cell_margins", "cell_verdict", "cell_verdicts"]
 
@@ -33,9 +33,8 @@ def cell_margins(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y
         padded to a larger n); the expected bits (C, cells), 1 = white).
     """
     C, n = bits.shape[0], bits.shape[1]
-    D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
-    u = ((g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) / D).astype(np.float32)
-    v = ((g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) / D).astype(np.float32)
+    u64, v64, _ = code_coords(g, x, y)
+    u, v = u64.astype(np.float32), v64.astype(np.float32)
     k = np.arange(1, n, dtype=np.float32)[:, None]  # the boundaries of the inner cells
     inv_s = (1.0 / s).astype(np.float32)
     Au = phi_cdf((u[:, None, :] - k) * inv_s[:, 0, None, None])

@@ -29,7 +29,12 @@ from drovisio.detect.corners.model import (
     solve_batched,
 )
 from drovisio.detect.corners.outer import Interior, fit_outer
-from drovisio.detect.corners.samples import grid_lookup, normalized_grid, select_samples
+from drovisio.detect.corners.samples import (
+    grid_lookup,
+    normalized_grid,
+    pixel_boxes,
+    select_samples,
+)
 
 __all__ = ["MAX_SAMPLES", "RefinedCode", "refine_codes"]
 
@@ -217,24 +222,14 @@ def _batch(grid: np.ndarray, corners: list[np.ndarray] | np.ndarray, bits: list[
 def _region(b: _Batch, shape: tuple[int, ...], band_px: float, max_samples: int) -> _Region:
     """Stage 2: each code's fit region and the box of pixels around it; codes whose box is
     under 4 px are refused."""
-    H_img, W_img = shape[:2]
-    cell_px, nf, q = b.cell_px, b.nf, b.q
+    cell_px, nf = b.cell_px, b.nf
     # fit region: inside the border's outer side by >= 3 px, never beyond the inner bits
     a = np.minimum(np.maximum((cell_px - 3.0) / np.maximum(cell_px, 1e-9), 0.0), 0.6)
     lo, hi = 1.0 - a, nf - 1.0 + a
     band = np.minimum(band_px / np.maximum(cell_px, 1e-9), 0.5)
     # every pixel of the bounding box of each code's fit region (its quad shrunk about the
-    # centre to the region, plus 2 px for perspective and the start's error), flattened
-    # with its code index
-    qc = q.sum(axis=1, keepdims=True) * 0.25
-    shrink = ((hi - lo) / nf)[:, None, None]
-    qr = qc + (q - qc) * shrink
-    lo_xy = np.maximum(np.floor(qr.min(axis=1) - 2.0), 0.0).astype(np.int64)
-    hi_xy = np.ceil(qr.max(axis=1) + 2.0).astype(np.int64)
-    x0, y0 = lo_xy[:, 0], lo_xy[:, 1]
-    x1 = np.minimum(hi_xy[:, 0], W_img - 1)
-    y1 = np.minimum(hi_xy[:, 1], H_img - 1)
-    bw, bh = x1 - x0 + 1, y1 - y0 + 1
+    # centre to the region), flattened with its code index
+    x0, y0, bw, bh = pixel_boxes(b.q, (hi - lo) / nf, shape)
     small = (bw < 4) | (bh < 4)
     for c in np.nonzero(small & b.valid)[0]:
         b.reasons[c] = "too small"

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["g_to_matrix", "homographies", "inverse_3x3", "model", "phi_and_density", "phi_cdf",
-           "solve_batched"]
+__all__ = ["code_coords", "g_to_matrix", "homographies", "inverse_3x3", "model",
+           "phi_and_density", "phi_cdf", "solve_batched"]
 
 
 def phi_cdf(z: np.ndarray) -> np.ndarray:
@@ -32,6 +32,22 @@ def phi_and_density(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     c1, c3 = 0.7978845608028654, 0.035677408136300125
     th = np.tanh(z * (c1 + c3 * z * z))
     return 0.5 + 0.5 * th, 0.5 * (1.0 - th * th) * (c1 + 3.0 * c3 * z * z)
+
+
+def code_coords(g: np.ndarray, x: np.ndarray, y: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where samples lie in each code's cells.
+
+    Args:
+        g: (C, 8) homographies, local normalised frame -> cells.
+        x, y: (C, M) the samples' local normalised coordinates.
+
+    Returns:
+        (u, v: (C, M) cells; 1 / D: (C, M) the inverse of the homography's denominator).
+    """
+    invD = 1.0 / (g[:, 6, None] * x + g[:, 7, None] * y + 1.0)
+    return ((g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) * invD,
+            (g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) * invD, invD)
 
 
 def g_to_matrix(g: np.ndarray) -> np.ndarray:
@@ -92,7 +108,7 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
             1 .. n_max - 1 between them contribute.
         bits_t: Their transpose (column, row).
         n_max: Cells per side (border included) of the largest code.
-        jacobian: Also return the Jacobian (parameters g, B, W, s_u, s_v).
+        jacobian: Also return the Jacobian (parameters g, B, W, s_u, s_v, rho).
         blur_jacobian: Fill the blur's rows of the Jacobian (zeros otherwise).
         rho: (C,) correlation of the blur's u and v (an oblique view or a motion streak
             makes the blur an ellipse whose axes are not the code's): each cell's blurred
@@ -102,11 +118,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     The heavy arrays are laid out (C, 2, boundaries, M) (u/v, cell boundary, sample) in
     float32 so that every reduction runs over a middle axis with contiguous samples.
     """
-    D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
-    invD = 1.0 / D
-    uv = np.empty((x.shape[0], 2, x.shape[1]))
-    uv[:, 0] = (g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) * invD
-    uv[:, 1] = (g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) * invD
+    u, v, invD = code_coords(g, x, y)
+    uv = np.stack([u, v], axis=1)
     k = np.arange(1, n_max, dtype=np.float32)[:, None]
     inv_s = (1.0 / s).astype(np.float32)[:, :, None, None]  # (C, 2, 1, 1)
     z = (uv.astype(np.float32)[:, :, None, :] - k) * inv_s  # (C, 2, n - 1, M)
@@ -116,7 +129,13 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     col, row = w[:, 0], w[:, 1]
     T = np.matmul(bits_t, row)  # (C, n, M): T[j] = sum_r bits[r, j] row_r
     S = (T * col).sum(axis=1, dtype=np.float64)
-    corr = None if rho is None else _correlated(z, th, bits_t, rho)
+    # the exact derivative of the tanh form of Phi (consistent with the model, no exp):
+    # d/dz [0.5 + 0.5 tanh(z (c1 + c3 z^2))] = 0.5 (1 - tanh^2) (c1 + 3 c3 z^2)
+    pz = None
+    if jacobian or rho is not None:
+        pz = np.float32(0.5) * (np.float32(1.0) - th * th) * (
+            np.float32(0.7978845608028654) + np.float32(3 * 0.035677408136300125) * z * z)
+    corr = None if rho is None or pz is None else _correlated(z, pz, bits_t, rho)
     if corr is not None:
         S = S + corr[0]
     B, W = lev[:, 0, None], lev[:, 1, None]
@@ -124,11 +143,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     I = B + amp * S
     if not jacobian:
         return I, None
+    assert pz is not None  # computed for the Jacobian
     Tv = np.matmul(bits, col)  # (C, n, M): Tv[r] = sum_j bits[r, j] col_j
-    # the exact derivative of the tanh form of Phi (consistent with the model, no exp):
-    # d/dz [0.5 + 0.5 tanh(z (c1 + c3 z^2))] = 0.5 (1 - tanh^2) (c1 + 3 c3 z^2)
-    pz = np.float32(0.5) * (np.float32(1.0) - th * th) * (
-        np.float32(0.7978845608028654) + np.float32(3 * 0.035677408136300125) * z * z)
     dw = (pz[:, :, :-1] - pz[:, :, 1:]) * inv_s  # d w / d (u or v)
     dS = np.empty((x.shape[0], 2, x.shape[1]))  # dS/du, dS/dv
     dS[:, 0] = (T * dw[:, 0]).sum(axis=1, dtype=np.float64)
@@ -153,7 +169,7 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     J[:, 3] = a_v * x
     J[:, 4] = a_v * y
     J[:, 5] = a_v
-    wq = -(a_u * uv[:, 0] + a_v * uv[:, 1])
+    wq = -(a_u * u + a_v * v)
     J[:, 6] = wq * x
     J[:, 7] = wq * y
     J[:, 8] = 1.0 - S
@@ -162,7 +178,7 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     return I, J
 
 
-def _correlated(z: np.ndarray, th: np.ndarray, bits_t: np.ndarray, rho: np.ndarray
+def _correlated(z: np.ndarray, p: np.ndarray, bits_t: np.ndarray, rho: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cells' blurred boxes' terms in the blur's correlation ``rho``.
 
@@ -172,7 +188,8 @@ def _correlated(z: np.ndarray, th: np.ndarray, bits_t: np.ndarray, rho: np.ndarr
 
     Args:
         z: (C, 2, n - 1, M) the standardised distances to the cell boundaries (model's).
-        th: The tanh of the model's Φ form at ``z``.
+        p: φ at ``z`` in the model's tanh form (its Φ's derivative, so that rho = 0 is the
+            model exactly).
         bits_t: (C, n - 2, n - 2) the inner cells, transposed (column, row).
         rho: (C,) the correlation.
 
@@ -180,9 +197,6 @@ def _correlated(z: np.ndarray, th: np.ndarray, bits_t: np.ndarray, rho: np.ndarr
         (the terms' sum (C, M); their derivative along u and v times the blur, (C, 2, M),
         to the first order in rho; their derivative in rho (C, M)).
     """
-    # φ in the model's tanh form (its derivative), so that rho = 0 is the model exactly
-    p = np.float32(0.5) * (np.float32(1.0) - th * th) * (
-        np.float32(0.7978845608028654) + np.float32(3 * 0.035677408136300125) * z * z)
     q = z * p
     d1 = p[:, :, 1:] - p[:, :, :-1]   # (C, 2, n - 2, M): h1 at the far side minus the near
     d2 = q[:, :, :-1] - q[:, :, 1:]   # h2 likewise (h2(α) = -z φ(z))

@@ -39,8 +39,8 @@ from statistics import NormalDist
 
 import numpy as np
 
-from drovisio.detect.corners.model import model, phi_and_density, phi_cdf, solve_batched
-from drovisio.detect.corners.samples import select_samples
+from drovisio.detect.corners.model import code_coords, model, phi_and_density, solve_batched
+from drovisio.detect.corners.samples import pixel_boxes, select_samples
 
 __all__ = ["Interior", "OuterFit", "f_quantile", "fit_outer", "model_outer"]
 
@@ -69,25 +69,17 @@ def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y:
         (intensity (C, M), Jacobian or None).
     """
     I, J = model(g, lev[:, :2], s, x, y, bits, bits_t, n_max, jacobian=jacobian, rho=rho)
-    D = g[:, 6, None] * x + g[:, 7, None] * y + 1.0
-    invD = 1.0 / D
-    u = (g[:, 0, None] * x + g[:, 1, None] * y + g[:, 2, None]) * invD
-    v = (g[:, 3, None] * x + g[:, 4, None] * y + g[:, 5, None]) * invD
-    su, sv = s[:, 0, None], s[:, 1, None]
-    n = nf[:, None]
-    Fu0, fu0 = phi_and_density(u / su)
-    Fu1, fu1 = phi_and_density((u - n) / su)
-    Fv0, fv0 = phi_and_density(v / sv)
-    Fv1, fv1 = phi_and_density((v - n) / sv)
-    Pu, Pv = Fu0 - Fu1, Fv0 - Fv1
+    u, v, invD = code_coords(g, x, y)
+    Pu, du_u, ds_u = _blurred_side(u, s[:, 0], nf)
+    Pv, dv_v, ds_v = _blurred_side(v, s[:, 1], nf)
     out = 1.0 - Pu * Pv
     amp_o = (lev[:, 2] - lev[:, 0])[:, None]
     I = I + amp_o * out
     if not jacobian:
         return I, None
     assert J is not None  # asked for
-    a_u = -amp_o * invD * Pv * (fu0 - fu1) / su
-    a_v = -amp_o * invD * Pu * (fv0 - fv1) / sv
+    a_u = -amp_o * invD * Pv * du_u
+    a_v = -amp_o * invD * Pu * dv_v
     wq = -(a_u * u + a_v * v)
     J13 = np.empty((J.shape[0], 13, J.shape[2]))
     J13[:, :12] = J[:, :12]
@@ -100,11 +92,30 @@ def model_outer(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y:
     J13[:, 6] += wq * x
     J13[:, 7] += wq * y
     J13[:, 8] -= out
-    zu0, zu1, zv0, zv1 = u / su, (u - n) / su, v / sv, (v - n) / sv
-    J13[:, 10] += amp_o * -Pv * (-fu0 * zu0 + fu1 * zu1) / su
-    J13[:, 11] += amp_o * -Pu * (-fv0 * zv0 + fv1 * zv1) / sv
+    J13[:, 10] -= amp_o * Pv * ds_u
+    J13[:, 11] -= amp_o * Pu * ds_v
     J13[:, 12] = out
     return I, J13
+
+
+def _blurred_side(t: np.ndarray, s: np.ndarray, nf: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The code's extent [0, n] along one of its axes, blurred: ``P(t) = Φ(t / s) −
+    Φ((t − n) / s)`` and its derivatives in ``t`` and in ``s``.
+
+    Args:
+        t: (C, M) the samples' coordinate along the axis, cells.
+        s: (C,) the blur along it, cells.
+        nf: (C,) cells per side, border included.
+
+    Returns:
+        (P, dP/dt, dP/ds), each (C, M).
+    """
+    s_, n = s[:, None], nf[:, None]
+    z0, z1 = t / s_, (t - n) / s_
+    F0, f0 = phi_and_density(z0)
+    F1, f1 = phi_and_density(z1)
+    return F0 - F1, (f0 - f1) / s_, (f1 * z1 - f0 * z0) / s_
 
 
 def f_quantile(p: float, d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
@@ -133,16 +144,10 @@ class OuterFit:
     """(C,) bool: the refit is kept (the surround is uniform paper)."""
     g: np.ndarray
     """(C, 8) the refit homographies (the interior's where not used)."""
-    lev: np.ndarray
-    """(C, 3) black, white, surround levels."""
-    s: np.ndarray
-    """(C, 2) blur, cells."""
     A: np.ndarray
     """(C, 13, 13) the last Gauss–Newton matrix."""
     sig2: np.ndarray
     """(C,) the refit's residual variance, grey levels²."""
-    f_ratio: np.ndarray
-    """(C,) the surround's residual variance over the interior fit's (NaN: not refitted)."""
 
 
 def _ring_bits(ns: np.ndarray) -> np.ndarray:
@@ -179,16 +184,8 @@ def _outer_samples(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, g: np.ndar
     Returns:
         (xs, ys: local coordinates, vals: grey levels, wts: 1 where a sample is), (C, Mc).
     """
-    H_img, W_img = gray.shape[:2]
     nf = ns.astype(np.float64)
-    qc = q.sum(axis=1, keepdims=True) * 0.25
-    grow = ((nf + 2.0 * band) / nf)[:, None, None]
-    qr = qc + (q - qc) * grow
-    lo_xy = np.maximum(np.floor(qr.min(axis=1) - 2.0), 0.0).astype(np.int64)
-    hi_xy = np.ceil(qr.max(axis=1) + 2.0).astype(np.int64)
-    x0, y0 = lo_xy[:, 0], lo_xy[:, 1]
-    bw = np.minimum(hi_xy[:, 0], W_img - 1) - x0 + 1
-    bh = np.minimum(hi_xy[:, 1], H_img - 1) - y0 + 1
+    x0, y0, bw, bh = pixel_boxes(q, (nf + 2.0 * band) / nf, gray.shape)
     P_box = np.where(fit & (bw > 0) & (bh > 0), bw * bh, 0)
     K = 8 * M
     P = np.minimum(P_box, K)
@@ -206,9 +203,7 @@ def _sides(g: np.ndarray, xs: np.ndarray, ys: np.ndarray, nf: np.ndarray
     Returns:
         (side (C, M) int, beyond (C, M)).
     """
-    D = g[:, 6, None] * xs + g[:, 7, None] * ys + 1.0
-    u = (g[:, 0, None] * xs + g[:, 1, None] * ys + g[:, 2, None]) / D
-    v = (g[:, 3, None] * xs + g[:, 4, None] * ys + g[:, 5, None]) / D
+    u, v, _ = code_coords(g, xs, ys)
     n = nf[:, None]
     d = np.stack([-u, u - n, -v, v - n])  # (4, C, M)
     return d.argmax(axis=0), d.max(axis=0)
@@ -216,7 +211,7 @@ def _sides(g: np.ndarray, xs: np.ndarray, ys: np.ndarray, nf: np.ndarray
 
 def _sides_uniform(g: np.ndarray, xs: np.ndarray, ys: np.ndarray, r: np.ndarray,
                    wts: np.ndarray, nf: np.ndarray, band: np.ndarray, shade: np.ndarray,
-                   false_rate: float) -> tuple[np.ndarray, np.ndarray]:
+                   false_rate: float) -> np.ndarray:
     """Whether the surround is uniform along each of the four sides.
 
     Each side's outer edge is judged against itself: the residuals on its outer half (the
@@ -234,7 +229,7 @@ def _sides_uniform(g: np.ndarray, xs: np.ndarray, ys: np.ndarray, r: np.ndarray,
         false_rate: Chance that a uniform surround is refused.
 
     Returns:
-        (the worst side's variance ratio outer / inner half (C,), uniform (C,) bool).
+        (C,) bool: uniform.
     """
     side, beyond = _sides(g, xs, ys, nf)
     near = (wts > 0) & (beyond > -band[:, None])
@@ -253,8 +248,7 @@ def _sides_uniform(g: np.ndarray, xs: np.ndarray, ys: np.ndarray, r: np.ndarray,
     f_ok = f <= f_quantile(rate, n_o, n_i)
     m_ok = np.abs(mean_o) <= z * np.sqrt(s2_i / np.maximum(n_o, 1.0) + shade[:, None] ** 2)
     seen = (n_o >= 4) & (n_i >= 4)
-    ok = np.all((f_ok & m_ok) | ~seen, axis=1) & (seen.sum(axis=1) >= 3)
-    return np.where(seen, f, 0.0).max(axis=1), ok
+    return np.all((f_ok & m_ok) | ~seen, axis=1) & (seen.sum(axis=1) >= 3)
 
 
 def _paper(lev3: np.ndarray, var_ow: np.ndarray, white_spread: np.ndarray, z: float
@@ -279,12 +273,8 @@ def _start_surround(g: np.ndarray, lev: np.ndarray, s: np.ndarray, rho: np.ndarr
     """(C, 3) the interior fit's levels and the surround's, the latter by linear least
     squares with everything else held at the interior fit."""
     I0, _ = model(g, lev, s, xs, ys, bits_in, bits_t, n_max, jacobian=False, rho=rho)
-    D = g[:, 6, None] * xs + g[:, 7, None] * ys + 1.0
-    u = (g[:, 0, None] * xs + g[:, 1, None] * ys + g[:, 2, None]) / D
-    v = (g[:, 3, None] * xs + g[:, 4, None] * ys + g[:, 5, None]) / D
-    su, sv, n = s[:, 0, None], s[:, 1, None], nf[:, None]
-    box = ((phi_cdf(u / su) - phi_cdf((u - n) / su))
-           * (phi_cdf(v / sv) - phi_cdf((v - n) / sv)))
+    u, v, _ = code_coords(g, xs, ys)
+    box = _blurred_side(u, s[:, 0], nf)[0] * _blurred_side(v, s[:, 1], nf)[0]
     out = (1.0 - box) * wts  # the surround's share of each sample
     den = (out * out).sum(axis=1)
     amp_o = ((vals - I0) * out).sum(axis=1) / np.maximum(den, 1e-9)
@@ -309,12 +299,12 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, rho: np
                          ys: np.ndarray, vals: np.ndarray, wts: np.ndarray,
                          bits_in: np.ndarray, bits_t: np.ndarray, n_max: int, nf: np.ndarray,
                          iterations: int, lm_lambda: float
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The refit of (G, B, W, s_u, s_v, O) of the codes given (copies).
 
     Returns:
-        (g (C, 8), levels (C, 3), blur (C, 2), the last Gauss–Newton matrix (C, 13, 13), the
-        weighted residuals at the solution (C, M)).
+        (g (C, 8), levels (C, 3), the last Gauss–Newton matrix (C, 13, 13), the weighted
+        residuals at the solution (C, M)).
     """
     g, lev3, s = g.copy(), lev3.copy(), s.copy()
     lam = np.full(len(g), lm_lambda)
@@ -340,7 +330,7 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, rho: np
         g[better], lev3[better], s[better] = g_n[better], lev_n[better], s_n[better]
         r[better] = r_n[better]
         lam = np.where(better, np.maximum(lam / 3.0, 1e-6), lam * 5.0)
-    return g, lev3, s, A, r
+    return g, lev3, A, r
 
 
 @dataclass
@@ -405,27 +395,25 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
     lev3 = _start_surround(it.g, it.lev, it.s, it.rho, xo, yo, vo, wo, bits_in, bits_t, n_max,
                            nf)
     live &= _paper(lev3, np.zeros(C), it.white_spread, 2.0 * z)
-    g, s = it.g.copy(), it.s.copy()
+    g = it.g.copy()
     used = np.zeros(C, bool)
-    f_ratio = np.full(C, np.nan)
     A = np.tile(np.eye(13), (C, 1, 1))
     sig2 = np.ones(C)
     k = np.nonzero(live)[0]
     if k.size == 0:
-        return OuterFit(used, g, lev3, s, A, sig2, f_ratio)
+        return OuterFit(used, g, A, sig2)
     xo, yo, vo, wo = _outer_samples(grid, gray, q, it.g, centre, scale, ns, band, live,
                                     max_samples)
     xs = np.concatenate([it.xs[k], xo[k]], axis=1)
     ys = np.concatenate([it.ys[k], yo[k]], axis=1)
     vals = np.concatenate([it.vals[k], vo[k]], axis=1)
     wts = np.concatenate([it.wts[k], wo[k]], axis=1)
-    g_k, lev_k, s_k, A_k, r_k = _levenberg_marquardt(
-        g[k], lev3[k], s[k], it.rho[k], xs, ys, vals, wts, bits_in[k], bits_t[k], n_max, nf[k],
-        iterations, lm_lambda)
+    g_k, lev_k, A_k, r_k = _levenberg_marquardt(
+        g[k], lev3[k], it.s[k], it.rho[k], xs, ys, vals, wts, bits_in[k], bits_t[k], n_max,
+        nf[k], iterations, lm_lambda)
     sig2_k = (r_k * r_k).sum(axis=1) / np.maximum(wts.sum(axis=1) - 13.0, 1.0)
-    f_k, ok = _sides_uniform(g_k, xs, ys, r_k, wts, nf[k], band[k],
-                             it.white_spread[k] * (lev_k[:, 1] - lev_k[:, 0]), false_rate)
+    ok = _sides_uniform(g_k, xs, ys, r_k, wts, nf[k], band[k],
+                        it.white_spread[k] * (lev_k[:, 1] - lev_k[:, 0]), false_rate)
     ok &= _paper(lev_k, _var_o_minus_w(A_k, sig2_k, ok), it.white_spread[k], z)
-    g[k], lev3[k], s[k], A[k], sig2[k], f_ratio[k], used[k] = g_k, lev_k, s_k, A_k, sig2_k, \
-        f_k, ok
-    return OuterFit(used, g, lev3, s, A, sig2, f_ratio)
+    g[k], A[k], sig2[k], used[k] = g_k, A_k, sig2_k, ok
+    return OuterFit(used, g, A, sig2)

@@ -15,7 +15,7 @@ from drovisio import _numba
 from drovisio.camera import Camera
 from drovisio.detect.corners import samples_kernels as _ck
 
-__all__ = ["RANDOM", "grid_lookup", "normalized_grid", "select_samples"]
+__all__ = ["RANDOM", "grid_lookup", "normalized_grid", "pixel_boxes", "select_samples"]
 
 RANDOM = np.random.default_rng(12345).random(1 << 16) * 0.999
 """The fixed table of random numbers both paths draw from (deterministic samples)."""
@@ -59,6 +59,30 @@ def grid_lookup(grid: np.ndarray, px: np.ndarray) -> np.ndarray:
            + (g[i + W] * (1 - fx) + g[i + W + 1] * fx) * fy)
     out[~inside] = np.nan
     return out
+
+
+def pixel_boxes(q: np.ndarray, scale: np.ndarray, shape: tuple[int, ...]
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The box of pixels around each code's quad scaled about its centre, with 2 px more for
+    perspective and the start's error, clipped to the image.
+
+    Args:
+        q: (C, 4, 2) corners, px.
+        scale: (C,) how much the quad is grown (> 1) or shrunk about its centre.
+        shape: The image's shape (H, W, ...).
+
+    Returns:
+        (x0, y0, bw, bh), each (C,) int64: top-left pixel, width and height.
+    """
+    H_img, W_img = shape[:2]
+    qc = q.sum(axis=1, keepdims=True) * 0.25
+    qr = qc + (q - qc) * scale[:, None, None]
+    lo_xy = np.maximum(np.floor(qr.min(axis=1) - 2.0), 0.0).astype(np.int64)
+    hi_xy = np.ceil(qr.max(axis=1) + 2.0).astype(np.int64)
+    x0, y0 = lo_xy[:, 0], lo_xy[:, 1]
+    bw = np.minimum(hi_xy[:, 0], W_img - 1) - x0 + 1
+    bh = np.minimum(hi_xy[:, 1], H_img - 1) - y0 + 1
+    return x0, y0, bw, bh
 
 
 def _select_samples(grid: np.ndarray, gray: np.ndarray, x0: np.ndarray, y0: np.ndarray,
