@@ -15,6 +15,7 @@ import pytest
 
 from drovisio.camera import Camera
 from drovisio.detect.corners import refine_codes
+from drovisio.detect.corners.cells import cell_margins
 from drovisio.detect.corners.model import model
 from drovisio.detect.corners.outer import f_quantile, model_outer
 from drovisio.layout import aruco_code_bits
@@ -174,6 +175,25 @@ def test_the_blur_correlation_row_is_its_derivative():
         num = (Ip - Im) / (2 * h)
         assert np.abs(num).max() > 5.0   # the correlation does move the model
         assert np.abs(num - J[:, 12]).max() < 2e-3 * np.abs(num).max()
+
+
+def test_the_cells_read_back_with_the_blur_the_fit_found():
+    # samples drawn by the model itself with a strongly correlated blur: read back with that
+    # correlation, every cell's whiteness is its bit; read back as if the blur were along the
+    # code's axes, the cells near the black-white corners are misread
+    bits, bits_t, g, s, x, y = _two_codes(5, 4.5)
+    n = BITS.shape[0]
+    lev = np.array([[30.0, 200.0], [20.0, 180.0]])
+    rho = np.array([0.55, -0.55])
+    vals, _ = model(g, lev, s, x, y, bits, bits_t, n, jacobian=False, rho=rho)
+    wts = np.ones_like(vals)
+    pad = np.stack([BITS.astype(np.float64)] * 2)
+    ns = np.full(2, n)
+    _, a, expected = cell_margins(g, lev, s, x, y, vals, wts, pad, ns, rho)
+    seen = np.isfinite(a)
+    assert np.abs(a - expected)[seen].max() < 1e-4
+    _, a0, _ = cell_margins(g, lev, s, x, y, vals, wts, pad, ns)
+    assert np.abs(a0 - expected)[seen].max() > 0.05
 
 
 def test_an_oblique_code_blurred_round_in_the_image_is_fitted_true():

@@ -13,19 +13,29 @@ from statistics import NormalDist
 
 import numpy as np
 
-from drovisio.detect.corners.model import code_coords, phi_cdf, solve_batched
+from drovisio.detect.corners.model import (
+    code_coords,
+    correlation_terms,
+    phi_cdf,
+    phi_density,
+    solve_batched,
+)
 
 __all__ = ["cell_margins", "cell_verdict", "cell_verdicts"]
 
 
 def cell_margins(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.ndarray,
-                 vals: np.ndarray, wts: np.ndarray, bits: np.ndarray, ns: np.ndarray
+                 vals: np.ndarray, wts: np.ndarray, bits: np.ndarray, ns: np.ndarray,
+                 rho: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per code, how clearly its inner cells read as its bits (see RefinedCode.cell_margin).
 
     At the fitted geometry and blur, each inner cell's whiteness a_k is estimated by linear
-    least squares, (I - B)/(W - B) = sum_k a_k row_r(v) col_j(u), with a weak pull toward the
-    expected bit (cells no sample sees keep it).
+    least squares, (I - B)/(W - B) = sum_k a_k box_k(u, v), with a weak pull toward the
+    expected bit (cells no sample sees keep it). ``box_k`` is cell k blurred as the fit
+    blurs it: ``row_r(v) col_j(u)``, plus the terms in the blur's correlation ``rho`` (C,)
+    when given (:func:`.model.model`), so that an oblique code's cells are read with the
+    blur that was fitted to them.
 
     Returns:
         (margin (C,): the least signed margin, a - 0.5 for white cells and 0.5 - a for black
@@ -37,12 +47,21 @@ def cell_margins(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y
     u, v = u64.astype(np.float32), v64.astype(np.float32)
     k = np.arange(1, n, dtype=np.float32)[:, None]  # the boundaries of the inner cells
     inv_s = (1.0 / s).astype(np.float32)
-    Au = phi_cdf((u[:, None, :] - k) * inv_s[:, 0, None, None])
-    Av = phi_cdf((v[:, None, :] - k) * inv_s[:, 1, None, None])
+    zu = (u[:, None, :] - k) * inv_s[:, 0, None, None]
+    zv = (v[:, None, :] - k) * inv_s[:, 1, None, None]
+    Au, Av = phi_cdf(zu), phi_cdf(zv)
+    w32 = wts[:, None, :].astype(np.float32)
     col = Au[:, :-1] - Au[:, 1:]  # (C, n-2, M) inner columns
-    row = (Av[:, :-1] - Av[:, 1:]) * wts[:, None, :].astype(np.float32)  # weights 0/1
+    row = (Av[:, :-1] - Av[:, 1:]) * w32  # weights 0/1
     m = n - 2
     basis = (row[:, :, None, :] * col[:, None, :, :]).reshape(C, m * m, -1)  # (C, cells, M)
+    if rho is not None and np.any(rho != 0):
+        r = rho.astype(np.float32)[:, None, None, None]
+        d1u, d2u = correlation_terms(zu, phi_density(zu))
+        d1v, d2v = correlation_terms(zv, phi_density(zv))
+        basis += (r * (d1v * w32)[:, :, None, :] * d1u[:, None, :, :]).reshape(C, m * m, -1)
+        basis += (0.5 * r * r * (d2v * w32)[:, :, None, :] * d2u[:, None, :, :]
+                  ).reshape(C, m * m, -1)
     amp = lev[:, 1] - lev[:, 0]
     yv = ((vals - lev[:, 0, None]) / np.where(np.abs(amp) > 1e-9, amp, 1.0)[:, None]
           ).astype(np.float32)

@@ -502,7 +502,7 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     lev, s, valid, cell_px = fit.lev, fit.s, b.valid, b.cell_px
     sig2 = fit.cost / np.maximum(smp.cnt - 13.0, 1.0)
     margin, cell_a, cell_bits = cell_margins(b.g, lev, s, smp.xs, smp.ys, smp.vals, smp.wts,
-                                             b.bits_pad, b.ns)
+                                             b.bits_pad, b.ns, fit.rho)
     tol_cells = np.broadcast_to(np.asarray(tolerable_cells, np.int64), (C,))
     cells = cell_verdicts(cell_a, cell_bits, tol_cells)
     px_c, xn_c, cov_px = _corners(b, camera, _parameter_covariance(fit.A, sig2, valid))

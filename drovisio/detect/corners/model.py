@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["code_coords", "g_to_matrix", "homographies", "inverse_3x3", "model",
-           "phi_and_density", "phi_cdf", "solve_batched"]
+__all__ = ["code_coords", "correlation_terms", "g_to_matrix", "homographies", "inverse_3x3",
+           "model", "phi_and_density", "phi_cdf", "phi_density", "solve_batched"]
 
 
 def phi_cdf(z: np.ndarray) -> np.ndarray:
@@ -32,6 +32,39 @@ def phi_and_density(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     c1, c3 = 0.7978845608028654, 0.035677408136300125
     th = np.tanh(z * (c1 + c3 * z * z))
     return 0.5 + 0.5 * th, 0.5 * (1.0 - th * th) * (c1 + 3.0 * c3 * z * z)
+
+
+def phi_density(z: np.ndarray) -> np.ndarray:
+    """The derivative of :func:`phi_cdf` (the normal density in the same tanh form, so that
+    a model built from both is consistent)."""
+    t = z.dtype.type
+    return _density(z, np.tanh(z * (t(0.7978845608028654) + t(0.035677408136300125) * z * z)))
+
+
+def _density(z: np.ndarray, th: np.ndarray) -> np.ndarray:
+    """:func:`phi_density` from the tanh :func:`phi_cdf` already computed at ``z``:
+    d/dz [0.5 + 0.5 tanh(z (c1 + c3 z²))] = 0.5 (1 − tanh²) (c1 + 3 c3 z²)."""
+    t = z.dtype.type
+    return t(0.5) * (t(1.0) - th * th) * (t(0.7978845608028654)
+                                          + t(3 * 0.035677408136300125) * z * z)
+
+
+def correlation_terms(z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each cell's first- and second-order terms in the blur's correlation along one axis.
+
+    With ``h1 = φ`` and ``h2(α) = α φ(α)`` (α = −z) differenced across each cell, a cell's
+    box blurred by a bivariate normal of correlation rho is the product of its two marginal
+    boxes plus ``rho · D1(u) D1(v) + rho² / 2 · D2(u) D2(v)`` (the tetrachoric series).
+
+    Args:
+        z: (..., boundaries, M) the standardised distances to the cell boundaries.
+        p: φ at ``z`` (:func:`phi_density`).
+
+    Returns:
+        (D1, D2), each (..., boundaries - 1, M): per cell, far side minus near side.
+    """
+    q = z * p
+    return p[..., 1:, :] - p[..., :-1, :], q[..., :-1, :] - q[..., 1:, :]
 
 
 def code_coords(g: np.ndarray, x: np.ndarray, y: np.ndarray
@@ -129,12 +162,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     col, row = w[:, 0], w[:, 1]
     T = np.matmul(bits_t, row)  # (C, n, M): T[j] = sum_r bits[r, j] row_r
     S = (T * col).sum(axis=1, dtype=np.float64)
-    # the exact derivative of the tanh form of Phi (consistent with the model, no exp):
-    # d/dz [0.5 + 0.5 tanh(z (c1 + c3 z^2))] = 0.5 (1 - tanh^2) (c1 + 3 c3 z^2)
-    pz = None
-    if jacobian or rho is not None:
-        pz = np.float32(0.5) * (np.float32(1.0) - th * th) * (
-            np.float32(0.7978845608028654) + np.float32(3 * 0.035677408136300125) * z * z)
+    # the exact derivative of the tanh form of Phi (consistent with the model, no exp)
+    pz = _density(z, th) if jacobian or rho is not None else None
     corr = None if rho is None or pz is None else _correlated(z, pz, bits_t, rho)
     if corr is not None:
         S = S + corr[0]
@@ -180,11 +209,8 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
 
 def _correlated(z: np.ndarray, p: np.ndarray, bits_t: np.ndarray, rho: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cells' blurred boxes' terms in the blur's correlation ``rho``.
-
-    With ``h1 = φ`` and ``h2(α) = α φ(α)`` differenced across each cell (α = −z), the
-    bivariate normal's box is the product of the marginal ones plus
-    ``rho · D1(u) D1(v) + rho² / 2 · D2(u) D2(v)``.
+    """The cells' blurred boxes' terms in the blur's correlation ``rho``
+    (:func:`correlation_terms`), summed over the code's white cells.
 
     Args:
         z: (C, 2, n - 1, M) the standardised distances to the cell boundaries (model's).
@@ -197,9 +223,7 @@ def _correlated(z: np.ndarray, p: np.ndarray, bits_t: np.ndarray, rho: np.ndarra
         (the terms' sum (C, M); their derivative along u and v times the blur, (C, 2, M),
         to the first order in rho; their derivative in rho (C, M)).
     """
-    q = z * p
-    d1 = p[:, :, 1:] - p[:, :, :-1]   # (C, 2, n - 2, M): h1 at the far side minus the near
-    d2 = q[:, :, :-1] - q[:, :, 1:]   # h2 likewise (h2(α) = -z φ(z))
+    d1, d2 = correlation_terms(z, p)  # (C, 2, n - 2, M)
     T1 = np.matmul(bits_t, d1[:, 1])  # (C, n - 2, M): sum_r bits[r, j] D1_r(v)
     T2 = np.matmul(bits_t, d2[:, 1])
     s11 = (T1 * d1[:, 0]).sum(axis=1, dtype=np.float64)
