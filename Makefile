@@ -53,7 +53,7 @@ test: $(STAMP)
 	exit $$rc
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check drovisio webtool
+	$(VENV)/bin/ruff check drovisio webtool tests
 	$(VENV)/bin/mypy
 
 samples: $(STAMP)

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from drovisio.layout import (
     DEFAULT_PALETTE,
@@ -220,8 +221,8 @@ def test_save_load_round_trip(tmp_path):
         out = save_layout(lay, tmp_path / f"{name}.json")
         back = load_layout(out)
         assert back == lay and back.source == out
-        with pytest.raises(Exception):
-            back.name = "renamed"  # frozen
+        with pytest.raises(ValidationError, match="frozen"):
+            back.name = "renamed"
         assert back.model_dump() == lay.model_dump()
         # The shipped files are exactly what save_layout writes.
         assert out.read_text() == (shipped_layouts_dir() / f"{name}.json").read_text()

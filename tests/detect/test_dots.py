@@ -267,7 +267,7 @@ def rendered(drick, cam):
 def test_accuracy_on_rendered_scenes(drick, cam, rendered):
     det = DotDetector(cam, [drick])
     n_truth = n_found = 0
-    for scene, res in rendered:
+    for _scene, res in rendered:
         poses = det.detect(res.image, gravity=gravity_in_camera(res.camera_from_world))
         for truth in res.bricks:
             T = truth.camera_from_brick
@@ -295,7 +295,7 @@ def test_centres_are_unbiased(drick, cam, rendered):
     det = DotDetector(cam, [drick])
     m = det.models[0]
     errs = []
-    for scene, res in rendered:
+    for _scene, res in rendered:
         for p in det.detect(res.image, gravity=gravity_in_camera(res.camera_from_world)):
             for truth in res.bricks:
                 if np.linalg.norm(p.tvec - truth.camera_from_brick[:3, 3]) < 0.05:

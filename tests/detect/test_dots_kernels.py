@@ -59,12 +59,12 @@ def frames(drick, cam):
     return out
 
 
-def _both(fn):
-    """fn() with the kernels on, then off (numpy)."""
+def _both(fn, *args, **kwargs):
+    """fn(*args, **kwargs) with the kernels on, then off (numpy)."""
     K.set_enabled(True)
-    a = fn()
+    a = fn(*args, **kwargs)
     K.set_enabled(False)
-    b = fn()
+    b = fn(*args, **kwargs)
     K.set_enabled(True)
     return a, b
 
@@ -83,7 +83,7 @@ def test_contour_measures_and_blobs(drick, cam, frames):
             cs, _ = cv2.findContours(m, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
             if not cs:
                 continue
-            a, b = _both(lambda: _measure(list(cs), k, m.shape, flt=det.blob_filter))
+            a, b = _both(_measure, list(cs), k, m.shape, flt=det.blob_filter)
             for name in ("x", "y", "area", "a", "b", "angle", "perimeter", "circularity",
                          "fill", "ellipse_err", "cov"):
                 np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9,
@@ -97,7 +97,7 @@ def test_contour_measures_and_blobs(drick, cam, frames):
                 assert a.convexity[j] == pytest.approx(want, rel=1e-9, abs=1e-12)
                 n_checked += 1
         # the whole blob stage: the same blobs
-        a, b = _both(lambda: find_blobs_multi(masks, det.blob_filter, shape=m.shape)[0])
+        (a, _), (b, _) = _both(find_blobs_multi, masks, det.blob_filter, shape=m.shape)
         assert len(a) == len(b)
         np.testing.assert_allclose(a.x, b.x, atol=1e-9)
         np.testing.assert_allclose(a.holes, b.holes, atol=1e-12)
@@ -108,7 +108,7 @@ def test_subpixel_centres(drick, cam, frames):
     det = DotDetector(cam, [drick])
     for img, _ in frames:
         blobs, _ = det.blobs(img)
-        (ca, ka), (cb, kb) = _both(lambda: refine_centers(img, blobs))
+        (ca, ka), (cb, kb) = _both(refine_centers, img, blobs)
         assert ca.shape == (len(blobs), 2)
         # the numpy version works in float32
         np.testing.assert_allclose(ca, cb, atol=2e-3)
@@ -142,18 +142,18 @@ def test_hypotheses_and_assignment(drick, cam, frames):
         blobs, _ = det.blobs(img)
         q, cov = det._blob_geometry(blobs)
         geo = BlobGeometry.build(q, cov, blobs.color, ~blobs.border)
-        ha, hb = _both(lambda: generate_hypotheses(m, geo, cfg.seeds_per_blob, cfg.ratio_tol,
-                                                   cfg.match_tol, cfg.min_dots))
+        ha, hb = _both(generate_hypotheses, m, geo, cfg.seeds_per_blob, cfg.ratio_tol,
+                        cfg.match_tol, cfg.min_dots)
         rows_b: dict[tuple, list[float]] = {}
         for r, s in zip(hb.assign.tolist(), hb.score.tolist()):
             rows_b.setdefault(tuple(r), []).append(s)
         for r, s in zip(ha.assign.tolist(), ha.score.tolist()):
             assert any(abs(s - sb) < 1e-9 for sb in rows_b.get(tuple(r), [])), (r, s)
-        ca, cb = _both(lambda: assign_greedy([ha], len(blobs), cfg.min_dots))
+        ca, cb = _both(assign_greedy, [ha], len(blobs), cfg.min_dots)
         assert sorted(frozenset(c.assign[c.assign >= 0].tolist()) for c in ca) == \
             sorted(frozenset(c.assign[c.assign >= 0].tolist()) for c in cb)
         # the greedy kernel equals the numpy rounds on the same rows
-        ga, gb = _both(lambda: assign_greedy([hb], len(blobs), cfg.min_dots))
+        ga, gb = _both(assign_greedy, [hb], len(blobs), cfg.min_dots)
         assert [c.assign.tolist() for c in ga] == [c.assign.tolist() for c in gb]
 
 

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+
 def _settings():
     from hypothesis import HealthCheck, settings
 

@@ -186,12 +186,12 @@ def test_a_render_too_large_for_memory_is_refused_before_it_starts(cli, tmp_path
 
 
 def test_every_upload_route_is_exempt_from_the_json_body_limit():
-    import webtool.app as webapp
-    from fastapi import UploadFile
-
     import importlib
     import pkgutil
 
+    from fastapi import UploadFile
+
+    import webtool.app as webapp
     from webtool import routes
 
     uploads = set()

@@ -15,7 +15,6 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -105,7 +104,7 @@ def test_calibrate_mount_refuses_to_overwrite_its_camera_file(cli, hostile_files
 def test_calibrate_mount_offset_is_bounded_like_the_mount_file(cli, hostile_files, tmp_path):
     """One bound: what `calibrate mount` would write, `run --mount` reads."""
     from drovisio.bounds import MOUNT_OFFSET_MAX_M
-    from drovisio.mount import MountError, body_from_camera_angles, Mount, load_mount
+    from drovisio.mount import Mount, MountError, body_from_camera_angles, load_mount
 
     rc, _, err = cli("calibrate", "mount", "--camera", hostile_files["camera"], "--offset",
                      "11", "0", "0", "--out", tmp_path / "m.json", hostile_files["images"],
