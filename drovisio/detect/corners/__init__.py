@@ -24,10 +24,10 @@ carry no blur bias; working in undistorted coordinates makes lens distortion exa
 The fit also yields, per code, the corners' 8×8 covariance (from the Jacobian and the fit's
 residual noise), the contrast, the blur, and two checks used to reject decoys and partly
 hidden codes: the goodness of fit, and a deblurred read-back of every inner cell at the fitted
-geometry and blur (its correlation included), judged by the code's own two brightness classes (:func:`cell_verdicts`: real JPEGs
-read cells at 0.7 / 0.3 that still lie 15+ spreads apart); a corner that moved farther from
-its start than the frame's measured start noise allows is refused too
-(:func:`.fit._move_limits`).
+geometry and blur (its correlation included), judged by the code's own two brightness classes
+(:func:`cell_verdicts`: real JPEGs read cells at 0.7 / 0.3 that still lie 15+ spreads apart);
+a corner that moved farther from its start than the frame's measured start noise allows is
+refused too (:func:`.fit._move_limits`).
 
 Where the code *is* surrounded by uniform paper (a printed sheet, a ChArUco square, an
 AprilTag's white ring), its outer edges are the best-placed evidence there is, and the

@@ -16,8 +16,7 @@ import numpy as np
 from drovisio.detect.corners.model import (
     code_coords,
     correlation_terms,
-    phi_cdf,
-    phi_density,
+    phi_and_density,
     solve_batched,
 )
 
@@ -49,7 +48,7 @@ def cell_margins(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y
     inv_s = (1.0 / s).astype(np.float32)
     zu = (u[:, None, :] - k) * inv_s[:, 0, None, None]
     zv = (v[:, None, :] - k) * inv_s[:, 1, None, None]
-    Au, Av = phi_cdf(zu), phi_cdf(zv)
+    (Au, pu), (Av, pv) = phi_and_density(zu), phi_and_density(zv)
     w32 = wts[:, None, :].astype(np.float32)
     col = Au[:, :-1] - Au[:, 1:]  # (C, n-2, M) inner columns
     row = (Av[:, :-1] - Av[:, 1:]) * w32  # weights 0/1
@@ -57,8 +56,8 @@ def cell_margins(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y
     basis = (row[:, :, None, :] * col[:, None, :, :]).reshape(C, m * m, -1)  # (C, cells, M)
     if rho is not None and np.any(rho != 0):
         r = rho.astype(np.float32)[:, None, None, None]
-        d1u, d2u = correlation_terms(zu, phi_density(zu))
-        d1v, d2v = correlation_terms(zv, phi_density(zv))
+        d1u, d2u = correlation_terms(zu, pu)
+        d1v, d2v = correlation_terms(zv, pv)
         basis += (r * (d1v * w32)[:, :, None, :] * d1u[:, None, :, :]).reshape(C, m * m, -1)
         basis += (0.5 * r * r * (d2v * w32)[:, :, None, :] * d2u[:, None, :, :]
                   ).reshape(C, m * m, -1)

@@ -17,36 +17,38 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["code_coords", "correlation_terms", "g_to_matrix", "homographies", "inverse_3x3",
-           "model", "phi_and_density", "phi_cdf", "phi_density", "solve_batched"]
+           "model", "phi_and_density", "phi_cdf", "solve_batched"]
+
+
+_C1, _C3 = 0.7978845608028654, 0.035677408136300125
+"""Φ(z) ≈ 0.5 + 0.5 tanh(z (c1 + c3 z²)): |error| < 2e-4, one transcendental call."""
+
+
+def _tanh(z: np.ndarray) -> np.ndarray:
+    """tanh(z (c1 + c3 z²)) in ``z``'s precision."""
+    t = z.dtype.type
+    return np.tanh(z * (t(_C1) + t(_C3) * z * z))
+
+
+def _density(z: np.ndarray, th: np.ndarray) -> np.ndarray:
+    """The tanh form's exact derivative from ``th = _tanh(z)``:
+    d/dz [0.5 + 0.5 tanh(z (c1 + c3 z²))] = 0.5 (1 − tanh²) (c1 + 3 c3 z²)."""
+    t = z.dtype.type
+    return t(0.5) * (t(1.0) - th * th) * (t(_C1) + t(3 * _C3) * z * z)
 
 
 def phi_cdf(z: np.ndarray) -> np.ndarray:
     """Standard normal CDF, tanh approximation (|error| < 2e-4; one transcendental call)."""
     h = z.dtype.type(0.5)
-    return h + h * np.tanh(z * (z.dtype.type(0.7978845608028654)
-                                + z.dtype.type(0.035677408136300125) * z * z))
+    return h + h * _tanh(z)
 
 
 def phi_and_density(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The tanh form of the normal CDF (:func:`phi_cdf`) and its exact derivative."""
-    c1, c3 = 0.7978845608028654, 0.035677408136300125
-    th = np.tanh(z * (c1 + c3 * z * z))
-    return 0.5 + 0.5 * th, 0.5 * (1.0 - th * th) * (c1 + 3.0 * c3 * z * z)
-
-
-def phi_density(z: np.ndarray) -> np.ndarray:
-    """The derivative of :func:`phi_cdf` (the normal density in the same tanh form, so that
-    a model built from both is consistent)."""
-    t = z.dtype.type
-    return _density(z, np.tanh(z * (t(0.7978845608028654) + t(0.035677408136300125) * z * z)))
-
-
-def _density(z: np.ndarray, th: np.ndarray) -> np.ndarray:
-    """:func:`phi_density` from the tanh :func:`phi_cdf` already computed at ``z``:
-    d/dz [0.5 + 0.5 tanh(z (c1 + c3 z²))] = 0.5 (1 − tanh²) (c1 + 3 c3 z²)."""
-    t = z.dtype.type
-    return t(0.5) * (t(1.0) - th * th) * (t(0.7978845608028654)
-                                          + t(3 * 0.035677408136300125) * z * z)
+    """The tanh form of the normal CDF (:func:`phi_cdf`) and its exact derivative (the
+    normal density in the same form, so that a model built from both is consistent)."""
+    th = _tanh(z)
+    h = z.dtype.type(0.5)
+    return h + h * th, _density(z, th)
 
 
 def correlation_terms(z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,7 +60,7 @@ def correlation_terms(z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndar
 
     Args:
         z: (..., boundaries, M) the standardised distances to the cell boundaries.
-        p: φ at ``z`` (:func:`phi_density`).
+        p: φ at ``z`` (:func:`phi_and_density`).
 
     Returns:
         (D1, D2), each (..., boundaries - 1, M): per cell, far side minus near side.
@@ -156,7 +158,7 @@ def model(g: np.ndarray, lev: np.ndarray, s: np.ndarray, x: np.ndarray, y: np.nd
     k = np.arange(1, n_max, dtype=np.float32)[:, None]
     inv_s = (1.0 / s).astype(np.float32)[:, :, None, None]  # (C, 2, 1, 1)
     z = (uv.astype(np.float32)[:, :, None, :] - k) * inv_s  # (C, 2, n - 1, M)
-    th = np.tanh(z * (np.float32(0.7978845608028654) + np.float32(0.035677408136300125) * z * z))
+    th = _tanh(z)
     A = np.float32(0.5) + np.float32(0.5) * th  # Phi(z), as phi_cdf
     w = A[:, :, :-1] - A[:, :, 1:]  # (C, 2, n - 2, M): inner column j (u) / row r (v)
     col, row = w[:, 0], w[:, 1]
