@@ -9,6 +9,8 @@ beyond each side and a darker ground beyond that.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -114,6 +116,32 @@ def test_the_refit_is_not_worse_where_the_paper_is_uniform_but_the_ground_near()
         errs.append(_rms(b.corners_px, truth) if b.surround else np.inf)
     assert np.mean(np.isfinite(errs)) >= 0.75
     assert np.median(errs) < 0.05
+
+
+@pytest.mark.parametrize("shift_cells", [0.2, 2.0])
+def test_a_refit_is_held_to_the_move_limit_of_its_start(monkeypatch, shift_cells):
+    # the refit is only kept where the surround is paper; a corner it moved farther than the
+    # frame's start noise allows would have slid onto something else, whatever the surround
+    import drovisio.detect.corners.fit as fit_mod
+
+    real = fit_mod.fit_outer
+
+    def shifted(*args, **kwargs):
+        of = real(*args, **kwargs)
+        g = of.g.copy()   # u -> u + shift: the code's square slides along u
+        g[:, 0:3] += shift_cells * np.c_[g[:, 6:8], np.ones(len(g))]
+        return replace(of, g=g)
+
+    monkeypatch.setattr(fit_mod, "fit_outer", shifted)
+    truth, start = _code(0)
+    img = _render(truth, (3.0, 3.0, 3.0, 3.0), 1.0, 0)
+    a, b = _fit(img, start, False), _fit(img, start, True)
+    moved = np.sqrt(((b.corners_px - start) ** 2).sum(axis=1)).max()
+    if shift_cells < 1.0:   # 0.7 px: within the limit, the refit is kept as it came
+        assert b.surround and 0.4 < _rms(b.corners_px, a.corners_px) < 1.0
+    else:                   # 6.8 px: beyond it (3.5 px here), the interior fit stays
+        assert not b.surround and np.array_equal(a.corners_px, b.corners_px)
+        assert moved < 2.0
 
 
 def _two_codes(seed: int, reach: float):

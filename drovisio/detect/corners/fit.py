@@ -515,8 +515,8 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     surround = np.zeros(C, bool)
     if outer_edge and kept.any():
         surround = _with_surround(grid, gray, camera, b, region, fit, smp, sig2, M, kept,
-                                  np.nan_to_num(checks.cells_spread, nan=1.0), px_c, xn_c,
-                                  cov_px)
+                                  np.nan_to_num(checks.cells_spread, nan=1.0),
+                                  checks.move_limit, px_c, xn_c, cov_px)
     out: list[RefinedCode] = []
     for c in range(C):
         if not valid[c]:
@@ -533,10 +533,14 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
 
 def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch,
                    region: _Region, fit: _Fit, smp: _Samples, sig2: np.ndarray, M: int,
-                   kept: np.ndarray, white_spread: np.ndarray, px_c: np.ndarray,
-                   xn_c: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
+                   kept: np.ndarray, white_spread: np.ndarray, move_limit: np.ndarray,
+                   px_c: np.ndarray, xn_c: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
     """Stage 9: the kept codes refitted with their surround (:mod:`.outer`); where the
     surround is uniform paper, their corners and covariance are replaced in place.
+
+    A refit is held to the interior fit's limit on how far a corner may move from its start
+    (``move_limit``, (C,) px): one that went farther slid onto something else, and the
+    interior fit, which passed every check, stays.
 
     Returns:
         (C,) bool, the codes whose corners now come from the refit.
@@ -549,5 +553,8 @@ def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch
     if used.any():
         b_o = replace(b, g=of.g)
         px_o, xn_o, cov_o = _corners(b_o, camera, _parameter_covariance(of.A, of.sig2, used))
+        with np.errstate(invalid="ignore"):
+            moved = np.sqrt(((px_o - b.q) ** 2).sum(axis=2))
+            used &= np.isfinite(px_o).all(axis=(1, 2)) & (moved <= move_limit[:, None]).all(1)
         px_c[used], xn_c[used], cov_px[used] = px_o[used], xn_o[used], cov_o[used]
     return used
