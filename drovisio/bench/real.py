@@ -341,6 +341,14 @@ def _print_charuco(rep: dict[str, Any]) -> None:
     print(f"   the prediction itself: board pose RMS on its ChArUco corners "
           f"{_fmt(rep['board_pose_rms_px'], ' px', 3)}; Drovisio vs the board plane's "
           f"homography {_fmt(c['drovisio_vs_homography'])}")
+    s = rep["code_shift_px"]
+    r = s["correlation_xy"]
+    corr = "" if r is None else f" (correlation x {r[0]:.2f}, y {r[1]:.2f})"
+    print(f"   each code's shift from the prediction (its corners' mean error), px: Drovisio "
+          f"{_fmt(s['drovisio'])}; OpenCV {_fmt(s['opencv'])}; the two shifts differ by "
+          f"{_fmt(s['difference'])}{corr}")
+    print(f"   Drovisio's code corners with each code's own shift removed: "
+          f"{_fmt(c['drovisio_shift_removed'])}")
     p = rep["pose_vs_board"]
     print(f"   brick pose vs ChArUco board pose: {_fmt(p['trans_mm'], ' mm', 2)}, "
           f"{_fmt(p['rot_deg'], '°', 3)}")

@@ -317,7 +317,9 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
         _charuco_photo(g, camera, det, cv_det, ch_det, obj, chess, repeat, fig)
     rep.update(codes=fig.n,
                corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv),
-                                    "drovisio_vs_homography": stats(fig.e_hom)},
+                                    "drovisio_vs_homography": stats(fig.e_hom),
+                                    "drovisio_shift_removed": stats(fig.e_shape)},
+               code_shift_px=_code_shifts(fig),
                board_pose_rms_px=stats(fig.ref_rms),
                pose_vs_board={"trans_mm": stats(fig.dt_mm), "rot_deg": stats(fig.dr_deg)},
                ms_per_photo=_ms_per_photo(fig.times))
@@ -335,6 +337,12 @@ class _CharucoFigures:
     e_cv: list[float] = field(default_factory=list)
     e_hom: list[float] = field(default_factory=list)
     """Distances (px) of Drovisio's code corners from the board plane's homography."""
+    e_shape: list[float] = field(default_factory=list)
+    """The same as ``e_ours`` once each code's own shift (its corners' mean error) is
+    removed: the code's shape and size against the prediction."""
+    shifts: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    """Per code both read, the mean error (px, (2,)) of Drovisio's corners and of OpenCV's
+    from the prediction."""
     ref_rms: list[float] = field(default_factory=list)
     """The board pose's own reprojection RMS (px) on the ChArUco corners it was posed from."""
     dt_mm: list[float] = field(default_factory=list)
@@ -371,10 +379,16 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
     p, _ = cv2.projectPoints(chess[np.ravel(cid)], rv, tv, camera.K, camera.dist)
     fig.ref_rms.append(float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - cc) ** 2, axis=1)))))
     plane = _board_homography(camera, chess[np.ravel(cid)], cc)
+    cv_q = {} if ci is None else {int(i): np.asarray(q, np.float64).reshape(4, 2)
+                                  for q, i in zip(cq, np.ravel(ci))}
     for c in codes:
         p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
-        fig.e_ours.extend(np.linalg.norm(p.reshape(4, 2) - c.refined.corners_px, axis=1))
+        e = c.refined.corners_px - p.reshape(4, 2)
+        fig.e_ours.extend(np.linalg.norm(e, axis=1))
+        fig.e_shape.extend(np.linalg.norm(e - e.mean(axis=0), axis=1))
         fig.e_hom.extend(np.linalg.norm(plane(obj[c.marker_id]) - c.refined.corners_px, axis=1))
+        if c.marker_id in cv_q:
+            fig.shifts.append((e.mean(axis=0), (cv_q[c.marker_id] - p.reshape(4, 2)).mean(0)))
     if ci is not None:
         fig.e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
     if poses:
@@ -383,6 +397,23 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
         n["ambiguous"] += bool(b.ambiguous)
         fig.dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
         fig.dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
+
+
+def _code_shifts(fig: _CharucoFigures) -> dict[str, Any]:
+    """How far each code as a whole lies from the board pose's prediction, by Drovisio and
+    by OpenCV, and how much the two agree: where both put a code away from the prediction by
+    the same shift (correlation near 1, difference small), the code is there in the photo
+    (the print or the sheet is not the flat board), not a detector's error."""
+    if not fig.shifts:
+        return {"drovisio": stats([]), "opencv": stats([]), "difference": stats([]),
+                "correlation_xy": None}
+    a = np.array([s[0] for s in fig.shifts])
+    b = np.array([s[1] for s in fig.shifts])
+    corr = None
+    if len(a) >= 3 and np.all(a.std(axis=0) > 0) and np.all(b.std(axis=0) > 0):
+        corr = [float(np.corrcoef(a[:, k], b[:, k])[0, 1]) for k in (0, 1)]
+    return {"drovisio": stats(np.linalg.norm(a, axis=1)), "opencv": stats(np.linalg.norm(b, axis=1)),
+            "difference": stats(np.linalg.norm(a - b, axis=1)), "correlation_xy": corr}
 
 
 def _board_homography(camera: Camera, board_pts: np.ndarray, px: np.ndarray
