@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import stat
 import warnings
 from pathlib import Path
@@ -61,13 +62,22 @@ def header_size(data: bytes) -> tuple[int, int] | None:
     if _is_radiance(data):  # Pillow does not know Radiance .hdr; OpenCV does
         return _radiance_size(data)
     # Pillow only reads the header here; Drovisio's own cap (decode_image) decides, with a
-    # message that gives the size
-    Image.MAX_IMAGE_PIXELS = None
+    # message that gives the size. Pillow's own limit stays as it is: it is process-wide and
+    # guards every other decode (a mesh's textures), so a header beyond it is refused here.
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with Image.open(io.BytesIO(data)) as im:
                 return int(im.size[0]), int(im.size[1])
+    except Image.DecompressionBombError as e:
+        m = re.search(r"\((\d{1,30}) pixels\)", str(e))
+        pixels = int(m.group(1)) if m else None
+        if pixels is not None and pixels <= LIMITS.max_image_pixels:
+            return None   # a cap raised above Pillow's: OpenCV, under the same cap, decides
+        size = f"{pixels / 1e6:.0f} Mpx" if pixels is not None else "too large"
+        raise ImageError(f"the image is {size}, more than the "
+                         f"{LIMITS.max_image_pixels / 1e6:.0f} Mpx Drovisio decodes; resize it "
+                         "(or set DROVISIO_MAX_IMAGE_MPX)") from None
     except Exception:  # noqa: BLE001 - unknown or broken header: OpenCV decides
         return None
 

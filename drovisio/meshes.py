@@ -20,6 +20,7 @@ import trimesh
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write
 from drovisio.layout import MarkerLayout, shipped_layouts_dir
+from drovisio.mesh_file import read_mesh
 
 __all__ = [
     "DRICK_BODY",
@@ -196,7 +197,10 @@ def load_layout_mesh(layout: MarkerLayout) -> trimesh.Trimesh | None:
         if size > MAX_MESH_BYTES:
             raise InputError(f"{where}: {path} is {size / 2**20:.0f} MiB, more than the "
                              f"{MAX_MESH_BYTES // 2**20} MiB of a brick's mesh; simplify it")
-        mesh = trimesh.load_mesh(path, force="mesh")
+        try:   # the same reader and bounds as an uploaded mesh
+            mesh = read_mesh(path.read_bytes(), path.name)
+        except InputError as e:
+            raise InputError(f"{where}: {e}") from None
         if layout.scale_to_m != 1.0:
             mesh.apply_scale(layout.scale_to_m)
         return mesh

@@ -43,9 +43,14 @@ from webtool.routes import (
 from webtool.services import lifespan
 from webtool.settings import Settings
 
-#: routes whose body is a file (their own limits apply: the services' per-file and per-request
-#: caps); every route that takes an UploadFile must be here (a test walks the routes)
-_UPLOADS = ("/api/designer/mesh", "/api/calibration/upload", "/api/mount/measure")
+#: routes whose body is a file, and the most bytes one request may send them: the mesh upload
+#: checks its own limit while streaming (a setting); the picture uploads take files of up to
+#: 64 MB each, but no request more than this in all. Every route that takes an UploadFile
+#: must be here (a test walks the routes); the paths match exactly.
+UPLOAD_REQUEST_BYTES = 512 * 2**20
+_UPLOADS: dict[str, int | None] = {"/api/designer/mesh": None,
+                                   "/api/calibration/upload": UPLOAD_REQUEST_BYTES,
+                                   "/api/mount/measure": UPLOAD_REQUEST_BYTES}
 
 
 def drovisio_version() -> str:
@@ -56,45 +61,53 @@ def drovisio_version() -> str:
 
 
 class BodyLimitMiddleware:
-    """Refuse a JSON body larger than :attr:`drovisio.errors.Limits.max_body_bytes` (413)
-    before it is read; uploads have their own limits."""
+    """Refuse a request body larger than its route's limit (413): a JSON body
+    :attr:`drovisio.errors.Limits.max_body_bytes`, an upload :data:`_UPLOADS`. A declared
+    length over the limit is refused before anything is read; a body without one (chunked)
+    is counted as it streams, cut at the limit, and whatever the route answered to the cut
+    body is replaced by the 413."""
 
     def __init__(self, app: ASGIApp, limit: int) -> None:
         self.app = app
         self.limit = limit
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope.get("path", "").startswith(_UPLOADS):
+        path = scope.get("path", "")
+        limit = _UPLOADS.get(path, self.limit) if scope["type"] == "http" else None
+        if limit is None:
             await self.app(scope, receive, send)
             return
         length = dict(scope.get("headers", [])).get(b"content-length")
-        too_big = length is not None and (not length.isdigit() or int(length) > self.limit)
-        if not too_big:
-            received = 0
-            inner = receive
-
-            async def counting() -> Message:
-                nonlocal received
-                message = await inner()
-                received += len(message.get("body", b""))
-                if received > self.limit:
-                    raise _TooBig()
-                return message
-
-            try:
-                await self.app(scope, counting, send)
-            except _TooBig:
-                await _answer_413(send, self.limit)
+        if length is not None and (not length.isdigit() or int(length) > limit):
+            await _answer_413(send, limit)
             return
-        await _answer_413(send, self.limit)
+        received, over, answered = 0, False, False
 
+        async def counting() -> Message:
+            nonlocal received, over
+            if over:
+                return {"type": "http.request", "body": b"", "more_body": False}
+            message = await receive()
+            received += len(message.get("body", b""))
+            if received > limit:
+                over = True
+                return {"type": "http.request", "body": b"", "more_body": False}
+            return message
 
-class _TooBig(Exception):
-    pass
+        async def sending(message: Message) -> None:
+            nonlocal answered
+            if not over:
+                await send(message)
+            elif message["type"] == "http.response.start" and not answered:
+                answered = True
+                await _answer_413(send, limit)
+
+        await self.app(scope, counting, sending)
 
 
 async def _answer_413(send: Send, limit: int) -> None:
-    body = (b'{"detail": "request body too large (over %d KiB)"}' % (limit // 1024))
+    size = f"{limit // 2**20} MiB" if limit >= 2**20 else f"{limit // 1024} KiB"
+    body = b'{"detail": "request body too large (over %s)"}' % size.encode()
     await send({"type": "http.response.start", "status": 413,
                 "headers": [(b"content-type", b"application/json"),
                             (b"content-length", str(len(body)).encode())]})

@@ -98,7 +98,7 @@ def test_detect_survives_a_jpeg_claiming_65000_squared_pixels(capsys, frames, tm
                            "--layout", PYRAMIDS, bomb, frames / "f0.png")
     lines = [json.loads(x) for x in out.splitlines()]
     assert rc == 1 and len(lines) == 2
-    assert "65000x65000" in lines[0]["error"] and "Mpx" in lines[0]["error"]
+    assert "4225 Mpx" in lines[0]["error"] and "DROVISIO_MAX_IMAGE_MPX" in lines[0]["error"]
     assert "error" not in lines[1] and lines[1]["bricks"]      # the next file still runs
 
 

@@ -258,6 +258,50 @@ def test_delete_view_moves_its_image_aside(make_client):
     assert c.get(f"{API}/views/{vid}/thumb.jpg").status_code == 404
 
 
+def test_a_name_deleted_twice_keeps_both_images(make_client):
+    c = make_client(no_camera)
+    folder = session_dir(c)
+    sent = []
+    for i in (3, 4):
+        sent.append(_jpeg_bytes(i))
+        upload(c, [("same.jpg", sent[-1])])
+        vid = c.get(f"{API}/state").json()["views"][0]["id"]
+        assert c.delete(f"{API}/views/{vid}").status_code == 200
+    kept = sorted((folder / "deleted").iterdir())
+    assert [p.name for p in kept] == ["upload-same-2.jpg", "upload-same.jpg"]
+    assert {p.read_bytes() for p in kept} == set(sent)
+
+
+def test_uploads_of_one_name_at_once_each_keep_their_own_image(make_client):
+    # the first upload is held between its detection and its keeping while a second one of
+    # the same name is kept whole: each view must still point at its own picture
+    c = make_client(no_camera)
+    svc = c.app.state.calibration
+    sess = svc.session
+    real, held, go = sess.evaluate, threading.Event(), threading.Event()
+
+    def evaluate(img, name=""):
+        fr = real(img, name)
+        if not held.is_set():
+            held.set()
+            assert go.wait(60)
+        return fr
+
+    sess.evaluate = evaluate
+    a, b = _jpeg_bytes(5), _jpeg_bytes(6)
+    first = threading.Thread(target=svc.upload, args=([("same.jpg", io.BytesIO(a))],))
+    first.start()
+    assert held.wait(60)
+    svc.upload([("same.jpg", io.BytesIO(b))])
+    go.set()
+    first.join(60)
+    views = c.get(f"{API}/state").json()["views"]
+    folder = session_dir(c)
+    assert len(views) == 2 and len({v["name"] for v in views}) == 2
+    on_disk = {(folder / "images" / v["name"]).read_bytes() for v in views}
+    assert on_disk == {a, b}
+
+
 def test_upload_gives_a_message_per_file(make_client):
     c = make_client(no_camera)  # no camera at all: uploads still work
     good = [(f"folder/view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(4)]

@@ -524,6 +524,8 @@ class CalibrationService:
             with self._keep_lock:
                 if sess is not self.session:
                     raise Conflict("A new session was started during the upload.")
+                # named where it is written: uploads of one name at once each get their own
+                fr.name = self._upload_name(label)
                 dup = sess.duplicate_of(fr.detection)
                 if dup is not None:
                     msg = f"already in this session (the same picture as view #{dup})"

@@ -175,12 +175,29 @@ def recover_orphans(session: CalibrationSession, images_dir: Path) -> int:
     return kept
 
 
-def move_to_deleted(folder: Path, name: str) -> None:
-    """Move a deleted view's image to ``deleted/`` (never erased)."""
+def move_to_deleted(folder: Path, name: str) -> Path | None:
+    """Move a deleted view's image to ``deleted/`` (never erased: numbered when an image of
+    that name was deleted before). Returns where it went (None: there was no image)."""
     src = folder / "images" / name
-    if src.exists():
-        (folder / "deleted").mkdir(exist_ok=True)
-        os.replace(src, folder / "deleted" / name)
+    if not src.exists():
+        return None
+    bin_ = folder / "deleted"
+    bin_.mkdir(exist_ok=True)
+    stem, suf = os.path.splitext(name)
+    dest, k = bin_ / name, 2
+    while True:
+        try:   # a hard link is made only where no file is: nothing earlier is replaced
+            os.link(src, dest)
+            break
+        except FileExistsError:
+            dest, k = bin_ / f"{stem}-{k}{suf}", k + 1
+        except OSError:   # no hard links on this drive: checked, under the caller's lock
+            while dest.exists():
+                dest, k = bin_ / f"{stem}-{k}{suf}", k + 1
+            os.replace(src, dest)
+            return dest
+    os.unlink(src)
+    return dest
 
 
 def unique_upload_name(label: str, taken: Iterable[str], images_dir: Path) -> str:
