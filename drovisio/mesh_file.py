@@ -152,7 +152,7 @@ def _check_gltf(doc: dict, name: str) -> None:
         faces += _mesh_triangles(doc, nodes[i].get("mesh"))
         if faces > MAX_FACES:
             raise InputError(f"{name}: the model has more than {MAX_FACES:,} triangles once "
-                              f"its parts are placed. {fix}")
+                             f"its parts are placed. {fix}")
         kids = nodes[i].get("children")
         if isinstance(kids, list):
             stack += [(c, depth + 1) for c in kids]
@@ -179,15 +179,15 @@ def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
     if ext not in MESH_TYPES:
         what = f"'.{ext}' files" if ext else "files without an extension"
         raise InputError(f"{name}: {what} are not 3D models this tool can read. Export the "
-                          f"brick from your CAD program as {kinds} (STL is the safest) and "
-                          "upload that file.")
+                         f"brick from your CAD program as {kinds} (STL is the safest) and "
+                         "upload that file.")
     if not data:
         raise InputError(f"{name}: the file is empty (0 bytes). Export the model again and "
-                          "upload the new file.")
+                         "upload the new file.")
     if not _looks_like(ext, data):
         raise InputError(f"{name}: this is not a {ext.upper()} 3D model (its content does not "
-                          f"match the format). Check that you picked the right file, or "
-                          f"export the brick again as {kinds}.")
+                         f"match the format). Check that you picked the right file, or "
+                         f"export the brick again as {kinds}.")
     extra_args: dict[str, Any] = {}
     if ext in ("glb", "gltf"):
         doc = _gltf_document(data, ext)
@@ -202,14 +202,14 @@ def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
         extra = (" A .gltf file that refers to separate .bin or image files cannot be read "
                  "alone: export a single .glb file instead." if ext == "gltf" else "")
         raise InputError(f"{name}: could not read this {ext.upper()} file ({reason}). It may "
-                          f"be damaged: export the model again.{extra}") from None
+                         f"be damaged: export the model again.{extra}") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise InputError(f"{name}: the model has no triangles (an empty model, or only points "
-                          "or lines). Export the solid brick as a surface mesh (STL).")
+                         "or lines). Export the solid brick as a surface mesh (STL).")
     V = np.asarray(loaded.vertices, np.float64)
     if not np.all(np.isfinite(V)):
         raise InputError(f"{name}: the model has invalid coordinates (NaN or infinite). "
-                          "Export it again.")
+                         "Export it again.")
     mesh = trimesh.Trimesh(V, np.asarray(loaded.faces, np.int64), process=True)
     keep = mesh.nondegenerate_faces()
     if not np.all(keep):
@@ -217,5 +217,5 @@ def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
         mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0 or float(np.max(mesh.extents)) <= 0:
         raise InputError(f"{name}: the model has no triangles with an area (all are "
-                          "flattened to lines or points). Export the solid brick again.")
+                         "flattened to lines or points). Export the solid brick again.")
     return mesh

@@ -180,7 +180,8 @@ def load_layout_mesh(layout: MarkerLayout) -> trimesh.Trimesh | None:
 
     Raises:
         InputError: the mesh file is missing (and is not a shipped one), not a regular file,
-            outside the layout's folder or too large.
+            outside the layout's folder, too large, or not a mesh :func:`.mesh_file.read_mesh`
+            reads (its refusal, prefixed with the layout and field).
     """
     path = layout.mesh_path()
     if path is None:

@@ -16,12 +16,13 @@ Every file is written through a temporary file renamed over the target.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
 import re
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -175,6 +176,14 @@ def recover_orphans(session: CalibrationSession, images_dir: Path) -> int:
     return kept
 
 
+def _numbered(name: str) -> Iterator[str]:
+    """``name``, then ``STEM-2.EXT``, ``STEM-3.EXT``, … (the first free one is taken)."""
+    stem, suf = os.path.splitext(name)
+    yield name
+    for k in itertools.count(2):
+        yield f"{stem}-{k}{suf}"
+
+
 def move_to_deleted(folder: Path, name: str) -> Path | None:
     """Move a deleted view's image to ``deleted/`` (never erased: numbered when an image of
     that name was deleted before). Returns where it went (None: there was no image)."""
@@ -183,29 +192,24 @@ def move_to_deleted(folder: Path, name: str) -> Path | None:
         return None
     bin_ = folder / "deleted"
     bin_.mkdir(exist_ok=True)
-    stem, suf = os.path.splitext(name)
-    dest, k = bin_ / name, 2
-    while True:
+    for cand in _numbered(name):
+        dest = bin_ / cand
         try:   # a hard link is made only where no file is: nothing earlier is replaced
             os.link(src, dest)
-            break
         except FileExistsError:
-            dest, k = bin_ / f"{stem}-{k}{suf}", k + 1
+            continue
         except OSError:   # no hard links on this drive: checked, under the caller's lock
-            while dest.exists():
-                dest, k = bin_ / f"{stem}-{k}{suf}", k + 1
+            if dest.exists():
+                continue
             os.replace(src, dest)
             return dest
-    os.unlink(src)
-    return dest
+        os.unlink(src)
+        return dest
+    return None   # not reached: the numbering never ends
 
 
 def unique_upload_name(label: str, taken: Iterable[str], images_dir: Path) -> str:
     """``upload-NAME``, numbered when a view or a file has that name already."""
-    base = "upload-" + safe_name(label)
-    stem, suf = os.path.splitext(base)
     names = set(taken)
-    cand, k = base, 2
-    while cand in names or (images_dir / cand).exists():
-        cand, k = f"{stem}-{k}{suf}", k + 1
-    return cand
+    return next(c for c in _numbered("upload-" + safe_name(label))
+                if c not in names and not (images_dir / c).exists())
