@@ -163,7 +163,8 @@ class Pipeline:
         self.tracker = tracker or BrickTracker(TrackerConfig(max_age=max_age), mount=mount)
         if self.tracker.mount is None:
             self.tracker.mount = mount
-        self.target = target or TargetSelector()
+        # a target set later is checked against the layouts given (none given: not checked)
+        self.target = target or TargetSelector(layouts=list(layouts) or None)
         self.gravity = gravity
         self.recorder = recorder
         self.fuse = fuse

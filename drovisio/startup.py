@@ -118,9 +118,9 @@ def check_source(source: str) -> None:
             pass
 
 
-def _target(spec: str | None) -> TargetSelector:
+def _target(spec: str | None, layouts: Sequence[MarkerLayout] | None) -> TargetSelector:
     try:
-        return TargetSelector(spec or "nearest")
+        return TargetSelector(spec or "nearest", layouts=layouts)
     except ValueError as e:
         raise InputError(f"--target {one_line(spec, 80)}: {e}") from None
 
@@ -150,7 +150,7 @@ def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
     mount = load_mount(config.mount) if config.mount else None
     if config.source:
         check_source(config.source)
-    target = _target(config.target)
+    target = _target(config.target, layouts)
     if config.record:
         check_record_folder(config.record)
     if open_sinks:
@@ -257,7 +257,7 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
         raise InputError("the layouts have neither codes nor dots: nothing to detect")
     mount = load_mount(config.mount) if config.mount else None
     reader = reader_for(config.source, loop=loop)
-    target = TargetSelector(config.target or "nearest")  # checked above
+    target = TargetSelector(config.target or "nearest", layouts=layouts)  # checked above
     sinks = open_sinks_of(config, target, mount, layouts, default_sinks, camera=camera)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
     _blind_height(mav, camera, mount, layouts)

@@ -10,8 +10,12 @@ this order:
 2. **Origin.** Every write (POST, PUT, PATCH, DELETE) and every WebSocket from a browser
    carries ``Origin``; it must be the tool's own (the ``Origin``'s scheme is the request's,
    its host:port the ``Host``). A page on any other origin gets 403, **even on loopback** and
-   even with a token in a cookie (CSRF). ``Sec-Fetch-Site: cross-site`` is refused too.
-   Programs that send no ``Origin`` (scripts, curl) are judged by host and token alone.
+   even with a token in a cookie (CSRF). ``Sec-Fetch-Site: cross-site`` (or ``same-site``:
+   another port of the same host) is refused too. Programs that send no ``Origin`` (scripts,
+   curl) are judged by host and token alone. A GET that starts work (the live pipeline, the
+   calibration camera, a 3D view) goes through the same check where that work starts
+   (:func:`refuse_other_sites`): an ``<img>`` on another site's page sends no ``Origin``,
+   but its browser says ``Sec-Fetch-Site``.
 3. **Token.** With ``token=None`` (the default, bound to 127.0.0.1) nothing more is asked.
    Otherwise a loopback client still passes; any other client must present the token: as
    ``?token=...`` (what ``drovisio serve`` prints; a valid one sets an HttpOnly cookie), the
@@ -39,8 +43,11 @@ import socket
 from http.cookies import SimpleCookie
 from urllib.parse import parse_qs, urlsplit
 
+from starlette.requests import HTTPConnection
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from drovisio.errors import one_line
+from webtool.errors import Forbidden
 from webtool.settings import is_loopback
 
 __all__ = [
@@ -49,7 +56,9 @@ __all__ = [
     "access_level",
     "access_lines",
     "install_log_redaction",
+    "other_site",
     "redact_tokens",
+    "refuse_other_sites",
     "terminal_qr",
 ]
 
@@ -98,6 +107,54 @@ def _is_ip(host: str) -> bool:
     return True
 
 
+def _same_origin(origin: str, host_header: str | None, scheme: str = "http") -> bool:
+    """An origin is its scheme, host and port: ``https://127.0.0.1:PORT`` is another
+    site than the ``http://`` tool on the same port (a TLS page there is not ours)."""
+    if not host_header or origin in ("", "null"):
+        return False
+    try:
+        parts = urlsplit(origin.strip())
+    except ValueError:
+        return False
+    netloc = parts.netloc
+    o_scheme = parts.scheme.lower()
+    own = {"ws": "http", "wss": "https"}.get(scheme.lower(), scheme.lower())
+    if not netloc or o_scheme != own:
+        return False
+    o_host, o_port = _split_host(netloc)
+    h_host, h_port = _split_host(host_header)
+    default = "443" if own == "https" else "80"
+    return o_host == h_host and (o_port or default) == (h_port or default)
+
+
+def other_site(scope: Scope) -> str | None:
+    """Why a request comes from a page that is not the tool's own, or None: an ``Origin``
+    that is not the tool's, or a browser's ``Sec-Fetch-Site`` naming another site. A program
+    that sends neither is not a page (judged by host and token alone)."""
+    headers = _headers(scope)
+    origin = headers.get("origin")
+    if origin is not None and not _same_origin(origin, headers.get("host"),
+                                               scope.get("scheme", "http")):
+        return (f"request from another site ({one_line(origin, 80)}) refused: only the "
+                "tool's own pages may change it or start its work")
+    if headers.get("sec-fetch-site", "") in ("cross-site", "same-site"):
+        return ("request from another site's page refused: only the tool's own pages may "
+                "change it or start its work")
+    return None
+
+
+def refuse_other_sites(conn: HTTPConnection) -> None:
+    """Where a request starts work (a pipeline, a camera, a 3D view), refuse it from another
+    site's page as a write is refused (:func:`other_site`), GET included.
+
+    Raises:
+        Forbidden: the request came from another site's page.
+    """
+    why = other_site(conn.scope)
+    if why is not None:
+        raise Forbidden(why)
+
+
 def machine_names() -> set[str]:
     """This machine's own names (a phone on the site's Wi-Fi may use them)."""
     names = {"localhost"}
@@ -139,26 +196,6 @@ class AccessMiddleware:
         host, _ = _split_host(host_header)
         return _is_ip(host) or host in self.names
 
-    @staticmethod
-    def _same_origin(origin: str, host_header: str | None, scheme: str = "http") -> bool:
-        """An origin is its scheme, host and port: ``https://127.0.0.1:PORT`` is another
-        site than the ``http://`` tool on the same port (a TLS page there is not ours)."""
-        if not host_header or origin in ("", "null"):
-            return False
-        try:
-            parts = urlsplit(origin.strip())
-        except ValueError:
-            return False
-        netloc = parts.netloc
-        o_scheme = parts.scheme.lower()
-        own = {"ws": "http", "wss": "https"}.get(scheme.lower(), scheme.lower())
-        if not netloc or o_scheme != own:
-            return False
-        o_host, o_port = _split_host(netloc)
-        h_host, h_port = _split_host(host_header)
-        default = "443" if own == "https" else "80"
-        return o_host == h_host and (o_port or default) == (h_port or default)
-
     def _token_level(self, scope: Scope, headers: dict[str, str]) -> tuple[str | None, bool]:
         """(access level the request's token gives or None, the token came in the URL)."""
         query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
@@ -188,15 +225,7 @@ class AccessMiddleware:
         if not self._host_ok(host) and level is None:
             return (f"unknown Host {host!r}: this tool answers to its own address only (open "
                     "the address `drovisio serve` printed)")
-        if writes:
-            origin = headers.get("origin")
-            if origin is not None and not self._same_origin(origin, host,
-                                                            scope.get("scheme", "http")):
-                return (f"request from another site ({origin}) refused: only the tool's own "
-                        "pages may change it")
-            if headers.get("sec-fetch-site", "") == "cross-site":
-                return "cross-site request refused"
-        return None
+        return other_site(scope) if writes else None
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):

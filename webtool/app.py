@@ -1,10 +1,11 @@
 """The web tool's FastAPI application factory.
 
 ``create_app(settings)`` assembles: the access middleware (Host, Origin, tokens:
-:mod:`webtool.access`), a body-size limit, the one error handler (:mod:`webtool.errors`), the
-services made on first use and closed in the lifespan (:mod:`webtool.services`), one router per
-area (listed in :mod:`webtool.routes`), the Jinja2 pages and the static files (found with
-:mod:`importlib.resources`, so a wheel works like a checkout).
+:mod:`webtool.access`), a body-size limit, a cap on open WebSockets, the one error handler
+(:mod:`webtool.errors`), the services made on first use and closed in the lifespan
+(:mod:`webtool.services`), one router per area (listed in :mod:`webtool.routes`), the Jinja2
+pages and the static files (found with :mod:`importlib.resources`, so a wheel works like a
+checkout).
 
 The tool is built by area, one package each: ``calibration``, ``designer``, ``live``, ``mount``,
 ``replay``, ``study`` (each with ``routes`` — thin handlers —, ``schemas`` — request bodies and
@@ -15,6 +16,7 @@ the health check); ``viewer`` holds the base of the 3D views and the one proxy t
 
 from __future__ import annotations
 
+import json
 from importlib.metadata import PackageNotFoundError, version
 
 from fastapi import FastAPI
@@ -114,6 +116,46 @@ async def _answer_413(send: Send, limit: int) -> None:
     await send({"type": "http.response.body", "body": body})
 
 
+class SocketLimitMiddleware:
+    """At most ``limit`` WebSockets open at once, every socket of the tool counted (the live
+    image streams and the relayed 3D views): one more is answered 503 with the reason before
+    it opens, so a page's reconnects back off instead of piling up."""
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+        self.open = 0
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "websocket":
+            await self.app(scope, receive, send)
+            return
+        if self.open >= self.limit:
+            await _refuse_socket(scope, receive, send, self.limit)
+            return
+        self.open += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.open -= 1
+
+
+async def _refuse_socket(scope: Scope, receive: Receive, send: Send, limit: int) -> None:
+    why = (f"too many live views open (at most {limit} streams and 3D views at once); "
+           "close one and reload")
+    if (await receive())["type"] != "websocket.connect":
+        return
+    if "websocket.http.response" in scope.get("extensions", {}):
+        body = json.dumps({"detail": why}).encode()
+        await send({"type": "websocket.http.response.start", "status": 503,
+                    "headers": [(b"content-type", b"application/json"),
+                                (b"content-length", str(len(body)).encode()),
+                                (b"retry-after", b"5")]})
+        await send({"type": "websocket.http.response.body", "body": body})
+        return
+    await send({"type": "websocket.close", "code": 1013, "reason": why[:120]})
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings if settings is not None else Settings()
     if settings.camera is None:
@@ -147,6 +189,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.mount("/static", StaticFiles(directory=str(static_dir())), name="static")
 
     app.add_middleware(BodyLimitMiddleware, limit=LIMITS.max_body_bytes)
+    # inside the access check: a socket it refuses holds no slot
+    app.add_middleware(SocketLimitMiddleware, limit=settings.max_sockets)
     app.add_middleware(AccessMiddleware, token=settings.token,
                        viewer_token=settings.viewer_token, bind_host=settings.host)
     return app

@@ -10,6 +10,7 @@ from fastapi import Depends, Request
 from fastapi.templating import Jinja2Templates
 from starlette.requests import HTTPConnection
 
+from webtool.access import refuse_other_sites
 from webtool.calibration.service import CalibrationService
 from webtool.designer.service import DesignerService
 from webtool.fleet.service import FleetService
@@ -46,7 +47,9 @@ def get_templates(request: Request) -> Jinja2Templates:
 
 
 async def started_live(conn: HTTPConnection) -> LiveService:
-    """The app's live service, its pipeline running."""
+    """The app's live service, its pipeline running (started for the tool's own pages and
+    programs only, GET included: :func:`~webtool.access.refuse_other_sites`)."""
+    refuse_other_sites(conn)
     svc = get_service(conn.app, LIVE)
     svc.touch()
     await asyncio.to_thread(svc.ensure_started)

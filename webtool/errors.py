@@ -6,7 +6,9 @@ with a plain-words message and its status; nothing a user can cause gives a 500.
 * :class:`~drovisio.errors.InputError` (bad files and values, e.g. a layout) → 422;
 * :class:`~drovisio.errors.WriteError` (a file could not be written; nothing was lost) → 507;
 * :class:`~drovisio.designer.model.DesignError` (an impossible design edit) → 422;
-* a request body that does not fit its schema → 422, one line naming the field;
+* a request body that does not fit its schema → 422, one line naming the field; one that
+  cannot even be parsed (not JSON, not UTF-8, nested too deeply, a number of thousands of
+  digits) → 422, one line naming the body;
 * an OS or Python limit a request reached (a name over 255 bytes, a NUL byte in a path, an
   integer of thousands of digits) → 422, one line;
 * anything else is a bug: 500 with one line, the traceback in the server log.
@@ -17,7 +19,10 @@ from __future__ import annotations
 import logging
 
 from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
+from starlette.exceptions import HTTPException
+from starlette.responses import Response
 
 from drovisio.designer.model import DesignError
 from drovisio.errors import InputError, WriteError, limit_message, one_line
@@ -95,10 +100,28 @@ def _answer(status: int, message: str) -> JSONResponse:
 def _validation_message(exc: RequestValidationError) -> str:
     parts = []
     for err in exc.errors()[:3]:
+        if err.get("type") == "json_invalid":
+            why = (err.get("ctx") or {}).get("error", "")
+            pos = (err.get("loc") or ("body", 0))[-1]
+            parts.append(f"body: not valid JSON at character {pos}: {why}")
+            continue
         loc = [str(x) for x in err.get("loc", ()) if x not in ("body", "query", "path")]
         msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
         parts.append(f"{'.'.join(loc) or 'body'}: {msg}")
     return "; ".join(parts) or "invalid request"
+
+
+def _unparsed_body_message(cause: BaseException) -> str:
+    """One line for a request body the parser gave up on (FastAPI answers those with a bare
+    400 "There was an error parsing the body"), from what the parser raised."""
+    if isinstance(cause, RecursionError):
+        return "body: nested too deeply; send a plain JSON object"
+    if isinstance(cause, UnicodeDecodeError):
+        return f"body: not UTF-8 text (byte {cause.start}); send JSON in UTF-8"
+    limit = limit_message(cause)
+    if limit is not None:
+        return f"body: {limit}"
+    return f"body: cannot be read ({type(cause).__name__}); send JSON"
 
 
 def install_error_handlers(app: FastAPI) -> None:
@@ -118,6 +141,12 @@ def install_error_handlers(app: FastAPI) -> None:
     @app.exception_handler(WriteError)
     async def _write(request: Request, exc: WriteError) -> JSONResponse:
         return _answer(507, str(exc))
+
+    @app.exception_handler(HTTPException)
+    async def _http(request: Request, exc: HTTPException) -> Response:
+        if exc.status_code == 400 and exc.__cause__ is not None:  # the body did not parse
+            return _answer(422, _unparsed_body_message(exc.__cause__))
+        return await http_exception_handler(request, exc)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -30,6 +30,7 @@ from typing import Any, Generic, Protocol, TypeVar, overload
 from fastapi import FastAPI
 from starlette.requests import HTTPConnection
 
+from webtool.access import refuse_other_sites
 from webtool.calibration.service import CalibrationService
 from webtool.designer.service import DesignerService
 from webtool.fleet.service import FleetService
@@ -101,11 +102,14 @@ def get_service(app: FastAPI, area: Area[Any] | str) -> Any:
 
 
 def service(area: Area[S]) -> Callable[[HTTPConnection], S]:
-    """A FastAPI dependency giving the ``area``'s service (and touching it)."""
+    """A FastAPI dependency giving the ``area``'s service (and touching it: a touch starts
+    work, e.g. the calibration camera, so it is refused to another site's page, GET
+    included: :func:`~webtool.access.refuse_other_sites`)."""
     def dependency(conn: HTTPConnection) -> S:
         svc = get_service(conn.app, area)
         touch = getattr(svc, "touch", None)
         if touch is not None:
+            refuse_other_sites(conn)
             touch()
         return svc
     dependency.__name__ = f"{area.name}_service"

@@ -101,6 +101,9 @@ class Settings(BaseModel):
     station_listen: list[str] = []
     station_connect: list[str] = []
     station_domain: int = Field(default=0, ge=0, le=232)
+    # Most WebSockets open at once, the live image streams and the 3D views together (each
+    # holds buffers and a share of the bandwidth); one more is refused (503) until one closes.
+    max_sockets: int = Field(default=32, ge=1, le=1000)
     # Access token. None means "no token needed", which is only allowed on a loopback host:
     # binding anywhere else generates one (see `token_required`).
     token: str | None = None

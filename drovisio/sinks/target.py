@@ -5,8 +5,12 @@ Spec strings (``--target`` of ``drovisio run``, the live page, the WebSocket fee
 * ``nearest`` — the brick nearest to the drone (body origin; the camera without a mount);
 * ``LAYOUT`` — the nearest brick of that layout;
 * ``LAYOUT:INSTANCE`` — that brick (e.g. ``drick-aruco-pyramids:1``);
-* ``track:N`` — the brick of track N (bricks without ids, e.g. dots);
+* ``track:N`` — the brick of track N (bricks without ids, e.g. dots; tracks count from 1);
 * ``none`` — no target (nothing is sent to the flight controller).
+
+A selector given the layouts in use refuses a spec no brick of them can meet (an unknown
+layout, an instance number beyond the layout's ``instances``, an instance of a layout without
+ids), whoever sets it: ``--target``, the live page, the WebSocket feed.
 
 The choice follows a track: once a brick is the target it stays the target while its track
 lives (measured, or held over for a missed frame), unless another brick of the spec is
@@ -19,8 +23,15 @@ from __future__ import annotations
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-__all__ = ["TargetSelector", "TargetSpec", "parse_target"]
+from drovisio.bounds import parse_whole
+from drovisio.errors import one_line
+
+if TYPE_CHECKING:
+    from drovisio.layout import MarkerLayout
+
+__all__ = ["TargetSelector", "TargetSpec", "check_target", "parse_target"]
 
 
 @dataclass(frozen=True)
@@ -76,8 +87,22 @@ def _target_from_dict(spec: dict) -> TargetSpec:
         raise ValueError("a target brick needs 'instance'")
     if mode == "track" and track is None:
         raise ValueError("a target track needs 'track'")
-    return TargetSpec(mode, layout, None if inst is None else int(inst),
-                      None if track is None else int(track))
+    return TargetSpec(mode, layout, None if inst is None else _instance(inst),
+                      None if track is None else _track(track))
+
+
+def _instance(value: object) -> int:
+    try:
+        return parse_whole(value, 0)
+    except ValueError as e:
+        raise ValueError(f"instance (LAYOUT:INSTANCE): {e}") from None
+
+
+def _track(value: object) -> int:
+    try:
+        return parse_whole(value, 1)
+    except ValueError as e:
+        raise ValueError(f"track number: {e}") from None
 
 
 def _target_from_string(s: str) -> TargetSpec:
@@ -86,15 +111,34 @@ def _target_from_string(s: str) -> TargetSpec:
     if s in ("none", "off"):
         return TargetSpec("none")
     if s.startswith("track:"):
-        return TargetSpec("track", track=int(s[6:]))
+        return TargetSpec("track", track=_track(s[6:]))
     if ":" in s:
         layout, _, inst = s.rpartition(":")
-        try:
-            return TargetSpec("brick", layout, int(inst))
-        except ValueError:
-            raise ValueError(f"bad target {s!r}: expected LAYOUT:INSTANCE with a number") \
-                from None
+        return TargetSpec("brick", layout, _instance(inst))
     return TargetSpec("layout", s)
+
+
+def check_target(spec: TargetSpec, layouts: Sequence[MarkerLayout]) -> TargetSpec:
+    """``spec`` if a brick of ``layouts`` (the layouts in use) can meet it.
+
+    Raises:
+        ValueError: the layout is not in use, or it cannot have that instance.
+    """
+    if spec.mode not in ("layout", "brick"):
+        return spec
+    layout = next((lay for lay in layouts if lay.name == spec.layout), None)
+    if layout is None:
+        names = ", ".join(lay.name for lay in layouts) or "none"
+        raise ValueError(f"no layout named {one_line(repr(spec.layout), 80)} is in use "
+                         f"(in use: {one_line(names, 200)})")
+    if spec.mode == "brick":
+        if layout.instances is None:
+            raise ValueError(f"the bricks of {layout.name} have no ids, so no instance "
+                             f"number; give {layout.name} or track:N")
+        if spec.instance is None or spec.instance >= layout.instances:
+            raise ValueError(f"{layout.name} has instances 0 to {layout.instances - 1}; "
+                             f"{spec.instance} is not one of them")
+    return spec
 
 
 class TargetSelector:
@@ -106,21 +150,32 @@ class TargetSelector:
         switch_ratio: With ``nearest`` or ``LAYOUT``, another brick takes over from the current
             target's track only when it is nearer by this factor (no flicker between two bricks
             at about the same distance).
+        layouts: The layouts in use: every spec set is checked against them
+            (:func:`check_target`); None: not checked.
+
+    Raises:
+        ValueError: a spec that cannot be parsed or met (here and in :meth:`set`).
     """
 
     def __init__(self, spec: str | dict | TargetSpec | None = "nearest",
-                 switch_ratio: float = 0.8):
+                 switch_ratio: float = 0.8,
+                 layouts: Sequence[MarkerLayout] | None = None):
         self._lock = threading.Lock()
-        self._spec = parse_target(spec)
+        self.layouts = None if layouts is None else list(layouts)
+        self._spec = self._checked(spec)
         self.switch_ratio = switch_ratio
         self._track: int | None = None
+
+    def _checked(self, spec: str | dict | TargetSpec | None) -> TargetSpec:
+        new = parse_target(spec)
+        return new if self.layouts is None else check_target(new, self.layouts)
 
     @property
     def spec(self) -> TargetSpec:
         return self._spec
 
     def set(self, spec: str | dict | TargetSpec | None) -> TargetSpec:
-        new = parse_target(spec)
+        new = self._checked(spec)
         with self._lock:
             self._spec = new
             self._track = None

@@ -8,6 +8,8 @@ compared with their scheme, dictionary facts from OpenCV.
   render's memory is estimated before it starts (a 20000×20000 camera in a study protocol).
 * Limits that agree: every route that takes a file upload is exempt from the JSON body limit
   (the mount page's photos as the calibration page's); the mount offset bound is one.
+* Request bodies: one that does not even parse (nested 100,000 deep, not UTF-8, a number of
+  5,000 digits, not JSON) is a one-line 422 naming the body, like any bad input.
 * Origins: only the tool's own scheme, host and port may write (``https://`` is another site
   than the ``http://`` tool on the same port).
 * ``charuco:COLSxROWS:DICT_APRILTAG_16h5``: the dictionary's size from OpenCV's object.
@@ -259,6 +261,32 @@ def test_every_route_other_than_an_upload_keeps_the_json_limit(tmp_path, ledger,
         assert r.status_code == 413 and "over 1 MiB" in r.json()["detail"], r.text
 
 
+_UNPARSED = [
+    (b'{"on": ' + b"[" * 100_000 + b"]" * 100_000 + b"}",
+     "body: nested too deeply; send a plain JSON object"),
+    (b'{"on": "\xff\xfe"}', "body: not UTF-8 text (byte 8); send JSON in UTF-8"),
+    (b'{"on": ' + b"9" * 5000 + b"}",
+     "body: a number has thousands of digits; give a number of at most 30 digits"),
+    (b'{"on": tru', "body: not valid JSON at character 7: Expecting value"),
+]
+
+
+@pytest.mark.parametrize(("body", "detail"), _UNPARSED)
+def test_a_body_that_does_not_parse_is_a_one_line_422(tmp_path, ledger, body, detail):
+    from webtool.app import create_app
+    from webtool.settings import Settings
+
+    app = create_app(Settings(calibration_dir=tmp_path, designer_layouts_dir=tmp_path))
+    with TestClient(app, base_url=LOCAL, raise_server_exceptions=False) as c:
+        for path in ("/api/calibration/auto", "/api/live/target", "/api/designer/defaults"):
+            ledger.tried["limits: body"] += 1
+            r = c.post(path, content=body, headers={"Content-Type": "application/json"})
+            assert r.status_code == 422 and r.json() == {"detail": detail}, (path, r.text)
+        # what is not about the body keeps its own answer
+        assert c.get("/api/nothing-here").status_code == 404
+        assert c.put("/api/calibration/auto").status_code == 405
+
+
 # ------------------------------------------------------------------ origins
 
 
@@ -296,9 +324,7 @@ _ORIGIN_CLIENT = None
 
 
 def test_https_origin_is_another_site_than_the_http_tool(ledger):
-    from webtool.access import AccessMiddleware
-
-    same = AccessMiddleware._same_origin
+    from webtool.access import _same_origin as same
     assert same("http://127.0.0.1:8391", "127.0.0.1:8391", "http")
     assert not same("https://127.0.0.1:8391", "127.0.0.1:8391", "http")
     assert same("https://127.0.0.1:8391", "127.0.0.1:8391", "https")

@@ -45,6 +45,36 @@ def test_target_selection():
     assert str(parse_target({"layout": "a", "instance": 2})) == "a:2"
 
 
+def test_a_target_the_layouts_in_use_cannot_have_is_refused():
+    from drovisio.layout import load_layouts, shipped_layouts_dir
+
+    root = shipped_layouts_dir()
+    layouts = load_layouts([root / "drick-aruco-centre.json", root / "drick-dots-2x3.json"])
+    sel = TargetSelector(layouts=layouts)
+    refused = {
+        "track:-1": "track number: -1 is out of range: give a whole number 1 or more",
+        "drick-aruco-centre:20": "drick-aruco-centre has instances 0 to 19; 20 is not one "
+                                 "of them",
+        "drick-aruco-centre:-1": "instance (LAYOUT:INSTANCE): -1 is out of range: give a "
+                                 "whole number 0 or more",
+        "drick-dots-2x3:0": "the bricks of drick-dots-2x3 have no ids, so no instance number; "
+                            "give drick-dots-2x3 or track:N",
+        "drick:1": "no layout named 'drick' is in use (in use: drick-aruco-centre, "
+                   "drick-dots-2x3)",
+    }
+    for spec, why in refused.items():
+        with pytest.raises(ValueError) as e:
+            sel.set(spec)
+        assert str(e.value) == why, spec
+    assert str(sel.spec) == "nearest"  # a refused spec changes nothing
+    with pytest.raises(ValueError, match="track number"):
+        sel.set({"mode": "track", "track": -1})
+    assert str(sel.set("drick-aruco-centre:19")) == "drick-aruco-centre:19"
+    assert str(sel.set("drick-dots-2x3")) == "drick-dots-2x3"
+    with pytest.raises(ValueError, match="no layout named 'x'"):
+        TargetSelector("x:1", layouts=layouts)
+
+
 def test_jsonl_file_and_bad_specs(tmp_path):
     s = open_sink(f"jsonl:{tmp_path / 'sub' / 'o.jsonl'}")
     s.send(_output())

@@ -6,6 +6,7 @@ a second or two."""
 
 from __future__ import annotations
 
+import asyncio
 import io
 import itertools
 import json
@@ -158,6 +159,30 @@ def test_live_auto_capture_saves_each_view_at_once(make_client):
     assert int(r.headers["x-frame-seq"]) > 0
     r = c.get(s["views"][0]["thumb"])
     assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+
+
+def test_pages_waiting_for_a_frame_hold_no_worker_thread(make_client):
+    """Forty pages each waiting (a second) for a frame newer than any: with one worker
+    thread, a route that needs it still answers (a wait held a thread each, before)."""
+    import anyio
+    import httpx
+
+    c = make_client(lambda: ScriptedSource(still([0]), hold=True))
+    wait_state(c, lambda s: s["camera"]["state"] == "ok")
+
+    async def main() -> None:
+        anyio.to_thread.current_default_thread_limiter().total_tokens = 1  # this loop's
+        transport = httpx.ASGITransport(app=c.app)
+        async with httpx.AsyncClient(transport=transport, base_url=LOCAL) as client:
+            waiting = [asyncio.create_task(client.get(f"{API}/frame.jpg?after=10000000"))
+                       for _ in range(40)]
+            await asyncio.sleep(0)
+            r = await asyncio.wait_for(client.get(f"{API}/state"), 20)  # failure, not timing
+            assert r.status_code == 200 and r.json()["camera"]["state"] == "ok"
+            frames = await asyncio.wait_for(asyncio.gather(*waiting), 60)
+        assert all(f.status_code == 200 and f.content[:2] == b"\xff\xd8" for f in frames)
+
+    asyncio.run(main())
 
 
 def test_sample_playback_auto_captures(make_client):

@@ -236,6 +236,32 @@ def test_marker_edits_and_undo(client):
     assert r.status_code == 422
 
 
+def test_marker_sizes_are_bounded_like_the_layouts_checks(client):
+    upload(client)
+    place_all(client)
+    before = client.get(f"{API}/state").json()
+    for path, body, field, bound in [
+            ("/defaults", {"code_size_mm": 1e-300}, "code_size_mm", "greater than or equal to 1"),
+            ("/defaults", {"dot_diameter_mm": 0.5}, "dot_diameter_mm", "greater than or equal to 1"),
+            ("/defaults", {"code_size_mm": 5001}, "code_size_mm", "less than or equal to 5000"),
+            ("/markers/0", {"size_mm": 1e-9}, "size_mm", "greater than or equal to 1"),
+            ("/fix", {"action": {"op": "set_size", "marker": 0, "size": 1e-6}}, "action.size",
+             "greater than or equal to 0.001")]:
+        r = client.post(API + path, json=body)
+        assert r.status_code == 422, (path, body, r.text)
+        assert r.json()["detail"] == f"{field}: Input should be {bound}", r.text
+    after = client.get(f"{API}/state").json()
+    assert after["markers"] == before["markers"] and after["defaults"] == before["defaults"]
+    # the core's own check says the same range (the 3D view's and the fixes' path)
+    from drovisio.designer.model import DesignError
+    from drovisio.designer.model.edits import check_size
+
+    with pytest.raises(DesignError, match="from 1 mm to 5 m"):
+        check_size(0.0005)
+    s = client.post(f"{API}/markers/0", json={"size_mm": 1}).json()
+    assert s["markers"][0]["size_mm"] == 1.0
+
+
 def test_frame_open_and_nothing_loaded(client):
     assert client.post(f"{API}/click", json={"origin": [0, 0, 1],
                                              "direction": [0, 0, -1]}).json()["click"][

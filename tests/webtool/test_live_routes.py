@@ -11,6 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from drovisio.detect.result import BrickPose
+from drovisio.layout import load_layouts, shipped_layouts_dir
 from drovisio.pipeline import Pipeline
 from drovisio.sources import FrameSource, RawFrame
 from webtool.access import COOKIE_NAME
@@ -62,7 +63,8 @@ def _fake_pipeline(svc):
     from drovisio.camera import Camera
 
     svc.camera = Camera.from_fov()
-    return Pipeline(FrameSource(NoiseCamera()), [OneBrick()])
+    svc.layouts = load_layouts([shipped_layouts_dir() / "drick-aruco-centre.json"])
+    return Pipeline(FrameSource(NoiseCamera()), [OneBrick()], layouts=svc.layouts)
 
 
 def _app(settings=None, **kw):
@@ -137,6 +139,88 @@ def test_status_frame_bricks_and_target():
         for k in ("fps", "detect_ms", "latency_ms", "bricks", "source"):
             assert k in st
         assert st["source"]["state"] == "live" and st["fps"] > 5
+
+
+def test_a_target_the_loaded_layouts_cannot_have_is_refused_in_one_line():
+    app = _app()
+    with TestClient(app, base_url=LOCAL) as c:
+        for spec, detail in [
+            ("track:-1", "bad target: track number: -1 is out of range: give a whole number "
+                         "1 or more"),
+            ("drick-aruco-centre:20", "bad target: drick-aruco-centre has instances 0 to 19; "
+                                      "20 is not one of them"),
+            ("drick-aruco-pyramids:1", "bad target: no layout named 'drick-aruco-pyramids' "
+                                       "is in use (in use: drick-aruco-centre)")]:
+            r = c.post("/api/live/target", json={"spec": spec})
+            assert r.status_code == 422 and r.json()["detail"] == detail, r.text
+        assert c.get("/api/live/status").json()["target"]["spec"] == "nearest"
+        r = c.post("/api/live/target", json={"spec": "drick-aruco-centre:19"})
+        assert r.status_code == 200 and r.json()["target"]["instance"] == 19
+
+
+def test_another_sites_page_cannot_start_the_pipeline_with_a_get():
+    app = _app()
+    with TestClient(app, base_url=LOCAL) as c:
+        # an <img> on another site's page: no Origin, but the browser says where it is from
+        for headers in ({"Sec-Fetch-Site": "cross-site"}, {"Sec-Fetch-Site": "same-site"},
+                        {"Origin": "http://evil.example"}):
+            for path in ("/api/live/frame.jpg", "/api/live/status", "/live/3d/"):
+                r = c.get(path, headers=headers)
+                assert r.status_code == 403, (path, headers, r.status_code)
+                assert "another site" in r.json()["detail"]
+        assert app.state.live.pipeline is None and not app.state.live.status()["running"]
+        # the tool's own page (and a program that says nothing) still start it
+        r = c.get("/api/live/frame.jpg", headers={"Sec-Fetch-Site": "same-origin"})
+        assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
+        assert app.state.live.status()["running"]
+
+
+def test_sockets_beyond_the_cap_are_refused_with_the_reason():
+    from starlette.testclient import WebSocketDenialResponse
+
+    app = _app(Settings(max_sockets=2))
+    why = ("too many live views open (at most 2 streams and 3D views at once); close one "
+           "and reload")
+    with TestClient(app, base_url=LOCAL) as c:
+        with c.websocket_connect(LOCAL_WS + "/api/live/ws") as a, \
+                c.websocket_connect(LOCAL_WS + "/api/live/ws") as b:
+            assert a.receive() and b.receive()
+            for path in ("/api/live/ws", "/live/3d", "/designer/3d"):  # 3D views count too
+                with pytest.raises(WebSocketDenialResponse) as e, \
+                        c.websocket_connect(LOCAL_WS + path):
+                    pass
+                assert e.value.status_code == 503 and e.value.json()["detail"] == why
+            assert app.state.live.viewers == 2
+        # closed ones free their places
+        with c.websocket_connect(LOCAL_WS + "/api/live/ws") as a, \
+                c.websocket_connect(LOCAL_WS + "/api/live/ws") as b:
+            assert a.receive() and b.receive()
+
+
+def test_the_3d_relay_queues_two_messages_at_most(monkeypatch):
+    """A browser that reads slowly must stop the relay reading from viser (whose buffer then
+    keeps only the newest state of each thing) instead of the relay queueing for it."""
+    import asyncio
+
+    from webtool.viewer import proxy
+
+    asked = {}
+
+    async def refuse(url, **kw):
+        asked.update(kw)
+        raise OSError("no viser here")
+
+    monkeypatch.setattr(proxy, "connect", refuse)
+
+    class Ws:
+        scope: dict = {}
+
+        async def close(self, code=1000):
+            asked["closed"] = code
+
+    asyncio.run(proxy.proxy_socket(Ws(), 1))
+    assert asked["closed"] == 1011 and asked["max_queue"] is not None
+    assert asked["max_queue"] <= 2
 
 
 def test_several_viewers_share_the_bandwidth_cap():

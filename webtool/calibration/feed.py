@@ -10,6 +10,7 @@ the source is reopened with a growing pause (0.5 s → 4 s).
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
 from collections.abc import Callable
@@ -99,17 +100,18 @@ class CameraFeed:
             then()
             self.cond.notify_all()
 
-    def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
+    async def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
         """The latest annotated frame (JPEG), waiting up to ``wait`` s for one newer than
-        ``after``; (None, seq) when there is no live picture (camera lost or not started)."""
-        deadline = time.monotonic() + wait
-        with self.cond:
-            while (self.seq <= after and self.status.state in ("ok", "starting")
-                   and not self.closed):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self.cond.wait(left)
+        ``after``; (None, seq) when there is no live picture (camera lost or not started).
+
+        Waits on the event loop, like the designer's long poll: a page waiting for its next
+        frame must not hold one of the server's worker threads (forty waiting requests would
+        stall every other route)."""
+        deadline = time.monotonic() + max(0.0, wait)
+        while (self.seq <= after and self.status.state in ("ok", "starting")
+               and not self.closed and time.monotonic() < deadline):
+            await asyncio.sleep(0.05)
+        with self.cond:  # held by the worker only while it swaps the latest frame
             if self.status.state != "ok":
                 return None, self.seq
             return self.latest_jpeg, self.seq

@@ -69,8 +69,8 @@ def state(svc: CalibrationDep) -> JSONResponse:
 
 
 @router.get("/frame.jpg")
-def frame(svc: CalibrationDep, after: Annotated[int, Query(ge=-1)] = -1) -> Response:
-    data, seq = svc.latest_frame(after, wait=1.0)
+async def frame(svc: CalibrationDep, after: Annotated[int, Query(ge=-1)] = -1) -> Response:
+    data, seq = await svc.latest_frame(after, wait=1.0)
     if data is None:
         return JSONResponse({"detail": svc.camera_message or "no picture from the camera yet"},
                             status_code=503, headers={**NO_STORE, "X-Frame-Seq": str(seq)})

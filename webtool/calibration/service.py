@@ -606,10 +606,11 @@ class CalibrationService:
                 "message": f"In use: this server's camera file is now {path}."}
 
     # ----------------------------------------------------------------------------- state
-    def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
+    async def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
         """The latest annotated frame (JPEG), waiting up to ``wait`` s for one newer than
-        ``after``; (None, seq) when there is no live picture (camera lost or not started)."""
-        return self._feed.latest_frame(after, wait)
+        ``after`` (on the event loop); (None, seq) when there is no live picture (camera lost
+        or not started)."""
+        return await self._feed.latest_frame(after, wait)
 
     def state(self) -> dict[str, Any]:
         """Everything the page shows (see ``GET /api/calibration/state``)."""

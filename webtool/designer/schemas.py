@@ -10,6 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 
+from drovisio.designer.model.edits import MAX_MARKER_SIZE_M, MIN_MARKER_SIZE_M
 from webtool.schemas import Answer, Body, Json
 
 __all__ = ["ClickBody", "DefaultsBody", "DesignerState", "FixAction", "FixBody", "FrameBody",
@@ -18,7 +19,9 @@ __all__ = ["ClickBody", "DefaultsBody", "DesignerState", "FixAction", "FixBody",
 
 
 # ------------------------------------------------------------------------------ requests
-Size = Annotated[float, Field(gt=0, le=5000)]          # millimetres
+#: a code side or dot diameter in millimetres, in the designer model's bounds (one range for
+#: the page's sizes, its defaults and its fixes)
+Size = Annotated[float, Field(ge=MIN_MARKER_SIZE_M * 1000, le=MAX_MARKER_SIZE_M * 1000)]
 Angle = Annotated[float, Field(ge=-3600, le=3600)]      # degrees
 Coord = Annotated[float, Field(ge=-1e6, le=1e6)]
 Whole = Annotated[int, Field(ge=0, le=1_000_000)]
@@ -93,7 +96,7 @@ class FixAction(Body):
     marker: Whole | None = None
     markers: Annotated[list[Whole], Field(min_length=1, max_length=200)] | None = None
     color: Annotated[str, Field(max_length=40)] | None = None
-    size: Annotated[float, Field(gt=0, le=5)] | None = None
+    size: Annotated[float, Field(ge=MIN_MARKER_SIZE_M, le=MAX_MARKER_SIZE_M)] | None = None  # m
     value: Annotated[str, Field(max_length=40)] | Whole | None = None
     units: Literal["mm", "cm", "m"] | None = None
 

@@ -18,7 +18,7 @@ from fastapi.responses import Response
 from starlette.requests import HTTPConnection
 from websockets.asyncio.client import connect
 
-from webtool.access import access_level
+from webtool.access import access_level, refuse_other_sites
 
 __all__ = ["client_response", "proxy_socket", "viewer_router"]
 
@@ -84,8 +84,11 @@ async def proxy_socket(ws: WebSocket, port: int | None) -> None:
         return
     protos = list(ws.scope.get("subprotocols") or [])
     try:
+        # two messages queued at most: a browser that reads slowly stops this relay reading
+        # from viser, whose own buffer then keeps only the newest state of each thing in
+        # the scene (old frames dropped) instead of this relay buffering megabytes a client
         up = await connect(f"ws://127.0.0.1:{port}", subprotocols=protos or None,
-                           max_size=None, compression=None, open_timeout=10)
+                           max_size=None, compression=None, open_timeout=10, max_queue=2)
     except Exception:  # noqa: BLE001
         await ws.close(code=1011)
         return
@@ -139,6 +142,7 @@ def viewer_router(prefix: str, tag: str,
     @router.get("/{path:path}")
     async def viser_client(request: Request, path: str = "") -> Response:
         if start_for_client:
+            refuse_other_sites(request)  # a GET that starts a viser server
             await start_scene(request)
         return await client_response(request, path)
 

@@ -10,9 +10,12 @@ from typing import Any
 
 from drovisio.designer.model.codes import code_families
 from drovisio.designer.model.errors import DesignError
+from drovisio.layout import SYMMETRY_TOL_M
 
 __all__ = [
     "KEEP",
+    "MAX_MARKER_SIZE_M",
+    "MIN_MARKER_SIZE_M",
     "check_colour",
     "check_size",
     "check_slot",
@@ -25,6 +28,17 @@ __all__ = [
 #: The value of ``first_id``/``ids_per_instance`` that leaves them unchanged.
 KEEP = "keep"
 
+#: Smallest code side or dot diameter, metres: the layout's checks compare marker positions
+#: to 1 mm (:data:`~drovisio.layout.SYMMETRY_TOL_M`); a smaller mark is below what they
+#: resolve (and below what a printer and a camera make of it).
+MIN_MARKER_SIZE_M = SYMMETRY_TOL_M
+#: Largest code side or dot diameter, metres (more is a unit mistake).
+MAX_MARKER_SIZE_M = 5.0
+
+
+def _size_range() -> str:
+    return f"from {MIN_MARKER_SIZE_M * 1000:g} mm to {MAX_MARKER_SIZE_M:g} m"
+
 
 def check_colour(colour: str, palette: Mapping[str, Any]) -> None:
     """A dot colour must be in the design's palette."""
@@ -33,11 +47,12 @@ def check_colour(colour: str, palette: Mapping[str, Any]) -> None:
 
 
 def check_size(size: Any) -> float:
-    """A marker size: a positive number of metres below 5 m. Returns it as a float."""
+    """A marker size in metres, :data:`MIN_MARKER_SIZE_M` to :data:`MAX_MARKER_SIZE_M`.
+    Returns it as a float."""
     if not (isinstance(size, (int, float)) and math.isfinite(size) and size > 0):
         raise DesignError("the size must be a positive number")
-    if size > 5.0:
-        raise DesignError("the size is given in metres and must be below 5 m")
+    if not MIN_MARKER_SIZE_M <= size <= MAX_MARKER_SIZE_M:
+        raise DesignError(f"the size is given in metres and must be {_size_range()}")
     return float(size)
 
 
@@ -51,10 +66,12 @@ def check_slot(slot: Any) -> int:
 def check_defaults(*, code_size: float | None, dot_diameter: float | None,
                    dot_color: str | None, grid: float | None, snap_radius: float | None,
                    palette: Mapping[str, Any]) -> None:
-    """Sizes for the next markers (0..5 m), snapping steps (0..1 m), a palette colour."""
+    """Sizes for the next markers (see :func:`check_size`), snapping steps (0..1 m), a
+    palette colour."""
     for name, v in (("code size", code_size), ("dot diameter", dot_diameter)):
-        if v is not None and not (math.isfinite(v) and 0 < v <= 5):
-            raise DesignError(f"the {name} must be between 0 and 5 m")
+        if v is not None and not (math.isfinite(v)
+                                  and MIN_MARKER_SIZE_M <= v <= MAX_MARKER_SIZE_M):
+            raise DesignError(f"the {name} must be {_size_range()}")
     for name, v in (("grid step", grid), ("snap distance", snap_radius)):
         if v is not None and not (math.isfinite(v) and 0 <= v <= 1):
             raise DesignError(f"the {name} must be between 0 and 1 m (0 turns it off)")
