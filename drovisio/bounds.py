@@ -20,11 +20,16 @@ from typing import NoReturn
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
+__all__ = ["CAMERA_TILT_MAX_DEG", "MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
 
 MOUNT_OFFSET_MAX_M = 10.0
 """Largest camera offset from the body origin, metres, in each axis: one bound for the mount
 file, ``calibrate mount --offset`` and the mount page (a larger one is a unit mistake)."""
+
+CAMERA_TILT_MAX_DEG = 90.0
+"""Largest tilt of a mission's camera from straight down, forward or back (a scenario's
+``tilt_deg``, ``mission landing --tilt``): beyond it the camera looks above the horizon and
+never sees a brick on the ground."""
 
 MAX_SUPERSAMPLING = 8
 """Most renderer samples per pixel and axis (``--ss``): memory grows with its square (at 64 a
@@ -105,13 +110,15 @@ def parse_number(text: object, lo: float | None = None, hi: float | None = None,
             v = float(text)  # type: ignore[arg-type]
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"{one_line(text, 40)!r} is not a number") from None
+    bounded = lo is not None or hi is not None
+    rng = "" if not bounded else (
+        f"above {lo:g}" + (f" and at most {hi:g}" if hi is not None else "")
+        + (f" {unit}" if unit else "") if above and lo is not None else _range(lo, hi, unit))
     if not math.isfinite(v):
-        raise ValueError(f"{v} is not a finite number")
+        raise ValueError(f"{v} is not a finite number" + (f"; give a number {rng}" if bounded
+                                                           else ""))
     if (lo is not None and (v < lo or (above and v == lo))) or (hi is not None and v > hi):
-        rng = (f"above {lo:g}" + (f" and at most {hi:g}" if hi is not None else "")
-               if above and lo is not None else _range(lo, hi))
-        raise ValueError(f"{v:g} is out of range: give a number {rng}"
-                         + (f" {unit}" if unit and not above else ""))
+        raise ValueError(f"{v:g} is out of range: give a number {rng}")
     return v
 
 

@@ -242,7 +242,8 @@ def test_gravity_file_reader(tmp_path_factory, lines):
     except Exception as e:  # noqa: BLE001
         _check_error(e)
         return
-    for g in t.exact.values():
+    for i in t.exact.values():
+        g = t.unit[i]
         assert np.all(np.isfinite(g)) and abs(np.linalg.norm(g) - 1) < 1e-9
 
 

@@ -16,13 +16,15 @@ camera file, a layout or the gravity file.
 ``--gravity-file``: JSON Lines ``{"file": ..., "gravity": [gx, gy, gz]}`` (unit vector
 pointing down in the camera frame), optionally with ``"frame"`` for a video's frames. A line
 matches a frame by ``file`` as given, else by the normalised path, else by the file's base
-name when that is unique; a video line without ``frame`` applies to all its frames.
+name when that is unique; a video line without ``frame`` applies to all its frames. A frame
+given twice (the same path, normalised, and frame) is refused, naming both lines.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -32,7 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from drovisio.arguments import Command
-from drovisio.errors import InputError, WriteError
+from drovisio.errors import InputError, WriteError, one_line
 from drovisio.fileio import atomic_write, check_output_path
 
 if TYPE_CHECKING:
@@ -51,35 +53,54 @@ def _err(msg: str) -> None:
 
 
 # ----------------------------------------------------------------------------- gravity
-def _gravity_line(line: str, where: str) -> tuple[str, int | None, np.ndarray]:
-    """(file, frame or None, unit gravity in the camera frame) of one gravity-file line."""
+_GRAVITY_TOL = 0.05
+"""How far from 1 a gravity vector's length may be (it is then made exactly 1)."""
+
+
+def _gravity_line(line: str, where: str) -> tuple[str, int | None, tuple[float, float, float]]:
+    """(file, frame or None, gravity as given) of one gravity-file line."""
     from drovisio.textfile import parse_json
 
-    rec = parse_json(line, where)
+    try:
+        rec = _DECODER.decode(line)   # the C decoder; a line it refuses is read again below
+    except (ValueError, RecursionError):
+        rec = parse_json(line, where)   # says what is wrong, and where
     if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
         raise InputError(f'{where}: expected an object with "file" and "gravity"')
     f = rec["file"]
     if not isinstance(f, str) or not f:
         raise InputError(f'{where}: file: must be a non-empty string')
-    g = _unit_gravity(rec["gravity"], where)   # said before a bad frame, as always
+    g = _check_gravity(rec["gravity"], where)   # said before a bad frame, as always
     return f, _frame_of(rec.get("frame"), where), g
 
 
-def _unit_gravity(g: object, where: str) -> np.ndarray:
-    """A gravity file's ``gravity``: 3 numbers of length 1 (within 5 %), made exactly 1."""
-    import numpy as np
+def _no_constant(name: str) -> None:
+    raise ValueError(name)   # NaN, Infinity: parse_json then names them
 
-    if not (isinstance(g, list) and len(g) == 3 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) for x in g)):
+
+_DECODER = json.JSONDecoder(parse_constant=_no_constant)
+
+
+def _check_gravity(g: object, where: str) -> tuple[float, float, float]:
+    """A gravity file's ``gravity``: 3 numbers, each within ±1.05 (checked before any
+    arithmetic: 1e308 would overflow), of length 1 within 5 %."""
+    if not (type(g) is list and len(g) == 3 and all(type(x) in (int, float) for x in g)):
         raise InputError(f'{where}: gravity: must be 3 numbers [gx, gy, gz]')
-    gv = np.asarray(g, np.float64)
-    n = float(np.linalg.norm(gv))
-    if not np.all(np.isfinite(gv)) or n < 1e-9:
+    gx, gy, gz = g
+    big = 1.0 + _GRAVITY_TOL
+    if not (-big <= gx <= big and -big <= gy <= big and -big <= gz <= big):
+        shown = ", ".join(f"{x:.3g}" if isinstance(x, float) else one_line(x, 12) for x in g)
+        raise InputError(f"{where}: gravity: [{shown}] is not a unit vector (each number "
+                         f"from -{big:g} to {big:g}); give the direction of gravity, pointing "
+                         "down, camera frame")
+    gx, gy, gz = float(gx), float(gy), float(gz)
+    n = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if n < 1e-9:
         raise InputError(f'{where}: gravity: must be a finite, non-zero vector')
-    if abs(n - 1.0) > 0.05:
+    if abs(n - 1.0) > _GRAVITY_TOL:
         raise InputError(f'{where}: gravity: has length {n:.3g}; give a unit vector '
                          "(pointing down, camera frame)")
-    return gv / n
+    return gx, gy, gz
 
 
 def _frame_of(frame: object, where: str) -> int | None:
@@ -91,50 +112,84 @@ def _frame_of(frame: object, where: str) -> int | None:
 
 
 class GravityTable:
-    """Gravity per frame from a ``--gravity-file``."""
+    """Gravity per frame from a ``--gravity-file``: one line per frame (a frame given twice
+    is refused, naming both lines), at most :attr:`MAX_LINES` lines of at most
+    :attr:`MAX_LINE_BYTES` (a line per frame of a 9-hour video at 30 fps), read in one pass.
+
+    Attributes:
+        unit: (N, 3) unit gravity vectors, one row per line of the file.
+        exact, norm, base: row of ``unit`` by (file as given, frame), by (normalised path,
+            frame), and by (base name, frame) (-1: that base name is on several lines).
+    """
 
     MAX_LINES = 1_000_000
+    MAX_LINE_BYTES = 64 * 1024
+    MAX_BYTES = 128 * 1024 * 1024
 
-    def __init__(self) -> None:
-        self.exact: dict[tuple[str, int | None], np.ndarray] = {}
-        self.norm: dict[tuple[str, int | None], np.ndarray] = {}
-        self.base: dict[tuple[str, int | None], list[np.ndarray]] = {}
+    def __init__(self, unit: np.ndarray | None = None) -> None:
+        import numpy as np
+
+        self.unit = np.zeros((0, 3)) if unit is None else unit
+        self.exact: dict[tuple[str, int | None], int] = {}
+        self.norm: dict[tuple[str, int | None], int] = {}
+        self.base: dict[tuple[str, int | None], int] = {}
 
     @classmethod
     def load(cls, path: str) -> GravityTable:
         """The table of a gravity file (JSON Lines ``{"file", "frame"?, "gravity"}``).
 
         Raises:
-            InputError: a line that is not such an object, naming the line and the field.
+            InputError: a line that is not such an object, naming the line and the field; a
+                frame given twice, naming both lines; a file, or a line, over its bound.
         """
+        from array import array
+
+        import numpy as np
+
         from drovisio.textfile import read_text
 
-        text = read_text(path, "gravity file", max_bytes=256 * 1024 * 1024)
-        t = cls()
+        text = read_text(path, "gravity file", max_bytes=cls.MAX_BYTES)
+        if text.count("\n") > cls.MAX_LINES:
+            raise InputError(f"{path}: more than {cls.MAX_LINES} lines; split the run")
+        files: list[tuple[str, int | None]] = []
+        first_line: dict[tuple[str, int | None], int] = {}   # by normalised path
+        rows = array("d")
         for ln, line in enumerate(text.splitlines(), 1):
             if not line.strip():
                 continue
-            if ln > cls.MAX_LINES:
-                raise InputError(f"{path}: more than {cls.MAX_LINES} lines; split the run")
-            t.add(*_gravity_line(line, f"{path}, line {ln}"))
+            where = f"{path}, line {ln}"
+            if len(line) > cls.MAX_LINE_BYTES:
+                raise InputError(f"{where}: longer than {cls.MAX_LINE_BYTES // 1024} KiB; a "
+                                 'line is {"file", "frame", "gravity"}: is it the right file?')
+            f, frame, g = _gravity_line(line, where)
+            seen = first_line.setdefault((os.path.normpath(f), frame), ln)
+            if seen != ln:
+                what = f"{f!r}" + (f" frame {frame}" if frame is not None else "")
+                raise InputError(f"{where}: file: {one_line(what, 120)} is given again (first "
+                                 f"at line {seen}); give each frame's gravity once")
+            files.append((f, frame))
+            rows.extend(g)
+        unit = np.frombuffer(rows, np.float64).reshape(-1, 3).copy()
+        unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+        t = cls(unit)
+        t.exact = {k: i for i, k in enumerate(files)}
+        t.norm = {k: i for i, k in enumerate(first_line)}   # insertion order: the lines'
+        for i, (f, frame) in enumerate(files):
+            key = (os.path.basename(f), frame)
+            t.base[key] = -1 if key in t.base else i   # a base name is used only if unique
         return t
-
-    def add(self, file: str, frame: int | None, g: np.ndarray) -> None:
-        self.exact[(file, frame)] = g
-        self.norm[(os.path.normpath(file), frame)] = g
-        self.base.setdefault((os.path.basename(file), frame), []).append(g)
 
     def lookup(self, file: str, frame: int, is_video: bool) -> np.ndarray | None:
         keys = [frame, None] if is_video else [None, frame]
         for k in keys:
             for table, name in ((self.exact, file), (self.norm, os.path.normpath(file))):
-                g = table.get((name, k))
-                if g is not None:
-                    return g
+                i = table.get((name, k))
+                if i is not None:
+                    return self.unit[i]
         for k in keys:
-            cands = self.base.get((os.path.basename(file), k))
-            if cands and len(cands) == 1:
-                return cands[0]
+            i = self.base.get((os.path.basename(file), k), -1)
+            if i >= 0:
+                return self.unit[i]
         return None
 
 

@@ -22,7 +22,6 @@ from pathlib import Path
 from drovisio.arguments import (
     Command,
     bounded,
-    finite_float,
     nonnegative_float,
     positive_float,
     positive_int,
@@ -30,6 +29,7 @@ from drovisio.arguments import (
     supersampling,
     whole_in,
 )
+from drovisio.bounds import CAMERA_TILT_MAX_DEG
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text
 from drovisio.mission.faults import CHECK_FAULTS, preset
@@ -355,9 +355,10 @@ def _add_landing(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--camera", metavar="CAMERA_FILE",
                    help="camera file (default: the 60° 640x480 drone webcam)")
     g.add_argument("--mount", metavar="MOUNT_FILE", help="mount file (default: --tilt)")
-    g.add_argument("--tilt", type=finite_float, default=20.0, metavar="DEG",
-                   help="without --mount: forward tilt, camera 8 cm ahead and 5 cm below the "
-                        "body origin (default 20)")
+    g.add_argument("--tilt", type=bounded(-CAMERA_TILT_MAX_DEG, CAMERA_TILT_MAX_DEG),
+                   default=20.0, metavar="DEG",
+                   help="without --mount: forward tilt from straight down, -90 to 90 degrees, "
+                        "camera 8 cm ahead and 5 cm below the body origin (default 20)")
     g.add_argument("--layout", metavar="LAYOUT.json",
                    help="the brick (default: drick-aruco-centre)")
     g.add_argument("--rate", type=positive_float, default=15.0, metavar="HZ",

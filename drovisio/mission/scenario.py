@@ -44,6 +44,7 @@ from drovisio.errors import InputError, one_line
 from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layouts_dir
 from drovisio.mission.frames import wrap_half
 from drovisio.mission.scenario_model import (
+    MAX_FILE_BYTES,
     SCHEMA_ID,
     Altitudes,
     Area,
@@ -137,7 +138,7 @@ def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, An
             problems.append(f"{src}: layouts[{i}]: file {p} holds layout {lay.name!r}")
         out[n] = lay   # keyed as the scenario names it: bricks[].layout repeats that entry
     if problems:
-        raise ScenarioError("\n".join(problems))
+        raise _problems(problems[0], len(problems) - 1)
     try:
         check_layout_set(list(out.values()))
     except LayoutError as e:
@@ -172,15 +173,33 @@ def _check_shape(data: Any, src: str) -> None:
                                 "'on' for a boolean; the field is 'rests_on'")
 
 
+def _problems(first: str, more: int) -> ScenarioError:
+    """A file's first problem in one line, and how many more there are (a file of thousands of
+    problems is one short line)."""
+    return ScenarioError(first + (f" (and {more} more problem{'s' if more > 1 else ''} in "
+                                  "this file)" if more else ""))
+
+
+def _schema_message(err: Any) -> str:
+    """What is wrong with a field, as pydantic found it: a field's own check (a number out of
+    its range) says it with the value; a list too long says its length and the most."""
+    if err["type"] == "value_error":
+        return str(err["msg"]).removeprefix("Value error, ")
+    if err["type"] == "too_long" and isinstance(err.get("input"), list):
+        ctx = err.get("ctx", {})
+        return (f"{ctx.get('actual_length', len(err['input']))} entries; a scenario holds at "
+                f"most {ctx.get('max_length')}")
+    return str(err["msg"]) + (f" (got {one_line(repr(err['input']), 60)})"
+                              if err["type"] != "missing"
+                              and not isinstance(err.get("input"), (dict, list)) else "")
+
+
 def _schema_error(e: ValidationError, src: str) -> ScenarioError:
     """The schema's first problem in one line (and how many more there are)."""
-    lines = [f"{src}: {_format_loc(err['loc'])}: {err['msg']}"
-             + (f" (got {one_line(repr(err['input']), 60)})" if err["type"] not in
-                ("missing",) and not isinstance(err.get("input"), (dict, list)) else "")
-             for err in e.errors()[:20]]
-    more = len(e.errors()) - 1
-    return ScenarioError(lines[0] + (f" (and {more} more problem{'s' if more > 1 else ''}"
-                                     " in this file)" if more else ""))
+    errors = e.errors(include_url=False)
+    first = errors[0]
+    return _problems(f"{src}: {_format_loc(first['loc'])}: {_schema_message(first)}",
+                     len(errors) - 1)
 
 
 def parse_scenario(data: dict[str, Any] | str | bytes,
@@ -188,7 +207,7 @@ def parse_scenario(data: dict[str, Any] | str | bytes,
     """Validate a scenario given as a dict or YAML/JSON text.
 
     Raises:
-        ScenarioError: listing every problem as ``FILE: FIELD: message``.
+        ScenarioError: the first problem as ``FILE: FIELD: message``, and how many more.
     """
     src = os.fspath(source)
     data = _parsed(data, src)
@@ -202,7 +221,8 @@ def parse_scenario(data: dict[str, Any] | str | bytes,
     scn._layouts = _load_layouts(scn.layouts, base, src)
     issues = scn._semantic_issues()
     if issues:
-        raise ScenarioError("\n".join(f"{src}: {loc}: {msg}" for loc, msg in issues))
+        loc, msg = issues[0]
+        raise _problems(f"{src}: {loc}: {msg}", len(issues) - 1)
     return scn
 
 
@@ -210,11 +230,12 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
     """Read and validate a scenario file (YAML or JSON).
 
     Raises:
-        ScenarioError: missing file, bad syntax or any invalid field (all listed).
+        ScenarioError: missing file, a file over :data:`MAX_FILE_BYTES`, bad syntax or an
+            invalid field (the first, and how many more).
     """
     src = os.fspath(path)
     try:
-        raw = read_text(path, "scenario file")
+        raw = read_text(path, "scenario file", MAX_FILE_BYTES)
     except InputError as e:
         raise ScenarioError(str(e)) from None
     return parse_scenario(raw, src)

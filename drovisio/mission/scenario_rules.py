@@ -48,19 +48,18 @@ def _pick_issues(scn: ScenarioModel, i: int, b: Brick) -> list[Issue]:
             and abs(p[1] - a.center[1]) <= a.size[1] / 2 + 1e-9):
         out.append((f"bricks[{i}].pick.position", f"{p} is outside site.pick_area"))
     apart = scn.wall.brick_pitch_m * 1.5
-    for j in range(i):
-        q = scn.bricks[j].pick.position
-        if math.dist(p, q) < apart:
-            out.append((f"bricks[{i}].pick.position",
-                        f"{p} is within {apart:.2f} m of brick "
-                        f"{scn.bricks[j].id!r}: bricks to pick must lie apart"))
+    # the first brick listed before it that lies too near (one problem a brick, not a pair)
+    near = next((q for q in scn.bricks[:i] if math.dist(p, q.pick.position) < apart), None)
+    if near is not None:
+        out.append((f"bricks[{i}].pick.position", f"{p} is within {apart:.2f} m of brick "
+                                                  f"{near.id!r}: bricks to pick must lie apart"))
     return out
 
 
-def _brick_issues(scn: ScenarioModel, i: int, b: Brick, ids: list[str]) -> list[Issue]:
+def _brick_issues(scn: ScenarioModel, i: int, b: Brick, first: dict[str, int]) -> list[Issue]:
     """One brick of the inventory: its id, its layout, its instance, where it lies."""
     out: list[Issue] = []
-    if ids.count(b.id) > 1 and ids.index(b.id) != i:
+    if first[b.id] != i:
         out.append((f"bricks[{i}].id", f"duplicate brick id {b.id!r}"))
     if b.layout not in scn.layouts:
         out.append((f"bricks[{i}].layout", f"{b.layout!r} is not in 'layouts' "
@@ -74,8 +73,10 @@ def _brick_issues(scn: ScenarioModel, i: int, b: Brick, ids: list[str]) -> list[
 
 def bricks(scn: ScenarioModel) -> list[Issue]:
     """Each brick of the inventory (see :func:`_brick_issues`)."""
-    ids = [b.id for b in scn.bricks]
-    return [x for i, b in enumerate(scn.bricks) for x in _brick_issues(scn, i, b, ids)]
+    first: dict[str, int] = {}
+    for i, b in enumerate(scn.bricks):
+        first.setdefault(b.id, i)
+    return [x for i, b in enumerate(scn.bricks) for x in _brick_issues(scn, i, b, first)]
 
 
 def codes_unique(scn: ScenarioModel) -> list[Issue]:
@@ -96,18 +97,19 @@ def codes_unique(scn: ScenarioModel) -> list[Issue]:
 def plan_entries(scn: ScenarioModel) -> list[Issue]:
     """Each planned brick exists, is planned once, and course 1's slots are distinct."""
     out: list[Issue] = []
-    plan_ids = [e.brick for e in scn.wall.plan]
+    planned: set[str] = set()
     slots: dict[int, str] = {}
     for i, e in enumerate(scn.wall.plan):
         where = f"wall.plan[{i}]"
         if e.brick not in scn.brick_by_id:
             out.append((f"{where}.brick", f"{e.brick!r} is not in 'bricks'"))
-        if plan_ids.count(e.brick) > 1 and plan_ids.index(e.brick) != i:
+        if e.brick in planned:
             out.append((f"{where}.brick", f"brick {e.brick!r} is planned twice"))
         if e.course == 1 and e.slot is not None:
             if e.slot in slots:
                 out.append((f"{where}.slot", f"slot {e.slot} already holds {slots[e.slot]!r}"))
             slots[e.slot] = e.brick
+        planned.add(e.brick)
     return out
 
 
@@ -121,7 +123,10 @@ def rests_on(scn: ScenarioModel) -> list[Issue]:
         if e.course == 1 or e.rests_on is None:
             continue
         where = f"wall.plan[{i}].rests_on"
-        below = []
+        if e.rests_on[0] == e.rests_on[1]:   # said once, not once for each of the two
+            out.append((where, f"names {e.rests_on[0]!r} twice: the two bricks below must "
+                               "differ"))
+            continue
         for o in e.rests_on:
             oe = scn.plan_by_id.get(o)
             if oe is None:
@@ -129,10 +134,6 @@ def rests_on(scn: ScenarioModel) -> list[Issue]:
             elif oe.course != e.course - 1:
                 out.append((where, f"{o!r} is in course {oe.course}; a course-{e.course} "
                                    f"brick rests on course {e.course - 1}"))
-            else:
-                below.append(o)
-        if len(below) == 2 and below[0] == below[1]:
-            out.append((where, "the two bricks below must differ"))
         if out:
             continue
         key = frozenset(e.rests_on)
@@ -169,10 +170,11 @@ def build_order(scn: ScenarioModel) -> list[Issue]:
 
 def all_planned(scn: ScenarioModel) -> list[Issue]:
     """Every brick of the inventory is in the wall."""
-    plan_ids = [e.brick for e in scn.wall.plan]
+    plan_ids = {e.brick for e in scn.wall.plan}
     unplanned = [b.id for b in scn.bricks if b.id not in plan_ids]
     if unplanned:
-        return [("bricks", f"bricks not in the wall plan: {', '.join(unplanned)}")]
+        more = f" and {len(unplanned) - 10} more" if len(unplanned) > 10 else ""
+        return [("bricks", f"bricks not in the wall plan: {', '.join(unplanned[:10])}{more}")]
     return []
 
 

@@ -107,6 +107,73 @@ def test_bad_gravity_file_is_named(scene_files, tmp_path, capsys):
     assert f"{grav}, line 2" in err and "gravity" in err
 
 
+@pytest.mark.parametrize("text, says", [
+    ('{"file": "a.png", "gravity": [0, 1, 0]}\n{"file": "./a.png", "gravity": [0, -1, 0]}\n',
+     "line 2: file: './a.png' is given again (first at line 1); give each frame's gravity "
+     "once"),
+    ('{"file": "v.mp4", "frame": 3, "gravity": [0, 1, 0]}\n'
+     '{"file": "v.mp4", "frame": 3, "gravity": [0, 1, 0]}\n',
+     "line 2: file: 'v.mp4' frame 3 is given again (first at line 1); give each frame's "
+     "gravity once"),
+    ('{"file": "a.png", "gravity": [1e308, 1e308, 0]}\n',
+     "line 1: gravity: [1e+308, 1e+308, 0] is not a unit vector (each number from -1.05 to "
+     "1.05); give the direction of gravity, pointing down, camera frame"),
+])
+def test_gravity_file_refusals_are_one_line(scene_files, tmp_path, capsys, text, says):
+    grav = tmp_path / "g.jsonl"
+    grav.write_text(text)
+    rc, lines, err = _run(capsys, *_base(scene_files), "--gravity-file", grav,
+                          scene_files["dir"] / "frame.png")
+    assert rc == 2 and lines == []
+    assert err == f"drovisio detect: {grav}, {says}\n"
+
+
+def test_gravity_file_is_read_without_numeric_warnings_and_within_its_bounds(tmp_path,
+                                                                            monkeypatch):
+    import warnings
+
+    from drovisio.commands.detect import GravityTable
+    from drovisio.errors import InputError
+
+    grav = tmp_path / "g.jsonl"
+    grav.write_text('{"file": "a.png", "gravity": [1e308, 1e308, 0]}\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # numpy's overflow warning would fail here
+        with pytest.raises(InputError, match="is not a unit vector"):
+            GravityTable.load(str(grav))
+    monkeypatch.setattr(GravityTable, "MAX_LINES", 3)
+    grav.write_text("\n" * 4)   # blank lines count: the file is refused before it is parsed
+    with pytest.raises(InputError) as e:
+        GravityTable.load(str(grav))
+    assert str(e.value) == f"{grav}: more than 3 lines; split the run"
+    monkeypatch.setattr(GravityTable, "MAX_LINE_BYTES", 1024)
+    grav.write_text(json.dumps({"file": "a.png", "gravity": [0, 1, 0], "x": "a" * 1024}))
+    with pytest.raises(InputError) as e:
+        GravityTable.load(str(grav))
+    assert str(e.value) == (f'{grav}, line 1: longer than 1 KiB; a line is {{"file", "frame", '
+                            '"gravity"}: is it the right file?')
+
+
+def test_gravity_table_matches_by_name_path_and_unique_base_name(tmp_path):
+    from drovisio.commands.detect import GravityTable
+
+    grav = tmp_path / "g.jsonl"
+    grav.write_text("\n".join(json.dumps(x) for x in [
+        {"file": "d1/a.png", "gravity": [0, 2 ** -0.5, 2 ** -0.5]},
+        {"file": "d2/a.png", "gravity": [0, 1, 0]},
+        {"file": "d1/b.png", "gravity": [0, 0, 1.02]},
+        {"file": "v.mp4", "frame": 0, "gravity": [1, 0, 0]},
+        {"file": "v.mp4", "gravity": [-1, 0, 0]}]) + "\n")
+    t = GravityTable.load(str(grav))
+    assert np.allclose(np.linalg.norm(t.unit, axis=1), 1.0)
+    assert t.lookup("d1/a.png", 0, False).tolist() == pytest.approx([0, 2 ** -0.5, 2 ** -0.5])
+    assert t.lookup("./d2/a.png", 0, False).tolist() == [0, 1, 0]
+    assert t.lookup("a.png", 0, False) is None            # two files of that name
+    assert t.lookup("x/b.png", 0, False).tolist() == [0, 0, 1]   # the only b.png, made unit
+    assert t.lookup("v.mp4", 0, True).tolist() == [1, 0, 0]
+    assert t.lookup("v.mp4", 5, True).tolist() == [-1, 0, 0]
+
+
 def test_unreadable_image_gives_an_error_line_and_the_run_goes_on(scene_files, tmp_path,
                                                                    capsys):
     bad = tmp_path / "broken.png"

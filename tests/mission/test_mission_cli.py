@@ -100,3 +100,17 @@ def test_landing_prints_errors_for_a_mount_and_warns_below_2_hz(capsys):
     assert cli.main(["mission", "landing", "--rate", "1.5", "--runs", "2"]) == 0
     out = capsys.readouterr().out
     assert "initialised in 0% of them" in out and "WARNING: 1.4 detections a second" in out
+
+
+def test_a_camera_tilt_beyond_the_horizon_is_refused_in_one_line(small, tmp_path, capsys):
+    d = small.model_dump(by_alias=True, exclude_none=True)
+    d["drone"]["camera"]["mount"]["tilt_deg"] = 1e308
+    p = tmp_path / "tilt.yaml"
+    p.write_text(yaml.safe_dump(d))
+    assert cli.main(["mission", "check", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"drovisio mission: {p}: drone.camera.mount.tilt_deg: 1e+308 is out of "
+                   "range: give a number from -90 to 90 degrees\n")
+    assert cli.main(["mission", "landing", "--tilt", "1e308"]) == 2
+    assert ("argument --tilt: 1e+308 is out of range: give a number from -90 to 90"
+            in capsys.readouterr().err)
