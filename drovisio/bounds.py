@@ -20,11 +20,15 @@ from typing import NoReturn
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
+__all__ = ["MAX_CAMERA_INDEX", "MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
 
 MOUNT_OFFSET_MAX_M = 10.0
 """Largest camera offset from the body origin, metres, in each axis: one bound for the mount
 file, ``calibrate mount --offset`` and the mount page (a larger one is a unit mistake)."""
+
+MAX_CAMERA_INDEX = 255
+"""Highest camera index (``--source N``, ``/dev/videoN``): Linux numbers its video devices
+below 256."""
 
 MAX_SUPERSAMPLING = 8
 """Most renderer samples per pixel and axis (``--ss``): memory grows with its square (at 64 a
