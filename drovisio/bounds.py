@@ -20,7 +20,7 @@ from typing import NoReturn
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["CAMERA_TILT_MAX_DEG", "MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
+__all__ = ["CAMERA_TILT_MAX_DEG", "MAX_CAMERA_INDEX", "MAX_SUPERSAMPLING", "ArgumentParser", "MOUNT_OFFSET_MAX_M", "check_number", "check_whole", "number", "parse_number", "parse_whole", "whole"]
 
 MOUNT_OFFSET_MAX_M = 10.0
 """Largest camera offset from the body origin, metres, in each axis: one bound for the mount
@@ -30,6 +30,10 @@ CAMERA_TILT_MAX_DEG = 90.0
 """Largest tilt of a mission's camera from straight down, forward or back (a scenario's
 ``tilt_deg``, ``mission landing --tilt``): beyond it the camera looks above the horizon and
 never sees a brick on the ground."""
+
+MAX_CAMERA_INDEX = 255
+"""Highest camera index (``--source N``, ``/dev/videoN``): Linux numbers its video devices
+below 256."""
 
 MAX_SUPERSAMPLING = 8
 """Most renderer samples per pixel and axis (``--ss``): memory grows with its square (at 64 a

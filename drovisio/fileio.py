@@ -21,8 +21,9 @@ from pathlib import Path
 
 from drovisio.errors import WriteError, one_line
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "check_output_name",
-           "check_output_path", "guard_outputs", "output_folder", "save_figure", "write_video"]
+__all__ = ["APPENDED", "FILE", "FOLDER", "atomic_write", "atomic_write_bytes", "atomic_write_text",
+           "check_output_name", "check_output_path", "check_outputs", "guard_outputs",
+           "output_folder", "save_figure", "write_video"]
 
 NAME_MAX = 255
 """Longest file name (bytes) on the file systems a drone or laptop uses (ext4, btrfs, vfat)."""
@@ -122,15 +123,65 @@ def check_output_path(path: str | os.PathLike, what: str = "--out",
     return p
 
 
+def _real(p: str | os.PathLike) -> str:
+    """``p`` absolute with every symbolic link that exists resolved (what a write to it would
+    reach)."""
+    try:
+        return os.path.realpath(os.path.abspath(p))
+    except (OSError, ValueError):
+        return os.path.abspath(p)
+
+
+def _same(p: Path, other: str | os.PathLike) -> bool:
+    """Whether ``p`` and ``other`` name the same file (links and hard links included)."""
+    if os.path.abspath(p) == os.path.abspath(other) or _real(p) == _real(other):
+        return True
+    try:
+        return os.path.exists(other) and p.exists() and os.path.samefile(p, other)
+    except (OSError, ValueError):
+        return False
+
+
+def _within(p: Path, folder: str | os.PathLike) -> bool:
+    """Whether ``p`` is ``folder`` or lies anywhere below it, links resolved."""
+    inner, outer = _real(p), _real(folder)
+    try:
+        return os.path.commonpath([inner, outer]) == outer
+    except ValueError:
+        return False
+
+
+def _is_folder(p: str | os.PathLike) -> bool:
+    try:
+        return os.path.isdir(p)
+    except (OSError, ValueError):
+        return False
+
+
+def _read_from(p: Path, folder: str | os.PathLike) -> bool:
+    """Whether writing ``p`` would change what a reader of the input ``folder`` reads: ``p``
+    is the folder, one of its images or videos (a folder of pictures is read in name order,
+    not below), or anything in a recording folder (its index names what it reads)."""
+    if not _is_folder(folder) or not _within(p, folder):
+        return False
+    if _real(p) == _real(folder) or os.path.isfile(os.path.join(folder, "recording.json")):
+        return True
+    # deferred: images loads numpy, which the command line's start does not need
+    from drovisio.images import IMAGE_SUFFIXES, VIDEO_SUFFIXES
+
+    return (os.path.dirname(_real(p)) == _real(folder) and not p.name.startswith(".")
+            and p.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES)
+
+
 def _not_an_input(p: Path, what: str,
                   not_same_as: Mapping[str, str | os.PathLike] | None) -> None:
+    """Refuse ``p`` when it is one of the inputs, or would be one of the files an input
+    folder's reader takes (an image among the images it reads, anything in a recording)."""
     for label, other in (not_same_as or {}).items():
-        o = Path(other)
-        try:
-            same = o.exists() and p.exists() and os.path.samefile(p, o)
-        except (OSError, ValueError):
-            same = False
-        if same or os.path.abspath(p) == os.path.abspath(o):
+        if _read_from(p, other):
+            raise WriteError(f"{p}: {what} would land among what the command reads from "
+                             f"{label}; choose another folder", errno.EEXIST)
+        if _same(p, other):
             raise WriteError(f"{p}: {what} is the same file as {label}; writing it would "
                              "destroy it: choose another name", errno.EEXIST)
 
@@ -145,12 +196,55 @@ OUTPUT_FOLDER_OPTIONS = ("record",)
 #: commands whose ``--out`` is a folder
 FOLDER_OUT_COMMANDS = ("study", "synth")
 
+FILE, FOLDER, APPENDED = "file", "folder", "appended"
+"""Kinds of output for :func:`check_outputs`: a file replaced whole, a folder written into,
+a file appended to (a ``jsonl:PATH`` sink: it may be a device or a pipe)."""
+
+
+def check_outputs(outputs: list[tuple[str, str | os.PathLike, str]],
+                  inputs: Mapping[str, str | os.PathLike]) -> None:
+    """The one check of a command's outputs before it starts: each is a name the file system
+    can hold, of the right kind (a file or a folder), neither an input nor inside an input
+    folder, and the outputs are distinct (no two the same file, none inside an output folder).
+
+    Args:
+        outputs: (option as said, path, kind: :data:`FILE`, :data:`FOLDER` or
+            :data:`APPENDED`).
+        inputs: What the command reads: label (the option and value) -> path.
+
+    Raises:
+        WriteError: one line naming the option and what to do.
+    """
+    checked: list[tuple[str, Path, str]] = []
+    for what, path, kind in outputs:
+        p = check_output_name(path, what)
+        if kind == FILE:
+            check_output_path(p, what, inputs)
+        else:
+            st = _stat(p)
+            if kind == FOLDER and st is not None and not stat.S_ISDIR(st.st_mode):
+                raise WriteError(f"{p}: {what} is a file; give a folder", errno.ENOTDIR)
+            _not_an_input(p, what, inputs)
+        for other_what, q, other_kind in checked:
+            if _same(p, q):
+                both = "given twice" if what == other_what else f"the same file as {other_what}"
+                raise WriteError(f"{p}: {what} is {both}; give each output its own name",
+                                 errno.EEXIST)
+            for inner, inner_what, outer, outer_what, outer_kind in (
+                    (p, what, q, other_what, other_kind), (q, other_what, p, what, kind)):
+                if outer_kind == FOLDER and _within(inner, outer):
+                    raise WriteError(f"{inner}: {inner_what} lies inside {outer_what}'s "
+                                     f"folder {outer}; give it a place outside",
+                                     errno.EEXIST)
+        checked.append((what, p, kind))
+
 
 def guard_outputs(args: object) -> None:
     """The one output guard of the command line, run before any command starts: every output
     option (``--out``, ``--pdf``, ``--report``, ``--json``, ``--record``, a ``jsonl:PATH``
-    sink) must be a name the file system can hold and must not be one of the command's inputs
-    (``calibrate mount --camera cam.yaml --out cam.yaml`` would replace the camera file).
+    sink) goes through :func:`check_outputs` against the command's inputs
+    (``calibrate mount --camera cam.yaml --out cam.yaml`` would replace the camera file,
+    ``detect --out frames/a.jpg frames`` an image it reads).
 
     Args:
         args: The parsed command line (an ``argparse.Namespace``).
@@ -164,34 +258,26 @@ def guard_outputs(args: object) -> None:
         for item in (v if isinstance(v, (list, tuple)) else [v]):
             if isinstance(item, (str, os.PathLike)) and os.fspath(item):
                 opt = "input" if name in ("inputs", "images") else f"--{name.replace('_', '-')}"
-                inputs.setdefault(f"{opt} {os.fspath(item)}", os.fspath(item))
+                inputs.setdefault(f"{opt} {one_line(os.fspath(item), 120)}", os.fspath(item))
     command = getattr(args, "command", "")
-    outputs: list[tuple[str, str | os.PathLike, bool]] = []
+    outputs: list[tuple[str, str | os.PathLike, str]] = []
     for name in OUTPUT_FILE_OPTIONS:
         v = getattr(args, name, None)
         if isinstance(v, (str, os.PathLike)):
-            outputs.append((f"--{name}", v, command in FOLDER_OUT_COMMANDS and name == "out"))
+            folder = command in FOLDER_OUT_COMMANDS and name == "out"
+            outputs.append((f"--{name}", v, FOLDER if folder else FILE))
     for name in OUTPUT_FOLDER_OPTIONS:
         v = getattr(args, name, None)
         if isinstance(v, (str, os.PathLike)):
             # --record FILE.mcap is a file (the start-up check refuses an existing one)
             is_file = name == "record" and os.fspath(v).lower().endswith(".mcap")
-            outputs.append((f"--{name}", v, not is_file))
+            outputs.append((f"--{name}", v, FILE if is_file else FOLDER))
     for spec in getattr(args, "sink", None) or []:
         if isinstance(spec, str) and spec.strip().startswith("jsonl:") \
                 and spec.strip() != "jsonl:-":
-            # appended to (it may be a device): only its name and the inputs are checked
-            p = check_output_name(spec.strip()[len("jsonl:"):], "--sink jsonl:PATH")
-            _not_an_input(p, "--sink jsonl:PATH", inputs)
-    for what, path, folder in outputs:
-        p = check_output_name(path, what)
-        if folder:
-            st = _stat(p)
-            if st is not None and not stat.S_ISDIR(st.st_mode):
-                raise WriteError(f"{p}: {what} is a file; give a folder", errno.ENOTDIR)
-            _not_an_input(p, what, inputs)
-        else:
-            check_output_path(p, what, inputs)
+            path = spec.strip()[len("jsonl:"):]
+            outputs.append(("--sink jsonl:PATH", path, APPENDED))
+    check_outputs(outputs, inputs)
 
 
 def output_folder(path: str | os.PathLike, what: str = "--out") -> Path:

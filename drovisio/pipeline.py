@@ -241,6 +241,8 @@ class Pipeline:
         if frame.image is None:   # a frame the source could not decode: said, not detected
             return [], [frame.error or "frame could not be decoded"]
         if mismatch is not None:
+            self.stats.unfit_frames += 1
+            self.stats.unfit = mismatch
             return [], [mismatch]
         return self._detect(frame, g)
 

@@ -43,6 +43,10 @@ class PipelineStats:
         self.held = 0
         """Bricks of the last frame held over by the tracker (not measured in it)."""
         self.last_error: str | None = None
+        self.unfit_frames = 0
+        """Frames not measured because they do not fit the camera (another image size)."""
+        self.unfit: str | None = None
+        """Why the last of those did not fit."""
         self.duplicates: dict[str, int] = {}
         """``layout:instance`` -> frames in which its code id was read on several codes (those
         copies are not tracked: which one is the brick is unknown); at most 16 names."""
@@ -122,6 +126,10 @@ class PipelineStatus:
     """Each sink's own status (its own keys)."""
     recording: dict[str, Any] | None = None
     """The recorder's status, None without one."""
+    unfit_frames: int = 0
+    """Frames not measured because they do not fit the camera (another image size)."""
+    unfit: str | None = None
+    """Why the last of those did not fit."""
 
     @classmethod
     def of(cls, stats: PipelineStats, *, source: SourceStatus, target: TargetSpec,
@@ -135,7 +143,7 @@ class PipelineStatus:
                    detector_errors=stats.detector_errors, sink_errors=stats.sink_errors,
                    last_error=stats.last_error, duplicates=dict(stats.duplicates),
                    source=source, target=target, target_brick=target_brick, sinks=sinks,
-                   recording=recording)
+                   recording=recording, unfit_frames=stats.unfit_frames, unfit=stats.unfit)
 
     def to_json(self) -> dict[str, Any]:
         """The JSON form (see the module doc)."""

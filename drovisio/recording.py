@@ -20,16 +20,22 @@ from __future__ import annotations
 
 import json
 import queue
+import re
 import threading
 import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 
+from drovisio.bounds import check_number, check_whole
+from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_bytes, atomic_write_text
+from drovisio.textfile import check_regular_file, name_inside, parse_json
 
-__all__ = ["RECORDING_SCHEMA", "Recorder", "holds_recording", "read_index", "stop_writer"]
+__all__ = ["MAX_FRAMES", "MAX_INDEX_BYTES", "MAX_LINE_BYTES", "MAX_TIME_S", "RECORDING_SCHEMA", "RecordedFrame",
+           "Recorder", "holds_recording", "read_index", "stop_writer"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
 
@@ -162,22 +168,83 @@ class Recorder:
                 "errors": self.errors, "last_error": self.last_error}
 
 
-def read_index(folder: str | Path) -> list[dict]:
-    """The frames of a recording, in order: dicts with ``frame``, ``t``, ``image``, ``output``."""
+class RecordedFrame(NamedTuple):
+    """One frame of a recording's index, as played back."""
+
+    frame: int
+    """The frame's number in its source."""
+    t: float
+    """Its capture time, UNIX seconds."""
+    image: str
+    """Its picture, relative to the recording folder."""
+
+
+MAX_FRAMES = 500_000
+"""Most frames a recording's index may hold (over 4.5 hours at 30 fps)."""
+MAX_LINE_BYTES = 1 << 20
+"""Longest line of the index (a frame's output with hundreds of bricks is far shorter)."""
+MAX_INDEX_BYTES = 1 << 30
+"""Largest index read (a frame's line is a few hundred bytes to a few KiB)."""
+MAX_TIME_S = 1e10
+"""Latest capture time read (UNIX seconds; the year 2286)."""
+
+
+_RECORDED_NAME = re.compile(r"frames/[0-9]{6,12}\.jpg")
+"""The picture names :class:`Recorder` writes (inside the folder by their form)."""
+
+
+def _entry(e: object, folder: Path, where: str) -> RecordedFrame:
+    """One line of the index, parsed, every field checked (``where``: ``FILE, line N``)."""
+    if not isinstance(e, dict):
+        raise InputError(f'{where}: expected an object with "frame", "t" and "image"; this '
+                         "is not a recording's index")
+    frame = check_whole(e.get("frame"), f"{where}: frame", 0, 10**12)
+    t = check_number(e.get("t"), f"{where}: t", 0.0, MAX_TIME_S, unit="s")
+    image = e.get("image")
+    if not (isinstance(image, str) and _RECORDED_NAME.fullmatch(image)):   # not ours: checked
+        name_inside(folder, image, f"{where}: image", "frame image")
+    return RecordedFrame(frame, t, str(image))   # a text name: checked above
+
+
+def read_index(folder: str | Path) -> list[RecordedFrame]:
+    """The frames of a recording, in order, read once and checked: an index of at most
+    :data:`MAX_INDEX_BYTES`, :data:`MAX_FRAMES` lines of at most :data:`MAX_LINE_BYTES`, each
+    a JSON object with a whole ``frame``, a finite ``t`` within ``0..MAX_TIME_S`` and an
+    ``image`` named inside the folder. A last line cut by a crash (no line end, not JSON) is
+    left out; an empty or missing index holds no frames.
+
+    Raises:
+        InputError: one line naming the index, the line and the field.
+    """
     folder = Path(folder)
-    out: list[dict] = []
     idx = folder / "frames.jsonl"
-    if not idx.is_file():
-        return out
-    with open(idx, encoding="utf-8") as f:
-        for line in f:
-            line = line.strip()
-            if not line:
-                continue
-            try:
-                e = json.loads(line)
-            except ValueError:
-                continue  # a line cut by a crash
-            if "image" in e and "t" in e:
-                out.append(e)
+    if not idx.exists():
+        return []
+    size = check_regular_file(idx, "recording index").stat().st_size
+    if size > MAX_INDEX_BYTES:
+        raise InputError(f"{idx}: {size >> 20} MiB, more than a recording's index may be "
+                         f"({MAX_INDEX_BYTES >> 20} MiB); split the recording")
+    out: list[RecordedFrame] = []
+    try:
+        with open(idx, "rb") as f:
+            for n, line in enumerate(iter(lambda: f.readline(MAX_LINE_BYTES + 1), b""), 1):
+                where = f"{idx}, line {n}"
+                if len(line) > MAX_LINE_BYTES:
+                    raise InputError(f"{where}: longer than {MAX_LINE_BYTES >> 20} MiB; this "
+                                     "is not a recording's index")
+                if not line.strip():
+                    continue
+                if len(out) >= MAX_FRAMES:
+                    raise InputError(f"{idx}: more than {MAX_FRAMES} frames; split the "
+                                     "recording")
+                try:   # a NaN is parsed, to be named by its field
+                    e = parse_json(line, where, parse_constant=float)
+                except InputError:
+                    if line.endswith(b"\n"):
+                        raise
+                    break   # the last line (no line end), cut by a crash while written
+                out.append(_entry(e, folder, where))
+    except OSError as e:
+        raise InputError(f"{idx}: cannot read the recording index ({e.strerror or e})") \
+            from None
     return out

@@ -37,7 +37,7 @@ from drovisio.sinks import Sink, open_sink
 from drovisio.sinks.base import SinkError
 from drovisio.sinks.mavlink import MavlinkSink
 from drovisio.sinks.target import TargetSelector
-from drovisio.sources import FrameSource, reader_for
+from drovisio.sources import FrameSource, Reader, reader_for
 
 __all__ = ["build_pipeline", "check_pipeline_options", "check_record_folder", "check_source",
            "open_sinks_of"]
@@ -91,17 +91,21 @@ def check_record_folder(path: str | os.PathLike) -> Path:
     return p
 
 
-def check_source(source: str) -> None:
+def check_source(source: str) -> Reader:
     """``--source``: a file, folder or recording is opened and closed again, as ``run`` opens
-    it (an empty folder, a file that is no video: one line now, not once the server runs);
-    cameras and stream URLs are not (``run`` keeps reconnecting to them).
+    it (an empty folder, a file that is no video, a recording's bad index: one line now, not
+    once the server runs); cameras and stream URLs are not (``run`` keeps reconnecting to
+    them).
+
+    Returns:
+        The reader, checked: the run plays it (a recording's index is not read again).
 
     Raises:
         InputError: naming ``--source`` and what is wrong.
     """
     reader = reader_for(source)
     if not getattr(reader, "finite", False):
-        return
+        return reader
     try:
         reader.open()
     except InputError:
@@ -116,6 +120,7 @@ def check_source(source: str) -> None:
             reader.close()
         except Exception:  # noqa: BLE001,S110 - closing what may not have opened
             pass
+    return reader
 
 
 def _target(spec: str | None, layouts: Sequence[MarkerLayout] | None) -> TargetSelector:
@@ -133,13 +138,16 @@ def _config(options: PipelineConfig | argparse.Namespace) -> PipelineConfig:
 
 
 def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
-                           open_sinks: bool = True) -> None:
+                           open_sinks: bool = True) -> Reader | None:
     """Check every pipeline option before anything runs (see the module doc).
 
     Args:
         options: The configuration, or the parsed ``run`` or ``serve`` command line.
         open_sinks: Open (and close) the sinks too; ``run`` opens them right after, through
             the same :func:`open_sinks_of`.
+
+    Returns:
+        The source's reader, checked (:func:`check_source`); None without a source.
 
     Raises:
         InputError: one line naming the option (or file) and what to do.
@@ -148,8 +156,7 @@ def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
     camera = load_camera(config.camera) if config.camera else None
     layouts = load_layouts(config.layouts) if config.layouts else None
     mount = load_mount(config.mount) if config.mount else None
-    if config.source:
-        check_source(config.source)
+    reader = check_source(config.source) if config.source else None
     target = _target(config.target, layouts)
     if config.record:
         check_record_folder(config.record)
@@ -159,6 +166,7 @@ def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
                 sink.close()
             except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
                 pass
+    return reader
 
 
 def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount | None = None,
@@ -248,7 +256,7 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
         InputError: a bad option, in one line (the check of :func:`check_pipeline_options`,
             sinks aside: they are opened here).
     """
-    check_pipeline_options(config, open_sinks=False)   # the same check as `serve`'s
+    checked = check_pipeline_options(config, open_sinks=False)   # the same check as `serve`'s
     if config.source is None or config.camera is None:
         raise InputError("the pipeline needs a --source and a --camera")
     camera = load_camera(config.camera)
@@ -256,7 +264,9 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
     if not any(lay.has_codes or lay.has_dots for lay in layouts):
         raise InputError("the layouts have neither codes nor dots: nothing to detect")
     mount = load_mount(config.mount) if config.mount else None
-    reader = reader_for(config.source, loop=loop)
+    # the checked reader, unless the source plays in a loop (checked as played once)
+    reader = checked if checked is not None and not loop else reader_for(config.source,
+                                                                          loop=loop)
     target = TargetSelector(config.target or "nearest", layouts=layouts)  # checked above
     sinks = open_sinks_of(config, target, mount, layouts, default_sinks, camera=camera)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)

@@ -17,8 +17,8 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["BoundedYamlLoader", "check_regular_file", "parse_json", "parse_yaml", "path_text_problem",
-           "read_inside",
+__all__ = ["BoundedYamlLoader", "check_regular_file", "name_inside", "parse_json", "parse_yaml",
+           "path_text_problem", "read_inside",
            "read_structured", "read_text", "resolve_inside"]
 
 
@@ -79,12 +79,12 @@ def path_text_problem(name: str) -> str | None:
     return None
 
 
-def resolve_inside(folder: str | os.PathLike, name: object, where: str,
-                   what: str = "file") -> Path:
-    """The path a file names (``name``, read from a field of a file in ``folder``), checked
-    before anything is opened: a relative name of a regular file that stays inside ``folder``
-    (no ``..``, no absolute path, no link out of it), with no NUL byte, a name the file system
-    can hold. ``where`` is ``FILE: FIELD`` for the message.
+def name_inside(folder: str | os.PathLike, name: object, where: str,
+                what: str = "file") -> Path:
+    """``folder / name`` for a name read from a field of a file in ``folder``, checked as
+    text only (nothing is opened: an index of a million frames is checked at once): a
+    relative name that stays inside ``folder`` (no ``..`` out of it, no absolute path), with
+    no NUL byte, a name the file system can hold. ``where`` is ``FILE: FIELD``.
 
     Raises:
         InputError: ``where: what is wrong and what to do``.
@@ -100,14 +100,30 @@ def resolve_inside(folder: str | os.PathLike, name: object, where: str,
     if Path(name).is_absolute():
         raise InputError(f"{where}: {shown} is an absolute path; name a file inside {base} "
                          "(relative to it)")
-    p = base / name
+    if os.path.normpath(name).split(os.sep)[0] == os.pardir:
+        raise InputError(f"{where}: {shown} is outside the folder {base}; only files inside "
+                         "it are read: copy the file there")
+    return base / name
+
+
+def resolve_inside(folder: str | os.PathLike, name: object, where: str,
+                   what: str = "file") -> Path:
+    """The path a file names (``name``, read from a field of a file in ``folder``), checked
+    before anything is opened: :func:`name_inside`, and a regular file that stays inside
+    ``folder`` once links are followed. ``where`` is ``FILE: FIELD`` for the message.
+
+    Raises:
+        InputError: ``where: what is wrong and what to do``.
+    """
+    p = name_inside(folder, name, where, what)
+    base = Path(folder)
     try:
         inside = p.resolve().is_relative_to(base.resolve())
     except (OSError, RuntimeError):  # a loop of links
         inside = False
     if not inside:
-        raise InputError(f"{where}: {shown} is outside the folder {base}; only files inside "
-                         "it are read: copy the file there")
+        raise InputError(f"{where}: {one_line(repr(name), 120)} is outside the folder {base}; "
+                         "only files inside it are read: copy the file there")
     try:
         return check_regular_file(p, what)
     except InputError as e:
@@ -155,7 +171,8 @@ def _check_depth(obj: Any, source: str) -> Any:
 
 
 def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
-    """JSON with its nesting bounded; finite numbers only (NaN and Infinity are refused)."""
+    """JSON with its nesting bounded; finite numbers only (NaN and Infinity are refused,
+    unless ``parse_constant`` is given: the caller then checks its fields' numbers itself)."""
     def no_constant(name: str) -> Any:
         raise InputError(f"{source}: {name} is not a number JSON allows; give a finite number")
 
@@ -166,8 +183,9 @@ def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
         return int(digits)
 
     kw.setdefault("parse_int", bounded_int)
+    kw.setdefault("parse_constant", no_constant)
     try:
-        data = json.loads(text, parse_constant=no_constant, **kw)
+        data = json.loads(text, **kw)
     except RecursionError:
         raise InputError(f"{source}: nested too deeply to be a Drovisio file") from None
     except json.JSONDecodeError as e:

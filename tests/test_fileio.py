@@ -11,7 +11,15 @@ from pathlib import Path
 import pytest
 
 from drovisio.errors import WriteError
-from drovisio.fileio import atomic_write, atomic_write_bytes, check_output_path
+from drovisio.fileio import (
+    APPENDED,
+    FILE,
+    FOLDER,
+    atomic_write,
+    atomic_write_bytes,
+    check_output_path,
+    check_outputs,
+)
 
 
 def test_writes_replaces_and_leaves_no_temporary_file(tmp_path):
@@ -169,3 +177,57 @@ def test_full_disk_keeps_the_previous_camera_file_byte_identical(small_disk, tmp
     assert cam_path.read_bytes() == before
     assert load_camera(cam_path).almost_equal(Camera.drone_webcam())
     assert sorted(p.name for p in folder.iterdir() if p.name.startswith(".")) == []
+
+
+def _folder_of_images(d: Path) -> Path:
+    d.mkdir()
+    (d / "a.jpg").write_bytes(b"an input image")
+    return d
+
+
+def test_an_output_among_what_an_input_folder_reads_is_refused(tmp_path):
+    images = _folder_of_images(tmp_path / "images")
+    (tmp_path / "link").symlink_to(images)
+    inputs = {"input images": images}
+    for out, kind in ((images / "a.jpg", FILE), (images / "new.png", APPENDED),
+                      (tmp_path / "link" / "b.mp4", FILE), (images, FOLDER)):
+        with pytest.raises(WriteError) as e:
+            check_outputs([("--out", out, kind)], inputs)
+        assert str(e.value) == (f"{out}: --out would land among what the command reads "
+                                "from input images; choose another folder")
+    assert (images / "a.jpg").read_bytes() == b"an input image"
+    # what a folder of images does not read: its other files, its subfolders
+    check_outputs([("--out", images / "poses.jsonl", FILE), ("--record", images / "rec", FOLDER)],
+                  inputs)
+
+
+def test_anything_inside_a_recording_read_as_input_is_refused(tmp_path):
+    rec = tmp_path / "rec"
+    (rec / "frames").mkdir(parents=True)
+    (rec / "recording.json").write_text("{}")
+    for out in (rec / "frames.jsonl", rec / "frames" / "x.txt"):
+        with pytest.raises(WriteError, match="would land among what the command reads from "
+                                             "--source"):
+            check_outputs([("--sink jsonl:PATH", out, APPENDED)], {"--source rec": rec})
+
+
+def test_outputs_must_be_distinct(tmp_path):
+    rec = tmp_path / "r.mcap"
+    with pytest.raises(WriteError) as e:
+        check_outputs([("--record", rec, FILE), ("--sink jsonl:PATH", rec, APPENDED)], {})
+    assert str(e.value) == (f"{rec}: --sink jsonl:PATH is the same file as --record; give "
+                            "each output its own name")
+    x = tmp_path / "x.jsonl"
+    with pytest.raises(WriteError, match="is given twice; give each output its own name"):
+        check_outputs([("--sink jsonl:PATH", x, APPENDED),
+                       ("--sink jsonl:PATH", tmp_path / "." / "x.jsonl", APPENDED)], {})
+    folder = tmp_path / "dir"
+    for first, second in (((("--record", folder, FOLDER)),
+                           ("--sink jsonl:PATH", folder / "frames.jsonl", APPENDED)),
+                          (("--sink jsonl:PATH", folder / "frames.jsonl", APPENDED),
+                           ("--record", folder, FOLDER))):
+        with pytest.raises(WriteError) as e:
+            check_outputs([first, second], {})
+        assert str(e.value) == (f"{folder / 'frames.jsonl'}: --sink jsonl:PATH lies inside "
+                                f"--record's folder {folder}; give it a place outside")
+    check_outputs([("--record", folder, FOLDER), ("--sink jsonl:PATH", x, APPENDED)], {})

@@ -6,11 +6,13 @@ status line per second on stderr (fps, detection time, latency capture → sent,
 source state, target, sink failures). Ctrl+C or SIGTERM ends it cleanly (sinks closed,
 recording flushed).
 
-Finite means finite: a file, folder or recording that cannot be opened ends the run at once
-with one line and exit status 2; one that ends ends the run, with exit status 1 when nothing
-could be read from it. Cameras and stream URLs keep reconnecting (the status line says so).
-A sink that fails (a full disk, a closed pipe, an unreachable link) is counted and shown in
-the status line, and makes the exit status 1 at the end.
+Finite means finite: a file, folder or recording that cannot be opened (or fails while
+read) ends the run at once with one line and exit status 2; one that ends ends the run, with
+exit status 1 when nothing could be read from it. Cameras and stream URLs keep reconnecting
+(said on a line when lost, even with --quiet; the status line says so too). Frames of
+another size than the camera file's are not measured: said on a line at the first, and the
+exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable link) is
+counted and shown in the status line, and makes the exit status 1 at the end.
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must no
     from drovisio.pipeline_status import PipelineStatus
     from drovisio.sources import SourceStatus
 
-__all__ = ["COMMAND", "add_arguments", "add_pipeline_arguments", "build_pipeline", "new_notes",
-           "run", "sink_failures", "status_line"]
+__all__ = ["COMMAND", "Alarms", "add_arguments", "add_pipeline_arguments", "build_pipeline",
+           "new_notes", "run", "sink_failures", "status_line"]
 
 # The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
 # inside the functions that run it: `drovisio --help` imports every command module and must
@@ -79,6 +81,8 @@ def _target_words(st: PipelineStatus) -> str:
 
 def _trouble_words(st: PipelineStatus) -> str:
     extra = f" | {st.detector_errors} detector errors" if st.detector_errors else ""
+    if st.unfit_frames:
+        extra += f" | {st.unfit_frames} frames not measured ({st.unfit})"
     for name, n, last in sink_failures(st):
         extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
     if st.sink_errors:
@@ -142,8 +146,40 @@ def _say_start(config: PipelineConfig, pipeline: Pipeline) -> None:
             "only (MAVLink assumes a camera looking straight down)"))
 
 
-def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0: float
-                    ) -> tuple[int, PipelineStatus]:
+def _unfit_line(camera: object, why: object) -> str:
+    """Frames that do not fit the camera file, and what to do."""
+    return (f"{camera}: frames not measured: {why}; give the camera file of this camera at "
+            "this resolution")
+
+
+class Alarms:
+    """Failures said on a line of their own as they happen, ``--quiet`` or not (quiet hides
+    the status line, the progress, never a failure): a source lost (once each time it is
+    lost: it is being retried), frames that do not fit the camera file (the first)."""
+
+    def __init__(self, camera: object) -> None:
+        self.camera = camera
+        self._lost = False
+        self._unfit = False
+
+    def new(self, st: PipelineStatus) -> list[str]:
+        """The lines to say for this status (none when nothing new went wrong)."""
+        out = []
+        src = st.source
+        if src.state == "lost" and not self._lost:
+            self._lost = True
+            out.append(f"source {src.label} lost ({src.error or 'no frame'}); retrying until "
+                       "it comes back")
+        elif src.state == "live":
+            self._lost = False
+        if st.unfit_frames and not self._unfit:
+            self._unfit = True
+            out.append(_unfit_line(self.camera, st.unfit))
+        return out
+
+
+def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0: float,
+                    alarms: Alarms) -> tuple[int, PipelineStatus]:
     """Run until the source ends, ``max_frames``, Ctrl+C or SIGTERM; (frames processed, the
     last status). The pipeline is closed after."""
     def _terminate(signum, _frame) -> None:
@@ -153,6 +189,8 @@ def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0:
     said: set[str] = set()
 
     def on_status(st: PipelineStatus) -> None:
+        for line in alarms.new(st):
+            _err(line)
         if not quiet:
             print(status_line(st, time.monotonic() - t0) + new_notes(st, said), file=sys.stderr,
                   flush=True)
@@ -171,7 +209,8 @@ def _run_until_done(pipeline: Pipeline, max_frames: int | None, quiet: bool, t0:
 
 
 def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
-    """Say how the run ended: 1 when nothing could be read or a sink failed, else 0.
+    """Say how the run ended: 2 when frames did not fit the camera file, 1 when nothing
+    could be read or a sink failed, else 0.
 
     Raises:
         InputError: the source failed (exit 2).
@@ -191,6 +230,9 @@ def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
         _err(f"sink {name}: {count} sends failed" + (f" (last: {last})" if last else ""))
     if failures or st.sink_errors:
         code = 1
+    if st.unfit_frames:   # the camera file is not this source's: bad input
+        _err(_unfit_line(config.camera, f"{st.unfit_frames} of {n}, {st.unfit}"))
+        code = 2
     return code
 
 
@@ -203,7 +245,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     quiet = getattr(args, "quiet", False)
     _say_start(config, pipeline)
-    n, st = _run_until_done(pipeline, getattr(args, "frames", None), quiet, t0)
+    n, st = _run_until_done(pipeline, getattr(args, "frames", None), quiet, t0,
+                            Alarms(config.camera))
     if not quiet:
         print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
     for note in pipeline.notes:

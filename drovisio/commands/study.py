@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from drovisio.arguments import Command, bounded, whole_in
-from drovisio.fileio import output_folder
+from drovisio.fileio import FOLDER, check_outputs, output_folder
 
 __all__ = ["COMMAND", "add_arguments", "run"]
 
@@ -62,6 +62,11 @@ def _run(args: argparse.Namespace) -> int:
     from drovisio.study.run import run_study
 
     protocol, base, text = _protocol(args)
+    # the steps' recordings come from the protocol: the command line's guard cannot see them
+    where = args.protocol or "the default protocol"
+    check_outputs([("--out", args.out, FOLDER)],
+                  {f"step {k}'s source {s.source} ({where})": base / s.source
+                   for k, s in enumerate(protocol.steps, 1) if s.source})
     out = output_folder(args.out, "--out")
     memory = args.memory_seconds if args.memory_seconds is not None else (
         3.0 if args.quick else 20.0)

@@ -22,8 +22,9 @@ A frame that cannot be decoded (a damaged frame of a video, an unreadable image 
 is not a loss of the source: the reader returns a :class:`RawFrame` carrying ``error``, the
 batch iteration of the command line (:func:`iter_inputs`) turns it into an ``"error"`` line, and
 :class:`FrameSource` hands it over too (the pipeline reports it). A *finite* source (file,
-folder, recording) that cannot be opened is not retried: it ends in :attr:`SourceState.FAILED`
-with the reason; cameras and stream URLs keep reconnecting and say so in their state.
+folder, recording) that cannot be opened, or whose reader fails while reading, is not
+retried: it ends in :attr:`SourceState.FAILED` with the reason; cameras and stream URLs keep
+reconnecting and say so in their state.
 
 SOURCE strings (:func:`reader_for`, the ``--source`` of ``drovisio run``): a camera index
 (``0``: V4L2), a video file, a folder of images (name order), a recording folder (made by

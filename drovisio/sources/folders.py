@@ -4,9 +4,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from drovisio.errors import InputError
 from drovisio.images import IMAGE_SUFFIXES, VIDEO_SUFFIXES, ImageError, is_video_file, read_image
 from drovisio.raw_frame import EndOfStream, RawFrame
+from drovisio.textfile import resolve_inside
+
+if TYPE_CHECKING:   # the recording module loads OpenCV, deferred to the first open
+    from drovisio.recording import RecordedFrame
 
 __all__ = ["ImageFolderReader", "RecordingReader", "list_folder"]
 
@@ -63,7 +69,11 @@ class ImageFolderReader:
 
 
 class RecordingReader:
-    """A folder written by ``drovisio run --record DIR``, played with its recorded timing."""
+    """A folder written by ``drovisio run --record DIR``, played with its recorded timing.
+
+    Its index is read and checked once, at the first :meth:`open`
+    (:func:`drovisio.recording.read_index`); a reader opened again (the start-up check, then
+    the run) keeps it. Each picture is read only inside the folder, links followed."""
 
     finite = True
     lossless = False
@@ -73,14 +83,15 @@ class RecordingReader:
         self.label = f"recording {folder}"
         self.loop = loop
         self.finite = not loop
-        self.entries: list[dict] = []
+        self.entries: list[RecordedFrame] = []
         self.i = 0
         self.lap = 0
 
     def open(self) -> None:
         from drovisio.recording import read_index  # deferred: it loads OpenCV
 
-        self.entries = read_index(self.folder)
+        if not self.entries:
+            self.entries = read_index(self.folder)
         if not self.entries:
             raise OSError(f"{self.folder}: the recording holds no frames")
         self.i = 0
@@ -93,17 +104,16 @@ class RecordingReader:
             self.lap += 1
         e = self.entries[self.i]
         self.i += 1
-        t0 = self.entries[0]["t"]
-        span = self.entries[-1]["t"] - t0 + 0.1
-        t = e["t"] - t0 + self.lap * span
+        t0 = self.entries[0].t
+        span = self.entries[-1].t - t0 + 0.1
+        t = e.t - t0 + self.lap * span
         try:
-            img, notes = read_image(self.folder / e["image"])
-        except ImageError as err:
-            return RawFrame(None, int(e["frame"]), media_time=t, name=e["image"],
-                            error=str(err))
-        return RawFrame(img, int(e["frame"]), media_time=t, name=e["image"], notes=notes)
+            path = resolve_inside(self.folder, e.image, f"{self.folder / 'frames.jsonl'}: "
+                                  "image", "frame image")
+            img, notes = read_image(path)
+        except (InputError, ImageError) as err:
+            return RawFrame(None, e.frame, media_time=t, name=e.image, error=str(err))
+        return RawFrame(img, e.frame, media_time=t, name=e.image, notes=notes)
 
     def close(self) -> None:
         pass
-
-

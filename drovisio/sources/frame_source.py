@@ -11,6 +11,7 @@ from enum import Enum
 
 import numpy as np
 
+from drovisio.errors import InputError, one_line
 from drovisio.raw_frame import EndOfStream, RawFrame
 from drovisio.sources.reader import Pace, Reader
 
@@ -211,6 +212,9 @@ class FrameSource:
                 self._set_state(SourceState.ENDED)
                 break
             except Exception as e:  # noqa: BLE001 - any failure: the source is lost
+                if run.finite:   # reopened, a file would play again from its start: it ends
+                    self._set_state(SourceState.FAILED, _why(e))
+                    break
                 raw = None
                 self._error = _why(e)
             if raw is None:
@@ -323,5 +327,6 @@ class _RunState:
 
 
 def _why(e: Exception) -> str:
-    """An exception in one line: an OSError's own words, anything else with its type."""
-    return str(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
+    """An exception in one line: an OSError's or a bad input's own words, anything else with
+    its type."""
+    return one_line(e if isinstance(e, (OSError, InputError)) else f"{type(e).__name__}: {e}")

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from urllib.parse import urlsplit
 
+from drovisio.bounds import MAX_CAMERA_INDEX, parse_whole
 from drovisio.errors import InputError, one_line
 from drovisio.sources.camera import CameraReader
 from drovisio.sources.folders import ImageFolderReader, RecordingReader
@@ -43,11 +44,21 @@ def _check_url(url: str) -> None:
 
 
 def _camera_index(s: str) -> int | None:
-    if s.isdigit():
-        return int(s)
-    if s.startswith("/dev/video") and s[len("/dev/video"):].isdigit():
-        return int(s[len("/dev/video"):])
-    return None
+    """The camera index ``s`` names (``N`` or ``/dev/videoN``), None when it names none.
+
+    Raises:
+        InputError: a number that is no camera index.
+    """
+    digits = s.removeprefix("/dev/video")
+    if not digits.isdigit():
+        return None
+    try:
+        return parse_whole(digits, 0, MAX_CAMERA_INDEX)
+    except ValueError:
+        shown = one_line(s, 40)
+        raise InputError(f"{shown}: --source: not a camera index (0 to {MAX_CAMERA_INDEX}, "
+                         f"for /dev/videoN); a file or folder of that name is ./{shown}") \
+            from None
 
 
 def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Reader:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from drovisio.errors import LIMITS
@@ -62,12 +63,17 @@ class StreamReader(_CaptureReader):
         self.read_timeout_s = read_timeout_s
 
     def open(self) -> None:
+        start = time.monotonic()
         try:
             super().open()
         except OSError:
-            raise OSError(f"cannot open {self.url}: no video stream there within "
-                          f"{self.open_timeout_s:g} s (check the address, and that the camera "
-                          "is on and streaming)") from None
+            # the time it took, measured: a refused connection ends long before the deadline
+            took, deadline = time.monotonic() - start, self.open_timeout_s
+            why = (f"within {deadline:g} s" if took >= 0.9 * deadline else
+                   f"(refused, or not a video: the attempt ended after {took:.1f} s, before "
+                   f"the {deadline:g} s deadline)")
+            raise OSError(f"cannot open {self.url}: no video stream there {why}; check the "
+                          "address, and that the camera is on and streaming") from None
 
     def read(self) -> RawFrame | None:
         """The next frame; a stream that stalls past the read deadline, or ends, is lost.

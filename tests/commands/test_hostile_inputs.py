@@ -234,6 +234,106 @@ def test_run_reports_a_failing_sink_and_exits_non_zero(tmp_path):
     assert "No space left on device" in r.stderr
 
 
+def test_run_outputs_never_land_in_an_input_folder_nor_on_each_other(capsys, frames, tmp_path):
+    folder = tmp_path / "frames"
+    shutil.copytree(frames, folder)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    cases = [
+        (["--source", folder, "--sink", f"jsonl:{folder / 'f0.png'}"],
+         f"{folder / 'f0.png'}: --sink jsonl:PATH would land among what the command reads "
+         f"from --source {folder}; choose another folder"),
+        (["--source", folder, "--sink", f"jsonl:{folder / 'x.jpg'}"],
+         f"{folder / 'x.jpg'}: --sink jsonl:PATH would land among what the command reads "
+         f"from --source {folder}; choose another folder"),
+        (["--source", VIDEO, "--record", tmp_path / "r.mcap", "--sink",
+          f"jsonl:{tmp_path / 'r.mcap'}"],
+         f"{tmp_path / 'r.mcap'}: --sink jsonl:PATH is the same file as --record; give each "
+         "output its own name"),
+        (["--source", VIDEO, "--record", tmp_path / "rec", "--sink",
+          f"jsonl:{tmp_path / 'rec' / 'frames.jsonl'}"],
+         f"{tmp_path / 'rec' / 'frames.jsonl'}: --sink jsonl:PATH lies inside --record's "
+         f"folder {tmp_path / 'rec'}; give it a place outside"),
+        (["--source", VIDEO, "--sink", f"jsonl:{tmp_path / 'x'}", "--sink",
+          f"jsonl:{tmp_path / 'x'}"],
+         f"{tmp_path / 'x'}: --sink jsonl:PATH is given twice; give each output its own name"),
+    ]
+    for argv, line in cases:
+        rc, _, err = run_cli(capsys, "run", "--camera", CAMERA, "--layout", CENTRE, "--quiet",
+                             *argv)
+        assert rc == 2 and err == f"drovisio run: {line}\n"
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
+
+
+def test_detect_out_may_not_replace_an_image_of_an_input_folder(capsys, frames, tmp_path):
+    folder = tmp_path / "frames"
+    shutil.copytree(frames, folder)
+    keep = (folder / "f0.png").read_bytes()
+    rc, _, err = run_cli(capsys, "detect", "--camera", CAMERA, "--layout", CENTRE, "--out",
+                         folder / "f0.png", folder)
+    assert rc == 2 and err == (f"drovisio detect: {folder / 'f0.png'}: --out would land among "
+                               f"what the command reads from input {folder}; choose another "
+                               "folder\n")
+    assert (folder / "f0.png").read_bytes() == keep
+
+
+def test_run_says_frames_that_do_not_fit_the_camera_file_and_exits_2(capsys, frames, tmp_path):
+    small = tmp_path / "small"
+    small.mkdir()
+    for f in sorted(frames.iterdir()):
+        cv2.imwrite(str(small / f.name), cv2.resize(cv2.imread(str(f)), (320, 240)))
+    rc, _, err = run_cli(capsys, "run", "--source", small, "--camera", CAMERA, "--layout",
+                         CENTRE, "--sink", f"jsonl:{tmp_path / 'o.jsonl'}", "--quiet",
+                         "--pace", "max")
+    assert rc == 2
+    assert err.splitlines()[-1] == (
+        f"drovisio run: {CAMERA}: frames not measured: 3 of 3, image is 320x240 but the "
+        "camera file is for 640x480; give the camera file of this camera at this resolution")
+
+
+def test_run_refuses_a_camera_index_no_device_has(capsys):
+    digits = "123456789012345678901234567890123"
+    rc, _, err = run_cli(capsys, "run", "--source", digits, "--camera", CAMERA, "--layout",
+                         CENTRE)
+    assert rc == 2 and err == (f"drovisio run: {digits}: --source: not a camera index (0 to "
+                               f"255, for /dev/videoN); a file or folder of that name is "
+                               f"./{digits}\n")
+
+
+def test_a_lost_source_is_said_even_with_quiet(capsys):
+    """--quiet hides the status line, never a failure: each loss is said once."""
+    from types import SimpleNamespace
+
+    from drovisio.commands.run import Alarms, _run_until_done
+
+    def status(state: str, unfit: int = 0):
+        return SimpleNamespace(source=SimpleNamespace(state=state, label="camera 7",
+                                                      error="cannot open camera 7"),
+                               unfit_frames=unfit, unfit="image is 320x240")
+
+    class Pipeline:
+        said = [status("lost"), status("lost"), status("live"), status("lost", unfit=2),
+                status("lost", unfit=3)]
+
+        def run(self, max_frames=None, on_status=None):
+            for st in self.said:
+                on_status(st)
+            return 0
+
+        def snapshot(self):
+            return self.said[-1]
+
+        def close(self):
+            pass
+
+    _run_until_done(Pipeline(), None, True, 0.0, Alarms("cam.yaml"))
+    lost = ("drovisio run: source camera 7 lost (cannot open camera 7); retrying until it "
+            "comes back")
+    assert capsys.readouterr().err.splitlines() == [
+        lost, lost, "drovisio run: cam.yaml: frames not measured: image is 320x240; give the "
+                    "camera file of this camera at this resolution"]
+
+
 # ------------------------------------------------------------------ drovisio calibrate
 
 

@@ -73,11 +73,11 @@ def test_a_restarted_recorder_continues_and_replaces_nothing(tmp_path, ledger):
                  (folder / "frames.jsonl").read_bytes().splitlines()[:3]))
     assert json.loads((folder / "recording.json").read_text()) == manifest
     index = read_index(folder)
-    assert [e["image"] for e in index] == [f"frames/{k:06d}.jpg" for k in range(5)]
+    assert [e.image for e in index] == [f"frames/{k:06d}.jpg" for k in range(5)]
     # each indexed picture is the one that was recorded (JPEG: within a few grey levels)
     import cv2
 
-    levels = [int(cv2.imread(str(folder / e["image"]))[5, 5, 0]) for e in index]
+    levels = [int(cv2.imread(str(folder / e.image))[5, 5, 0]) for e in index]
     assert np.allclose(levels, [10, 60, 110, 200, 250], atol=3)
 
 

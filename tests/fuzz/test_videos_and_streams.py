@@ -218,6 +218,26 @@ def test_a_silent_stream_is_reported_within_its_connect_deadline(ledger):
         peer.close()
 
 
+def test_a_refused_stream_says_how_long_the_attempt_took(monkeypatch, ledger):
+    """Refused in 1 s of a 5 s deadline: said as it was, not as 5 s of waiting."""
+    ledger.tried_one("network: stream deadline")
+    from types import SimpleNamespace
+
+    from drovisio.sources import stream
+
+    clock = iter([100.0, 101.0])
+    monkeypatch.setattr(stream, "time", SimpleNamespace(monotonic=lambda: next(clock)))
+    r = StreamReader("rtsp://10.0.0.2/cam", open_timeout_s=5.0)
+    monkeypatch.setattr(r, "_make", lambda: SimpleNamespace(isOpened=lambda: False,
+                                                            release=lambda: None))
+    with pytest.raises(OSError) as e:
+        r.open()
+    assert str(e.value) == ("cannot open rtsp://10.0.0.2/cam: no video stream there (refused, "
+                            "or not a video: the attempt ended after 1.0 s, before the 5 s "
+                            "deadline); check the address, and that the camera is on and "
+                            "streaming")
+
+
 def test_a_stalled_stream_is_lost_after_its_read_deadline(ledger):
     ledger.tried_one("network: stream deadline")
     peer = _Peer(_mjpeg_reply())

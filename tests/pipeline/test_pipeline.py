@@ -128,8 +128,9 @@ def test_record_and_play_back(tmp_path, flaky_reader, fake_detector):
     p.run()
     p.close()
     idx = read_index(tmp_path / "rec")
-    assert [e["frame"] for e in idx] == list(range(12))
-    assert idx[0]["output"]["bricks"][0]["instance"] == 1
+    assert [e.frame for e in idx] == list(range(12))
+    first = json.loads((tmp_path / "rec" / "frames.jsonl").read_text().splitlines()[0])
+    assert first["output"]["bricks"][0]["instance"] == 1
     assert (tmp_path / "rec" / "recording.json").is_file()
     # played back as a source, at the recorded timing
     back = FrameSource(RecordingReader(tmp_path / "rec"), pace="realtime")
@@ -142,5 +143,5 @@ def test_record_and_play_back(tmp_path, flaky_reader, fake_detector):
     # reorder or repeat, and the recording plays to its end
     got = [o.frame for _, o in sink.items]
     assert got == sorted(set(got)) and got[-1] == 11 and set(got) <= set(range(12))
-    span = idx[-1]["t"] - idx[0]["t"]
+    span = idx[-1].t - idx[0].t
     assert time.monotonic() - t0 >= 0.8 * span

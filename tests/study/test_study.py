@@ -299,3 +299,23 @@ def test_the_report_shows_landing_errors_per_mount(small_study):
     assert rows[("code", 0.0)]["blind_height_m"] < rows[("code", 20.0)]["blind_height_m"]
     html = (report / "report.html").read_text()
     assert "Precision landing (ArduPilot model)" in html and "blind height" in html
+
+
+def test_cli_refuses_an_out_folder_that_is_a_recorded_steps_folder(tmp_path, capsys):
+    """The step folders come from the protocol: the report's figures written among a step's
+    pictures would be read as frames by the next run."""
+    steps = tmp_path / "views"
+    steps.mkdir()
+    cv2.imwrite(str(steps / "frame_000.jpg"), np.zeros((48, 64, 3), np.uint8))
+    proto = _write(tmp_path / "p.yaml", {
+        "schema": PROTOCOL_SCHEMA, "name": "x",
+        "layouts": [{"name": "c", "layout": "drick-aruco-centre"}],
+        "steps": [{"figure": "6.9", "layout": "c", "vary": "rot_z", "value": 45,
+                   "frames": 1, "source": "views"}]})
+    before = sorted(p.name for p in steps.iterdir())
+    assert cli.main(["study", "run", "--protocol", str(proto), "--out", str(steps),
+                     "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"drovisio study: {steps}: --out would land among what the command reads "
+                   f"from step 1's source views ({proto}); choose another folder\n")
+    assert sorted(p.name for p in steps.iterdir()) == before
