@@ -41,15 +41,13 @@ MAX_SUPERSAMPLING = 8
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """The command line's parser (every command's and every bench's): a usage error quotes
-    the argument it could not use cut to one short line (argparse echoes it whole: a
-    5,000-digit or multi-line argument made an error of pages)."""
+    """The command line's parser (every command's and every bench's): a usage error is one
+    line, like every other error, that quotes the argument it could not use cut short
+    (argparse echoes it whole: a 5,000-digit or multi-line argument made an error of pages)
+    and points to the command's help instead of repeating its usage block."""
 
     def error(self, message: str) -> NoReturn:
-        import sys
-
-        self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error: {one_line(message, 400)}\n")
+        self.exit(2, f"{self.prog}: {one_line(message, 400)} (see {self.prog} --help)\n")
 
 
 def _range(lo: float | None, hi: float | None, unit: str = "") -> str:

@@ -236,9 +236,11 @@ def _matrix_field(p: Path, data: dict, key: str, shape: tuple[int, int] | None) 
         values = [x for r in values for x in r]
     if not isinstance(values, list):
         raise CameraFileError(f"{p}: {key}.data: must be a list of numbers")
-    values = [_number(p, key, x) for x in values[:65]]
-    if len(values) > 64:
-        raise CameraFileError(f"{p}: {key}: {len(values)} values; a camera file has at most 14")
+    if len(values) > 64:  # counted before any is read: the file may hold millions
+        raise CameraFileError(f"{p}: {key}: " + (
+            f"expected {shape[0]}x{shape[1]} values, got {len(values)}" if shape is not None
+            else str(check_coefficients("plumb_bob", len(values)))))
+    values = [_number(p, key, x) for x in values]
     if rows is not None or cols is not None:
         if not all(isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 64
                    for x in (rows, cols)):

@@ -6,20 +6,30 @@ refused and why. An image header is read before any pixel is decoded: one whose 
 :attr:`drovisio.errors.Limits.max_image_pixels` (50 Mpx; ``DROVISIO_MAX_IMAGE_MPX``) is
 refused without allocating it (a 65000×65000 JPEG of a few kilobytes would otherwise take
 tens of gigabytes).
+
+What the image libraries print while decoding (libpng's ``libpng error: ...``, libjpeg's
+``Premature end of JPEG file``) is kept off the process's stderr and said in the image's own
+one line instead (:func:`decode_image`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
 import stat
+import sys
+import tempfile
+import threading
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from drovisio.errors import LIMITS, InputError
+from drovisio.errors import LIMITS, InputError, one_line
+from drovisio.textfile import unreachable
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -101,6 +111,55 @@ def _radiance_size(data: bytes) -> tuple[int, int] | None:
     return dims[b"X"], dims[b"Y"]
 
 
+_STDERR_LOCK = threading.Lock()
+_stderr_sink: list = []   # one temporary file, reused by every decode (made on first use)
+#: how the decoders' own lines begin (libpng, libjpeg, libtiff, OpenCV's log); any other line
+#: caught while decoding was another thread's and goes back to stderr as it was
+_LIBRARY_LINE = re.compile(r"(libpng |libtiff|TIFF|\[ *(WARN|ERROR|INFO)|Premature end of JPEG|"
+                           r"Corrupt JPEG|Invalid JPEG|Not a JPEG|Bogus |Unsupported |"
+                           r"Huffman |Quantization |Warning: |JPEG)")
+
+
+@contextlib.contextmanager
+def _library_messages() -> Iterator[list[str]]:
+    """The lines the C libraries under OpenCV write to file descriptor 2 while the block runs,
+    kept out of the process's stderr (one decode at a time: the descriptor is the process's).
+    Where descriptor 2 cannot be redirected, nothing is caught and the block runs as is."""
+    said: list[str] = []
+    with _STDERR_LOCK:
+        try:
+            if not _stderr_sink:
+                _stderr_sink.append(tempfile.TemporaryFile())
+            sink = _stderr_sink[0]
+            sink.seek(0)
+            sink.truncate()
+            if sys.stderr is not None:
+                sys.stderr.flush()
+            saved: int | None = os.dup(2)
+        except (OSError, ValueError):
+            saved = None
+        if saved is None:
+            yield said
+            return
+        try:
+            os.dup2(sink.fileno(), 2)
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            others = b""
+            for line in sink.read(64 * 1024).splitlines(keepends=True):
+                text = line.decode("utf-8", "replace").strip()
+                if _LIBRARY_LINE.match(text):
+                    said.append(text)
+                elif text:
+                    others += line
+            if others:
+                with contextlib.suppress(OSError):
+                    os.write(2, others)
+
+
 def _decode_through_file(data: bytes, suffix: str) -> np.ndarray | None:
     """Decode a format OpenCV cannot decode from memory (Radiance .hdr) through our own
     temporary file, removed whatever happens (OpenCV's own copy is left in /tmp when its
@@ -169,12 +228,15 @@ def to_bgr8(img: np.ndarray) -> tuple[np.ndarray, list[str]]:
     return np.ascontiguousarray(a), notes
 
 
-def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray, list[str]]:
-    """Decode an image file's bytes to BGR uint8.
+def decode_image(data: bytes, name: str = "", *, gray: bool = False
+                 ) -> tuple[np.ndarray, list[str]]:
+    """Decode an image file's bytes to BGR uint8 (or grey).
 
     Args:
         data: The file's content.
         name: Its name (only its suffix is used, to recognise a truncated JPEG).
+        gray: Decode to (H, W) uint8 grey, as OpenCV's ``IMREAD_GRAYSCALE`` does (a JPEG's
+            luma as stored, not converted back from colour).
 
     Returns:
         (image, notes on conversions).
@@ -193,20 +255,34 @@ def decode_image(data: bytes, name: str = "") -> tuple[np.ndarray, list[str]]:
         _check_size(*size)
     elif _is_radiance(data):
         raise ImageError("a Radiance .hdr file whose header gives no size; is it whole?")
-    if _is_radiance(data):
-        img = _decode_through_file(data, ".hdr")
-    else:
-        try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
-            img = None
+    with _library_messages() as said:
+        if _is_radiance(data):
+            img = _decode_through_file(data, ".hdr")
+        else:
+            try:
+                img = cv2.imdecode(np.frombuffer(data, np.uint8),
+                                   cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_UNCHANGED)
+            except cv2.error:
+                img = None
+    why = one_line("; ".join(said), 200)
     if img is None or img.size == 0:
-        raise ImageError("cannot be read as an image (corrupt, truncated or not an image)")
-    return to_bgr8(img)
+        raise ImageError("cannot be read as an image (corrupt, truncated or not an image"
+                         + (f": {why})" if why else ")"))
+    notes: list[str] = []
+    if gray and img.ndim == 2 and img.dtype == np.uint8:
+        out = np.ascontiguousarray(img)
+    else:
+        out, notes = to_bgr8(img)
+        if gray:   # a Radiance file: decoded whole, then made grey
+            out = cv2.cvtColor(out, cv2.COLOR_BGR2GRAY)
+    if why:   # decoded all the same (libjpeg fills what is missing with grey)
+        notes.insert(0, f"damaged image, decoded with the decoder's warning: {why}")
+    return out, notes
 
 
-def read_image(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
-    """Read one image file as BGR uint8: (image, notes).
+def read_image(path: str | os.PathLike, *, gray: bool = False) -> tuple[np.ndarray, list[str]]:
+    """Read one image file as BGR uint8 (``gray``: (H, W) grey, :func:`decode_image`):
+    (image, notes).
 
     Raises:
         ImageError: missing, a folder or a pipe (never read: it could block), unreadable, or
@@ -215,10 +291,8 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
     p = Path(path)
     try:
         st = p.stat()
-    except FileNotFoundError:
-        raise ImageError("no such file") from None
     except OSError as e:
-        raise ImageError(f"cannot read: {e.strerror or e}") from None
+        raise ImageError(unreachable(p, e)) from None
     if stat.S_ISDIR(st.st_mode):
         raise ImageError("is a folder")
     if not stat.S_ISREG(st.st_mode):
@@ -239,7 +313,7 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, list[str]]:
         raise ImageError(f"cannot read: {e.strerror or e}") from None
     if len(data) > cap:
         raise ImageError(f"the file grew past {cap / 2**20:.0f} MiB while being read")
-    return decode_image(data, p.name)
+    return decode_image(data, p.name, gray=gray)
 
 
 def max_image_file_bytes() -> int:

@@ -7,6 +7,7 @@ the file; the callers add the field.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import stat
@@ -17,9 +18,35 @@ import yaml
 
 from drovisio.errors import LIMITS, InputError, one_line
 
-__all__ = ["BoundedYamlLoader", "check_regular_file", "name_inside", "parse_json", "parse_yaml",
-           "path_text_problem", "read_inside",
-           "read_structured", "read_text", "resolve_inside"]
+__all__ = ["BoundedYamlLoader", "check_regular_file", "missing_reason", "name_inside",
+           "parse_json", "parse_yaml", "path_text_problem", "read_inside", "read_structured",
+           "read_text", "resolve_inside", "unreachable"]
+
+
+def unreachable(path: str | os.PathLike, e: OSError) -> str:
+    """Why an input path could not be opened, in words, without the path (callers add it): a
+    missing file, a symbolic link to nothing, a loop of symbolic links (which the system and
+    ``Path.exists()`` answer like a missing file), or what the system said."""
+    if e.errno == errno.ELOOP:
+        return ("a loop of symbolic links (they lead to each other, never to a file or "
+                "folder); give the real path")
+    if e.errno in (errno.ENOENT, errno.ENOTDIR):
+        if os.path.islink(path):
+            return "a symbolic link to nothing (its target does not exist); give the real path"
+        return "no such file or folder"
+    return f"cannot be read ({e.strerror or e})"
+
+
+def missing_reason(path: str | os.PathLike) -> str | None:
+    """None when ``path`` leads to something (a file, a folder, a device), else why not
+    (:func:`unreachable`)."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        return unreachable(path, e)
+    except ValueError:  # a NUL byte
+        return "the name contains a NUL byte; give a real file name"
+    return None
 
 
 def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
@@ -31,11 +58,12 @@ def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
                          "byte; give a real file name")
     try:
         st = p.stat()
-    except FileNotFoundError:
-        raise InputError(f"{p}: {what} not found") from None
     except OSError as e:
-        raise InputError(f"{one_line(p, 160)}: cannot read the {what} ({e.strerror or e})") \
-            from None
+        if e.errno == errno.ENOENT and not p.is_symlink():
+            raise InputError(f"{p}: {what} not found") from None
+        why = (f"the {what} is {unreachable(p, e)}" if e.errno in (errno.ELOOP, errno.ENOENT)
+               else f"cannot read the {what} ({e.strerror or e})")
+        raise InputError(f"{one_line(p, 160)}: {why}") from None
     if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: is a folder; give the {what} itself")
     if not stat.S_ISREG(st.st_mode):

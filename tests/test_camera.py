@@ -326,6 +326,35 @@ def test_malformed_camera_files_are_one_line_naming_the_field(tmp_path: Path, co
     assert "camera.yaml" in msg and needle in msg and "\n" not in msg, msg
 
 
+@pytest.mark.parametrize("key,count,needle", [
+    ("camera_matrix", 50_000, "camera_matrix: expected 3x3 values, got 50000"),
+    ("distortion_coefficients", 70, "distortion_coefficients: 70 coefficients; OpenCV's "
+                                    "model has 4, 5, 8, 12 or 14"),
+])
+def test_a_matrix_of_thousands_of_values_says_how_many_and_what_is_expected(
+        tmp_path: Path, key, count, needle):
+    import json
+
+    data = {"camera_matrix": [500.0, 0, 320, 0, 500, 240, 0, 0, 1],
+            "distortion_coefficients": [0.0] * 5, key: [0.0] * count}
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraFileError) as err:
+        load_camera(path)
+    assert str(err.value) == f"{path}: {needle}" + ("" if key == "camera_matrix" else
+                                                     " (k1 k2 p1 p2 k3 ...)")
+
+
+def test_a_loop_of_symbolic_links_is_said_as_one_not_as_a_missing_file(tmp_path: Path):
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    with pytest.raises(CameraFileError) as err:
+        load_camera(a)
+    assert str(err.value) == (f"{a}: the camera file is a loop of symbolic links (they lead "
+                              "to each other, never to a file or folder); give the real path")
+
+
 def test_a_pipe_is_not_read_as_a_camera_file(tmp_path: Path):
     import os
 

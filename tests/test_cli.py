@@ -99,6 +99,33 @@ def test_usage_errors_exit_2(capsys):
     assert cli.main(["no-such-command"]) == 2
 
 
+@pytest.mark.parametrize("argv,line", [
+    (["detect"], "drovisio detect: the following arguments are required: --camera, --layout, "
+                 "INPUT (see drovisio detect --help)"),
+    (["detect", "--camera", "c", "--layout", "l", "--method", "sift", "x"],
+     "drovisio detect: argument --method: invalid choice: 'sift' (choose from 'auto', 'aruco', "
+     "'dots') (see drovisio detect --help)"),
+    (["calibrate", "mount", "--camera", "c"], "drovisio calibrate mount: the following "
+     "arguments are required: --out, IMAGE_OR_FOLDER (see drovisio calibrate mount --help)"),
+    (["study", "run"], "drovisio study run: the following arguments are required: --out "
+                       "(see drovisio study run --help)"),
+    (["bench", "real"], "drovisio bench real: the following arguments are required: DIR "
+                        "(see drovisio bench real --help)"),
+])
+def test_a_usage_error_is_one_line_pointing_to_the_help(argv, line, capsys):
+    assert cli.main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err == line + "\n"     # no usage block: the help has it
+
+
+def test_help_still_shows_the_usage_block(capsys):
+    assert cli.main(["detect", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: drovisio detect [-h] --camera CAMERA_FILE --layout "
+                          "LAYOUT.json\n")
+    assert "options:" in out and "Example:" in out
+
+
 def test_bench_dispatches_by_name(monkeypatch, capsys):
     assert cli.main(["bench", "nonsense"]) == 2
     assert "unknown benchmark 'nonsense'" in capsys.readouterr().err

@@ -422,6 +422,17 @@ def test_error_ids_beyond_dictionary(tmp_path):
     assert "noids.json" in msg and "instances" in msg
 
 
+def test_error_marker_count_says_the_limit_it_broke(tmp_path):
+    from drovisio.errors import LIMITS
+
+    msg = _bad(tmp_path, "many.json", "drick-dots-2x3",
+               lambda d: d.update(markers=d["markers"] * 1000))
+    assert msg == (f"{tmp_path / 'many.json'}: markers: 6000 markers, more than the "
+                   f"{LIMITS.max_markers} a layout may hold; keep at most {LIMITS.max_markers}")
+    msg = _bad(tmp_path, "none.json", "drick-dots-2x3", lambda d: d.update(markers=[]))
+    assert msg.endswith("markers: a layout needs at least one marker")
+
+
 def test_error_invalid_json_and_missing_file(tmp_path):
     msg = _error(_write(tmp_path, "broken.json", '{\n  "schema": "x",\n  "name": ,\n}'))
     assert "broken.json" in msg and "line 3" in msg and "column" in msg

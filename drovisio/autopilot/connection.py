@@ -5,22 +5,34 @@
 A connection string is pymavlink's (``udpout:127.0.0.1:14550``, ``tcp:127.0.0.1:5760``,
 ``/dev/ttyAMA0,921600``) with our ids as options (``?sysid=N&compid=M``). What cannot be
 used raises :class:`AddressError`, in one line naming the connection; each caller says it
-in its own error type.
+in its own error type. Both open their link with :func:`open_link`.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import socket
+import time
 from typing import Any
 
 from drovisio.errors import LIMITS
 
-__all__ = ["AddressError", "check_host", "mavutil2", "parse_connection", "split_connection"]
+__all__ = ["AddressError", "LinkClosed", "check_host", "mavutil2", "open_link",
+           "parse_connection", "split_connection"]
+
+#: Least time between two attempts to connect a closed TCP link again (the sink's).
+RECONNECT_EVERY_S = 1.0
 
 
 class AddressError(ValueError):
     """A MAVLink connection string that cannot be used (the message names it)."""
+
+
+class LinkClosed(ConnectionError):
+    """The other end of a TCP link closed it (and, for a link that reconnects, it could not be
+    made again yet); the message names the address and what to check."""
 
 
 def mavutil2() -> Any:
@@ -84,6 +96,83 @@ def check_host(name: str, dev: str) -> None:
         raise AddressError(f"{name}: unknown host {host!r} ({e}); check the address") from None
     if kind == "tcp":
         _probe_tcp(name, host, int(port))
+
+
+def open_link(name: str, conn: str, *, source_system: int, source_component: int,
+              reconnect: bool = False) -> Any:
+    """pymavlink's connection to ``conn`` (``DEVICE[,BAUD]``), opened the one way the sink
+    and ``autopilot check`` both use: the address checked first (:func:`check_host`),
+    MAVLink 2, pymavlink's own messages kept off stdout, and a TCP link bounded
+    (:func:`_bounded_tcp`).
+
+    Args:
+        name: How messages name the connection (``mavlink:...`` or the string given).
+        reconnect: Connect a closed TCP link again (at most once a second) when it is next
+            used, and a dead serial port (pymavlink's ``autoreconnect``).
+
+    Raises:
+        AddressError: an address that cannot be used or opened (one line naming it).
+    """
+    dev, baud = split_connection(conn)
+    check_host(name, dev)
+    mavutil = mavutil2()
+    try:
+        # pymavlink prints its TCP connect retries on stdout: the one line below says it
+        with contextlib.redirect_stdout(io.StringIO()):
+            link = mavutil.mavlink_connection(dev, source_system=source_system,
+                                              source_component=source_component,
+                                              autoreconnect=reconnect, retries=1,
+                                              **({"baud": baud} if baud else {}))
+    except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
+        raise AddressError(f"{name}: cannot open the MAVLink connection ({e})") from None
+    if isinstance(link, mavutil.mavtcp):     # and its Unix-socket kind
+        _bounded_tcp(link, name, reconnect)
+    return link
+
+
+def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
+    """A pymavlink TCP link whose closing raises :class:`LinkClosed` once per use.
+
+    pymavlink prints "EOF on TCP socket" and returns at every read of a link the other end
+    closed; the socket stays readable, so a read loop printed it hundreds of thousands of
+    times a second. Here a closed link is shut on our side, each read or reconnect raises
+    :class:`LinkClosed` (the callers say it in one line or note it), and a link that
+    reconnects tries once per :data:`RECONNECT_EVERY_S`, each try within that time, never
+    pymavlink's retries with their sleeps.
+    """
+    addr = link.destination_addr            # (host, port), or a Unix socket's path
+    where = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
+    closed = (f"{name}: {where} closed the connection; check that the address is a "
+              "MAVLink TCP server's (the autopilot's, SITL's or mavlink-router's) and that no "
+              "other program holds its connection")
+    next_try = [0.0]
+
+    def shut() -> None:
+        if link.port is not None:
+            with contextlib.suppress(OSError):
+                link.port.close()
+        link.port = None
+        link.fd = None    # pymavlink then waits instead of polling a dead descriptor
+        raise LinkClosed(closed)
+
+    def connect_again() -> None:
+        now = time.monotonic()
+        if not reconnect or not isinstance(addr, tuple) or now < next_try[0]:
+            raise LinkClosed(closed)
+        next_try[0] = now + RECONNECT_EVERY_S
+        try:
+            sock = socket.create_connection(addr, timeout=min(
+                RECONNECT_EVERY_S, LIMITS.connect_timeout_s))
+        except OSError as e:
+            raise LinkClosed(f"{closed} (connecting again: {e.strerror or e})") from None
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        link.port = sock
+        link.fd = sock.fileno()
+
+    link.handle_eof = shut
+    link.handle_disconnect = shut
+    link.reconnect = connect_again
 
 
 def _probe_tcp(name: str, host: str, port: int) -> None:

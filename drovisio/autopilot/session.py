@@ -7,8 +7,6 @@ the streams the sink needs and measures how fast they come, all within one deadl
 
 from __future__ import annotations
 
-import contextlib
-import io
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -17,8 +15,9 @@ from typing import Any
 from drovisio.autopilot.check import Facts, param_names
 from drovisio.autopilot.connection import (
     AddressError,
-    check_host,
+    LinkClosed,
     mavutil2,
+    open_link,
     parse_connection,
     split_connection,
 )
@@ -59,19 +58,11 @@ def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,
     try:
         conn_str, ids = parse_connection(connection)
         dev, baud = split_connection(conn_str)
-        check_host(connection, dev)
+        conn = open_link(connection, conn_str, source_system=ids.get("sysid", 1),
+                         source_component=ids.get("compid", 191))
     except AddressError as e:
         raise InputError(str(e)) from None
     mavutil = mavutil2()
-    try:
-        # pymavlink prints its TCP retries on stdout: the one line below says it instead
-        with contextlib.redirect_stdout(io.StringIO()):
-            conn = mavutil.mavlink_connection(dev, source_system=ids.get("sysid", 1),
-                                              source_component=ids.get("compid", 191),
-                                              retries=max(1, int(timeout_s)),
-                                              **({"baud": baud} if baud else {}))
-    except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
-        raise InputError(f"{connection}: cannot open the MAVLink connection ({e})") from None
     link = _Link(conn)
     t0 = time.monotonic()
     keeper = StreamKeeper(link.send, ids.get("sysid"), needs_position=flavour == "px4",
@@ -79,8 +70,11 @@ def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,
     serial = baud is not None or dev.startswith(("/dev/", "COM"))
     params = ParamReader(link.send, param_names(flavour, serial), retry=0.4, attempts=3)
     try:
-        _converse(link, keeper, params, mavutil.mavlink, t0, timeout_s, stream_s,
-                  lambda: _no_vehicle(connection, ids, timeout_s))
+        try:
+            _converse(link, keeper, params, mavutil.mavlink, t0, timeout_s, stream_s,
+                      lambda: _no_vehicle(connection, ids, timeout_s))
+        except LinkClosed as e:
+            raise InputError(str(e)) from None
         v = keeper.vehicle
         assert v is not None   # the conversation ends only once the vehicle answered
         now = time.monotonic()

@@ -43,7 +43,7 @@ from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
 from drovisio.detect.corners import normalized_grid
 from drovisio.errors import InputError
-from drovisio.images import IMAGE_SUFFIXES
+from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
 from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
 from drovisio.sources import list_folder
 from drovisio.study.methods import apriltag_detector
@@ -66,8 +66,11 @@ def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
             if len(frames) >= max_frames:
                 break
             if p.suffix.lower() in IMAGE_SUFFIXES:
-                im = cv2.imread(str(p), cv2.IMREAD_COLOR)
-                if im is not None and (not frames or im.shape == frames[0].shape):
+                try:
+                    im = read_image(p)[0]
+                except ImageError:
+                    continue     # the bench runs on the pictures that can be read
+                if not frames or im.shape == frames[0].shape:
                     frames.append(im)
     else:
         cap = cv2.VideoCapture(str(path))

@@ -72,6 +72,7 @@ from drovisio.calibration.board import detect as board_detect
 from drovisio.camera import Camera
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text, check_output_path
+from drovisio.textfile import missing_reason
 
 __all__ = ["bench_charuco", "bench_chessboard", "bench_tags", "charuco_layout", "detect_kind",
            "main", "tag_layout"]
@@ -407,7 +408,8 @@ def main(argv: list[str]) -> int:
     for f in args.folders:
         path = Path(f)
         if not path.is_dir():
-            raise InputError(f"{f}: not a folder (give folders of real photos)")
+            raise InputError(f"{f}: {missing_reason(path) or 'not a folder'}; give folders of "
+                             "real photos")
         folders.append(path)
     cv2.setNumThreads(1)
     reports = []

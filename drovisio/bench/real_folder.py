@@ -12,6 +12,7 @@ import numpy as np
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.errors import InputError
+from drovisio.images import ImageError, read_image
 from drovisio.layout import aruco_dictionary_id
 
 __all__ = ["CHESS_SIZES", "IMAGE_SUFFIXES", "MAX_IMAGES", "TAG_DICTIONARIES", "aruco_detector",
@@ -43,15 +44,16 @@ def camera_files(folder: Path) -> list[Path]:
 
 
 def read_gray(path: Path) -> np.ndarray:
-    """The picture as (H, W) uint8 grey.
+    """The picture as (H, W) uint8 grey, read by the project's one image reader (its size
+    from the header checked before a pixel is decoded).
 
     Raises:
-        InputError: it cannot be read as an image.
+        InputError: it cannot be read as an image (why, and to remove it from the folder).
     """
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise InputError(f"{path}: cannot be read as an image (remove it from the folder)")
-    return img
+    try:
+        return read_image(path, gray=True)[0]
+    except ImageError as e:
+        raise InputError(f"{path}: {e}; or remove it from the folder") from None
 
 
 def aruco_detector(dictionary: str) -> cv2.aruco.ArucoDetector:

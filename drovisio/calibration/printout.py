@@ -28,6 +28,8 @@ MARGIN_MM = 15.0
 """Blank border kept on every side (most printers cannot print the last 5 mm)."""
 RULER_BAND_MM = 30.0
 """Height kept below the board for the ruler and the instructions."""
+MIN_SQUARE_MM = 5.0
+"""Smallest square printed: below it the printer's ink and the camera's blur merge them."""
 
 
 def _paper(paper: str) -> tuple[float, float]:
@@ -46,12 +48,21 @@ def _layout(board: BoardSpec, paper: str) -> tuple[tuple[float, float], bool]:
     return ((h, w) if landscape else (w, h)), landscape
 
 
-def fit_square_mm(board: BoardSpec, paper: str) -> float:
-    """The largest whole-millimetre square (at least 5 mm) that fits the paper."""
+def _room_mm(board: BoardSpec, paper: str) -> tuple[float, float]:
+    """The room the board has on ``paper`` (w, h) mm, along its columns and its rows."""
     (W, H), _ = _layout(board, paper)
-    s = min((W - 2 * MARGIN_MM) / (board.cols + 1),
-            (H - 2 * MARGIN_MM - RULER_BAND_MM) / (board.rows + 1))
-    return float(max(5.0, np.floor(s)))
+    return W - 2 * MARGIN_MM, H - 2 * MARGIN_MM - RULER_BAND_MM
+
+
+def _largest_square_mm(board: BoardSpec, paper: str) -> float:
+    w, h = _room_mm(board, paper)
+    return float(np.floor(min(w / (board.cols + 1), h / (board.rows + 1))))
+
+
+def fit_square_mm(board: BoardSpec, paper: str) -> float:
+    """The largest whole-millimetre square (at least :data:`MIN_SQUARE_MM`) that fits the
+    paper."""
+    return max(MIN_SQUARE_MM, _largest_square_mm(board, paper))
 
 
 def print_square_mm(board: BoardSpec, paper: str) -> float:
@@ -61,6 +72,20 @@ def print_square_mm(board: BoardSpec, paper: str) -> float:
     own = round(board.square * 1000, 3)
     fit = fit_square_mm(board, paper)
     return own if own <= fit else fit
+
+
+def _too_many_squares(board: BoardSpec, paper: str) -> str:
+    """Why a board cannot be printed on ``paper`` at any square size, and the most inner
+    corners that can."""
+    w, h = _room_mm(board, paper)
+    most = (int(w // MIN_SQUARE_MM) - 1, int(h // MIN_SQUARE_MM) - 1)
+    a3 = paper.upper() != "A3" and _largest_square_mm(board, "A3") >= MIN_SQUARE_MM
+    return (f"a {board.cols}x{board.rows} board has too many squares for {paper} paper: even "
+            f"at {MIN_SQUARE_MM:g} mm, the smallest square Drovisio prints, its "
+            f"{board.cols + 1}x{board.rows + 1} squares need "
+            f"{(board.cols + 1) * MIN_SQUARE_MM:g}x{(board.rows + 1) * MIN_SQUARE_MM:g} mm and "
+            f"the sheet has room for {w:g}x{h:g} mm; give at most {most[0]}x{most[1]} inner "
+            "corners" + (", or use A3 paper" if a3 else ""))
 
 
 def board_pdf(board: BoardSpec, path: str | Path, paper: str = "A4",
@@ -92,6 +117,8 @@ def board_pdf_bytes(board: BoardSpec, paper: str = "A4", square_mm: float | None
     s = fit_square_mm(board, paper) if square_mm is None else float(square_mm)
     nx, ny = board.cols + 1, board.rows + 1
     bw, bh = nx * s, ny * s
+    if _largest_square_mm(board, paper) < MIN_SQUARE_MM:
+        raise InputError(_too_many_squares(board, paper))
     if not (np.isfinite(s) and s > 0) or bw > W - 2 * MARGIN_MM \
             or bh > H - 2 * MARGIN_MM - RULER_BAND_MM:
         fit = fit_square_mm(board, paper)

@@ -53,12 +53,14 @@ def collect_images(inputs: list[str]) -> list[Path]:
         InputError: a path is missing, or no image at all.
     """
     from drovisio.images import IMAGE_SUFFIXES
+    from drovisio.textfile import missing_reason
 
     files: list[Path] = []
     for raw in inputs:
         p = Path(raw)
-        if not p.exists():
-            raise InputError(f"{raw}: no such file or folder")
+        why = missing_reason(p)
+        if why:
+            raise InputError(f"{raw}: {why}")
         if p.is_dir():
             found = sorted(f for f in p.iterdir()
                            if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
@@ -112,16 +114,17 @@ def _probe_board_size(images: list[Path], board) -> str | None:
     import cv2
 
     from drovisio.calibration.board import to_gray
+    from drovisio.images import ImageError, read_image
 
     seen_c = _nearby_sizes(board.cols, board.rows)
     deadline = time.monotonic() + 2.0
     for path in images[:3]:
         if time.monotonic() > deadline:
             break
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if img is None:
+        try:
+            gray = to_gray(read_image(path, gray=True)[0])
+        except ImageError:
             continue
-        gray = to_gray(img)
         for c, r in seen_c:
             if time.monotonic() > deadline:
                 break

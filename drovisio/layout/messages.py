@@ -118,9 +118,12 @@ def _bound(e: _Error) -> Located:
 
 
 def _length(e: _Error) -> Located:
-    if e.field == "markers":
-        return e.loc, "a layout needs at least one marker"
     want = e.ctx.get("min_length") if e.type == "too_short" else e.ctx.get("max_length")
+    if e.field == "markers":
+        if e.type == "too_short":
+            return e.loc, "a layout needs at least one marker"
+        got = f"{len(e.input)} markers" if isinstance(e.input, (list, tuple)) else "too many"
+        return e.loc, f"{got}, more than the {want} a layout may hold; keep at most {want}"
     if e.field in ("corners",) and isinstance(e.input, (list, tuple)):
         return e.loc, f"expected 4 corners [[x, y, z], ...], got {len(e.input)}"
     if isinstance(e.input, (list, tuple)):

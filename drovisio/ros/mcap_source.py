@@ -12,9 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
-import numpy as np
-
+from drovisio.images import ImageError, decode_image
 from drovisio.raw_frame import EndOfStream, RawFrame
 from drovisio.ros.msgdefs import decoder
 
@@ -134,11 +132,12 @@ class McapReader:
         self._last = media
         i = self.index
         self.index += 1
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
+        try:   # the project's one decoder: the size bounded from the header, quiet
+            img, notes = decode_image(data)
+        except ImageError as e:
             return RawFrame(None, i, media_time=media, name=f"{self.path.name}#{i}",
-                            error="image could not be decoded")
-        return RawFrame(img, i, media_time=media, name=f"{self.path.name}#{i}")
+                            error=f"image could not be decoded: {e}")
+        return RawFrame(img, i, media_time=media, name=f"{self.path.name}#{i}", notes=notes)
 
     def close(self) -> None:
         self._it = None

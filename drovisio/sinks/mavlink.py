@@ -65,8 +65,8 @@ import numpy as np
 from drovisio.autopilot.check import Facts, evaluate, param_names
 from drovisio.autopilot.connection import (
     AddressError,
-    check_host,
     mavutil2,
+    open_link,
     parse_connection,
     split_connection,
 )
@@ -270,18 +270,11 @@ class MavlinkSink:
         self.last_error: str | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        mavutil = mavutil2()
-        self._mavutil = mavutil
+        self._mavutil = mavutil2()
         dev, baud = split_connection(connection)
         with _as_sink_error():
-            check_host(self.name, dev)
-        try:
-            kw = {"baud": baud} if baud else {}
-            self.conn = mavutil.mavlink_connection(dev, source_system=source_system,
-                                                   source_component=source_component,
-                                                   autoreconnect=True, **kw)
-        except Exception as e:
-            raise SinkError(f"{self.name}: cannot open the MAVLink connection ({e})") from e
+            self.conn = open_link(self.name, connection, source_system=source_system,
+                                  source_component=source_component, reconnect=True)
         self._serial = baud is not None or dev.startswith(("/dev/", "COM"))
         self.streams = StreamKeeper(self._send_with, follow,
                                     needs_position=autopilot == "px4", start=time.monotonic())

@@ -5,6 +5,7 @@ V4L2), a video file, a folder of images (name order), a recording folder (made b
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -16,6 +17,7 @@ from drovisio.sources.frame_source import FrameSource
 from drovisio.sources.reader import Pace, Reader
 from drovisio.sources.stream import StreamReader
 from drovisio.sources.video import VideoFileReader
+from drovisio.textfile import missing_reason
 
 __all__ = ["open_source", "reader_for"]
 
@@ -81,7 +83,10 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
         if (p / "recording.json").is_file():
             return RecordingReader(p, loop=loop)
         return ImageFolderReader(p, fps=folder_fps, loop=loop)
-    if not p.exists():
+    why = missing_reason(p)
+    if why and os.path.lexists(p):    # a link that leads nowhere: said as one
+        raise InputError(f"{s}: --source: {why}")
+    if why:
         raise InputError(f"{s}: --source: no such file or folder (give a camera index such "
                          "as 0, a video file, a folder of images or a stream URL)")
     if not p.is_file():

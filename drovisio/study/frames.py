@@ -16,12 +16,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
+from drovisio.camera import Camera
 from drovisio.errors import InputError
 from drovisio.geometry import rotation_about
-from drovisio.images import ImageError, read_image
+from drovisio.images import VIDEO_SUFFIXES, is_video_file
+from drovisio.raw_frame import EndOfStream
+from drovisio.sources import ImageFolderReader, VideoFileReader
 from drovisio.study.protocol import Step
 from drovisio.synth import (
     BrickInstance,
@@ -32,10 +34,9 @@ from drovisio.synth import (
     camera_over,
     render,
 )
+from drovisio.textfile import missing_reason
 
 __all__ = ["StepFrame", "step_frames", "truth_camera_from_brick"]
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 @dataclass
@@ -117,45 +118,62 @@ def _brick_box(layout) -> np.ndarray:
                      for z in (lo[2], hi[2])])
 
 
-def _recorded(step: Step, base: Path) -> Iterator[StepFrame]:
+def _recorded_reader(src: Path, step: Step) -> ImageFolderReader | VideoFileReader:
+    """The reader of a recorded step's source, chosen before anything is opened: a folder
+    of images or a video file; anything else (a text file, a device) is refused."""
+    why = missing_reason(src)
+    if why:
+        raise InputError(f"{src}: source: {why} (step {step.label})")
+    if src.is_dir():
+        return ImageFolderReader(src)
+    if src.is_file() and is_video_file(src):
+        return VideoFileReader(src)
+    raise InputError(f"{src}: source: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}) nor a "
+                     f"folder of images; give the recording of step {step.label}")
+
+
+def _recorded(step: Step, base: Path, camera: Camera) -> Iterator[StepFrame]:
     src = Path(step.source or "")
     src = src if src.is_absolute() else base / src
     if step.value is None:
         raise InputError(f"{src}: value: no truth for this recording (give the {step.vary} "
                          "measured on the bench)")
     truth = truth_camera_from_brick(step)
-    if src.is_dir():
-        files = sorted(p for p in src.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if len(files) < step.frames:
-            raise InputError(f"{src}: {len(files)} image(s), the step asks for frames: "
-                             f"{step.frames} (lower 'frames' or add pictures)")
-        for f in files[: step.frames]:
-            try:
-                img, _ = read_image(f)
-            except ImageError as e:
-                raise InputError(f"{f}: {e}") from None
-            yield StepFrame(img, truth, f.name)
-        return
-    if not src.is_file():   # a FIFO or device is no video: reading it could block
-        raise InputError(f"{src}: no such video or folder, or not a regular file (source of "
-                         f"step {step.label})")
-    cap = cv2.VideoCapture(str(src))
+    reader = _recorded_reader(src, step)
     try:
-        got = 0
-        while got < step.frames:
-            ok, img = cap.read()
-            if not ok:
+        reader.open()
+    except OSError as e:   # the reader's own one line, naming the file
+        raise InputError(str(e)) from None
+    try:
+        if isinstance(reader, ImageFolderReader) and len(reader.files) < step.frames:
+            raise InputError(f"{src}: {len(reader.files)} image(s), the step asks for frames: "
+                             f"{step.frames} (lower 'frames' or add pictures)")
+        for got in range(step.frames):
+            try:
+                fr = reader.read()
+            except EndOfStream:
+                fr = None
+            if fr is None:
                 raise InputError(f"{src}: the video has {got} frame(s), the step asks for "
                                  f"frames: {step.frames} (lower 'frames' or record longer)")
-            yield StepFrame(img, truth, f"{src.name}#{got}")
-            got += 1
+            name = fr.name or f"{src.name}#{fr.index}"
+            where = src / fr.name if fr.name else src
+            if fr.image is None:
+                raise InputError(f"{where}: {fr.error or 'cannot be decoded'}")
+            h, w = fr.image.shape[:2]
+            if (w, h) != (camera.width, camera.height):
+                # every method's detector is made for the study's camera, at its size
+                raise InputError(f"{where}: the frame is {w}x{h} but the study's camera is "
+                                 f"for {camera.width}x{camera.height}; record at that size, "
+                                 "or give the protocol the recording camera's file (camera:)")
+            yield StepFrame(fr.image, truth, name)
     finally:
-        cap.release()
+        reader.close()
 
 
 def step_frames(step: Step, layout, camera, seed: int, base: Path, ss: int = 2
                 ) -> Iterator[StepFrame]:
     """The frames of ``step``: recorded when it names a source, else rendered."""
     if step.source is not None:
-        return _recorded(step, base)
+        return _recorded(step, base, camera)
     return _rendered(step, layout, camera, seed, ss)

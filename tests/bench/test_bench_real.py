@@ -107,7 +107,30 @@ def test_folders_that_are_none_of_the_kinds(tmp_path, capsys):
     assert rc == 2 and "no images" in err and str(tmp_path) in err
     rc = main(["bench", "real", str(tmp_path / "missing")])
     _, err = capsys.readouterr()
-    assert rc == 2 and "not a folder" in err
+    assert rc == 2 and "missing: no such file or folder; give folders of real photos" in err
+
+
+def _png_header(w: int, h: int) -> bytes:
+    """A PNG that is only its header (IHDR then IEND): what a decoder sizes its buffer by."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(
+            ">I", zlib.crc32(kind + body))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + chunk(b"IEND", b""))
+
+
+def test_a_picture_whose_header_is_over_the_cap_is_refused_from_its_header(tmp_path, capsys):
+    (tmp_path / "huge.png").write_bytes(_png_header(20000, 20000))
+    rc = main(["bench", "real", str(tmp_path)])
+    _, err = capsys.readouterr()
+    assert rc == 2 and err == (
+        f"drovisio bench: {tmp_path / 'huge.png'}: the image is 400 Mpx, more than the 50 Mpx "
+        "Drovisio decodes; resize it (or set DROVISIO_MAX_IMAGE_MPX); or remove it from the "
+        "folder\n")
 
 
 def test_outer_edge_corners_find_a_blurred_squares_corners():

@@ -113,11 +113,19 @@ def test_too_few_views(render_dir, tmp_path, capsys):
 @pytest.mark.parametrize("setup,needle", [
     ("empty", "folder contains no images"),
     ("missing", "no such file or folder"),
+    ("loop", "a loop of symbolic links (they lead to each other, never to a file or folder); "
+             "give the real path"),
+    ("dangling", "a symbolic link to nothing (its target does not exist); give the real path"),
 ])
 def test_empty_folder_and_missing_path(tmp_path, capsys, setup, needle):
     p = tmp_path / setup
     if setup == "empty":
         p.mkdir()
+    elif setup == "loop":
+        p.symlink_to(tmp_path / "loop2")
+        (tmp_path / "loop2").symlink_to(p)
+    elif setup == "dangling":
+        p.symlink_to(tmp_path / "nowhere")
     rc, err = _run(capsys, *BOARD, "--out", str(tmp_path / "c.yaml"), str(p))
     assert rc == 2 and needle in err and err.count("\n") == 1
 
@@ -128,6 +136,33 @@ def test_bad_board_spec_and_output(render_dir, tmp_path, capsys):
     assert rc == 2 and "COLSxROWS" in err
     rc, err = _run(capsys, *BOARD, "--out", str(tmp_path), str(render_dir))
     assert rc == 2 and "is a folder" in err
+
+
+def test_a_model_its_views_do_not_determine_is_refused_not_written(opencv_files, tmp_path,
+                                                                   capsys):
+    # the tilted sensor's 14 coefficients from 4 real views: each intrinsic within 10 % but
+    # the projection uncertain by tens of pixels everywhere (it was written, marked NOT OK)
+    four = [str(f) for f in opencv_files[:4]]
+    out = tmp_path / "cam.yaml"
+    rc, err = _run(capsys, "--board", "chessboard:9x6", "--square", "0.025", "--model",
+                   "tilted", "--out", str(out), *four)
+    said = [ln for ln in err.splitlines() if ln.startswith("drovisio calibrate:")]
+    assert rc == 1 and len(said) == 1 and not out.exists()
+    assert said[0].startswith("drovisio calibrate: calibration failed: the tilted solve is not "
+                              "determined by these views: its projection is uncertain by ")
+    assert said[0].endswith("px (1-sigma) at the median point of the image, more than 1 % of "
+                            "the focal length; add views with the board tilted toward each "
+                            "side and at other distances, or use a model with fewer "
+                            "coefficients")
+    # the same views determine plumb_bob's fewer coefficients: written
+    rc, err = _run(capsys, "--board", "chessboard:9x6", "--square", "0.025", "--out",
+                   str(out), *four)
+    assert rc == 0 and out.exists()
+    # the thin prism's: once its s1-s4 are held at 0 (the retry), said with the names once
+    rc, err = _run(capsys, "--board", "chessboard:9x6", "--square", "0.025", "--model",
+                   "thin_prism", "--out", str(tmp_path / "prism.yaml"), *four)
+    assert rc == 0 and "(note) s1, s2, s3, s4 held at 0: with them free the solve is not " \
+        "determined by these views: its projection is uncertain by" in err
 
 
 def test_model_auto_on_the_real_views_says_why(opencv_files, tmp_path, capsys):

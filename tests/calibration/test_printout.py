@@ -71,6 +71,22 @@ def test_a_square_too_big_for_the_paper(tmp_path):
     assert not (tmp_path / "b.pdf").exists()
 
 
+def test_a_board_of_too_many_squares_names_them_not_the_square_size(tmp_path, capsys):
+    with pytest.raises(InputError) as err:
+        board_pdf(parse_board("chessboard:60x30", 0.025), tmp_path / "b.pdf", "A4")
+    assert str(err.value) == (
+        "a 60x30 board has too many squares for A4 paper: even at 5 mm, the smallest square "
+        "Drovisio prints, its 61x31 squares need 305x155 mm and the sheet has room for "
+        "267x150 mm; give at most 52x29 inner corners, or use A3 paper")
+    assert not (tmp_path / "b.pdf").exists()
+    rc = cli.main(["calibrate", "board", "--pdf", str(tmp_path / "x.pdf"), "--board",
+                   "chessboard:200x200"])
+    err_line = capsys.readouterr().err
+    assert rc == 2 and err_line.count("\n") == 1
+    assert "too many squares for A4 paper" in err_line and "at most 52x29 inner corners" \
+        in err_line and "A3" not in err_line and "squares of at most" not in err_line
+
+
 def test_cli(tmp_path, capsys):
     out = tmp_path / "board.pdf"
     rc = cli.main(["calibrate", "board", "--pdf", str(out), "--paper", "Letter",

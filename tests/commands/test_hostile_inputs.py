@@ -102,6 +102,37 @@ def test_detect_survives_a_jpeg_claiming_65000_squared_pixels(capsys, frames, tm
     assert "error" not in lines[1] and lines[1]["bricks"]      # the next file still runs
 
 
+def test_detect_says_a_damaged_image_in_its_own_line_without_the_decoders_noise(
+        capfd, frames, tmp_path):
+    png = (frames / "f0.png").read_bytes()
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(png[: len(png) // 2])          # libpng: "PNG input buffer is incomplete"
+    ok, jpg = cv2.imencode(".jpg", cv2.imread(str(frames / "f0.png")))
+    holed = tmp_path / "holed.jpg"                 # its end marker kept: decoded, partly grey
+    holed.write_bytes(jpg.tobytes()[: len(jpg) // 2] + b"\xff\xd9")
+    rc = main(["detect", "--camera", str(CAMERA), "--layout", str(CENTRE), str(cut),
+               str(holed)])
+    out, err = capfd.readouterr()
+    lines = [json.loads(x) for x in out.splitlines()]
+    assert rc == 1 and len(lines) == 2
+    assert lines[0]["error"] == ("cannot be read as an image (corrupt, truncated or not an "
+                                 "image: libpng error: PNG input buffer is incomplete)")
+    assert "error" not in lines[1]
+    # every line on stderr is Drovisio's own, naming the file
+    assert all(ln.startswith("drovisio detect: ") for ln in err.splitlines()), err
+    assert (f"drovisio detect: {holed}: damaged image, decoded with the decoder's warning: "
+            "Corrupt JPEG data: premature end of data segment") in err.splitlines()
+
+
+def test_only_the_decoders_lines_are_kept_off_stderr_while_decoding(capfd):
+    from drovisio.images import _library_messages
+
+    with _library_messages() as said:      # another thread's line may land in the window
+        os.write(2, b"libpng error: IDAT: CRC error\ndrovisio run: 12 fps\n")
+    assert said == ["libpng error: IDAT: CRC error"]
+    assert capfd.readouterr().err == "drovisio run: 12 fps\n"
+
+
 def test_detect_never_reads_a_pipe(tmp_path):
     fifo = tmp_path / "frame.png"
     os.mkfifo(fifo)
@@ -197,6 +228,8 @@ def test_detect_with_a_layout_without_dimensions(capsys, frames, tmp_path):
 
 @pytest.mark.parametrize("make_source,needle", [
     (lambda d: d / "missing.mp4", "no such file or folder"),
+    (lambda d: [(d / "a.mp4").symlink_to(d / "b.mp4"), (d / "b.mp4").symlink_to(d / "a.mp4"),
+                d / "a.mp4"][2], "--source: a loop of symbolic links"),
     (lambda d: (d / "empty").mkdir() or d / "empty", "no images in the folder"),
     (lambda d: [(d / "cut.mp4").write_bytes(VIDEO.read_bytes()[:20000]), d / "cut.mp4"][1],
      "cannot open the video"),

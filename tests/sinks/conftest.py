@@ -142,3 +142,36 @@ def vehicle():
     yield make
     for v in made:
         v.close()
+
+
+class ClosingPeer:
+    """A TCP server on loopback that accepts each connection and closes it at once (what a
+    port that speaks something else, or a firewall that answers for it, looks like)."""
+
+    def __init__(self) -> None:
+        import socket
+
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.accepted = 0
+        self.th = threading.Thread(target=self._run, daemon=True)
+        self.th.start()
+
+    def _run(self) -> None:
+        while True:
+            try:
+                conn, _ = self.server.accept()
+            except OSError:      # closed: the test is over
+                return
+            self.accepted += 1
+            conn.close()
+
+    def close(self) -> None:
+        self.server.close()
+
+
+@pytest.fixture
+def closing_peer():
+    peer = ClosingPeer()
+    yield peer
+    peer.close()

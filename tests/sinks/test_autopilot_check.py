@@ -134,3 +134,16 @@ def test_a_refused_tcp_link_is_one_line_on_stderr_only(capsys):
     assert cap.out == ""
     lines = cap.err.strip().splitlines()
     assert len(lines) == 1 and "tcp:127.0.0.1:1: cannot connect to 127.0.0.1:1" in lines[0]
+
+
+def test_a_tcp_peer_that_closes_the_link_is_one_line_not_a_flood(closing_peer, capfd):
+    # pymavlink printed "EOF on TCP socket" at every read of a closed link: hundreds of
+    # thousands of lines a second on stdout
+    assert main(["autopilot", "check", f"tcp:127.0.0.1:{closing_peer.port}", "--timeout",
+                 "2"]) == 2
+    cap = capfd.readouterr()
+    assert cap.out == ""
+    assert cap.err == (f"drovisio autopilot: tcp:127.0.0.1:{closing_peer.port}: "
+                       f"127.0.0.1:{closing_peer.port} closed the connection; check that the "
+                       "address is a MAVLink TCP server's (the autopilot's, SITL's or "
+                       "mavlink-router's) and that no other program holds its connection\n")

@@ -210,3 +210,23 @@ def test_px4_local_ned_from_the_links_attitude(tmp_path):
     q = valid[-1].q
     yaw_ned = math.atan2(2 * (q[0] * q[3] + q[1] * q[2]), 1 - 2 * (q[2] ** 2 + q[3] ** 2))
     assert abs(math.degrees(yaw_ned) - 90.0) < 3.0
+
+
+def test_a_closed_tcp_link_is_said_quietly_and_reconnected_at_most_once_a_second(
+        closing_peer, capfd, monkeypatch):
+    from drovisio.autopilot import connection
+    from drovisio.autopilot.connection import LinkClosed, open_link
+
+    # one reconnect allowed, then none for the rest of the test (the interval is long)
+    monkeypatch.setattr(connection, "RECONNECT_EVERY_S", 1e6)
+    link = open_link("mavlink:tcp:x", f"tcp:127.0.0.1:{closing_peer.port}", source_system=1,
+                     source_component=191, reconnect=True)
+    for _ in range(4):
+        with pytest.raises(LinkClosed, match=f"127.0.0.1:{closing_peer.port} closed the "
+                                             "connection"):
+            link.recv_match(blocking=True, timeout=10)
+    link.mav.heartbeat_send(18, 8, 0, 0, 4)    # dropped while closed, never raised
+    # the start-up probe, pymavlink's connect and one reconnect; none after
+    assert closing_peer.accepted == 3
+    cap = capfd.readouterr()
+    assert cap.out == "" and cap.err == ""

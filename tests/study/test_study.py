@@ -217,7 +217,8 @@ def test_bad_input_is_named_and_the_study_goes_on(tmp_path):
                     methods=["drovisio-codes", "apriltag3"], memory_seconds=0,
                     speed_bricks=())
     assert len(res.skipped) == 4
-    assert "missing.mp4: no such video or folder" in res.skipped[0]
+    assert "missing.mp4: source: no such file or folder (step distance 0.6 m)" \
+        in res.skipped[0]
     assert "dots_100cm.mp4: value: no truth for this recording" in res.skipped[3]
     assert "code_120cm.mp4: the video has 2 frame(s), the step asks for frames: 5" \
         in res.skipped[1]
@@ -226,6 +227,34 @@ def test_bad_input_is_named_and_the_study_goes_on(tmp_path):
     # AprilTag 3 cannot read 4x4 codes: said, not dropped
     if "apriltag3" not in res.left_out:
         assert "DICT_4X4_50" in res.not_applicable["code-at"]["apriltag3"]
+
+
+def test_a_recording_unlike_the_camera_or_not_a_recording_skips_its_step_in_one_line(
+        tmp_path, capsys):
+    write_recorded_example(tmp_path, frames=2)
+    data = yaml.safe_load((tmp_path / "protocol.yaml").read_text())
+    small = tmp_path / "small"                 # pictures at half the camera's size
+    small.mkdir()
+    for f in sorted((tmp_path / "code_rotz45").glob("*.jpg")):
+        img = cv2.imread(str(f))
+        cv2.imwrite(str(small / f.name), cv2.resize(img, (320, 240)))
+    (tmp_path / "notes.txt").write_text("root:x:0:0\n")
+    data["steps"][0]["source"] = "small"
+    data["steps"][1]["source"] = str(tmp_path / "notes.txt")
+    data["steps"] = data["steps"][:2]
+    proto = _write(tmp_path / "p.yaml", data)
+    rc = cli.main(["study", "run", "--protocol", str(proto), "--out", str(tmp_path / "out"),
+                   "--methods", "drovisio-codes", "--memory-seconds", "0", "--quick"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "internal error" not in err
+    skipped = [ln for ln in err.splitlines() if ln.startswith("skipped:")]
+    assert skipped == [
+        f"skipped: step 1 (Fig. 6.7, code, distance 0.6 m): {small / 'frame_000.jpg'}: the "
+        "frame is 320x240 but the study's camera is for 640x480; record at that size, or give "
+        "the protocol the recording camera's file (camera:)",
+        f"skipped: step 2 (Fig. 6.7, code, distance 1.2 m): {tmp_path / 'notes.txt'}: source: "
+        "not a video (.avi, .h264, .m4v, .mjpeg, .mjpg, .mkv, .mov, .mp4, .mpeg, .mpg, .ts, "
+        ".webm, .wmv) nor a folder of images; give the recording of step distance 1.2 m"]
 
 
 @pytest.mark.parametrize("edit, field", [

@@ -27,7 +27,9 @@ Rules (stated once here, reported in the result):
   its lens mapping folds back (stops growing with the angle from the axis) inside the field
   the board covered, when its RMS exceeds both 10 × the corners' own noise
   (:func:`corner_noise_px`, measured without a lens model) and that noise + 2 px, or when
-  the 1-σ of fx, fy, cx or cy exceeds 10 % of the focal length. It is then solved again from
+  the 1-σ of fx, fy, cx or cy exceeds 10 % of the focal length, or when its projection
+  uncertainty (1-σ, see below) at the image's median point exceeds 1 % of the focal length
+  (each intrinsic can be known while the model is not). It is then solved again from
   the next start, then with its highest-order coefficients held at 0 (fisheye k3 k4,
   rational k4–k6, plumb_bob k3; said in ``fixed``), and otherwise refused in one line that
   names the model, the cause and the fix.

@@ -8,12 +8,18 @@ import cv2
 import numpy as np
 
 from drovisio.calibration.solve.results import Model, ViewFit, ViewInput
-from drovisio.calibration.uncertainty import lens_key, param_names
+from drovisio.calibration.uncertainty import lens_key, param_names, projection_uncertainty
 from drovisio.camera import Camera
 
 #: A solve whose 1-σ focal length or principal point is this fraction of the focal length
 #: (of the image side) is not determined by its views: it is refused, never written.
 MAX_RELATIVE_SIGMA = 0.1
+#: Nor is one whose projection over the image is uncertain by this fraction of the focal
+#: length at the median point (1-σ; 0.6° of viewing angle, 2 cm on a brick 2 m away): each
+#: intrinsic may be known while the model as a whole is not (a tilted sensor's 14
+#: coefficients from a few views trade with each other), and what a user gets is its
+#: projection.
+MAX_PROJECTION_SIGMA = 0.01
 #: A solve whose RMS exceeds both this many times the corner noise and the noise + 2 px has
 #: not found the lens (the corners disagree with the model far beyond their own noise).
 MAX_RMS_OVER_NOISE = 10.0
@@ -94,7 +100,8 @@ def diagnose(m: Model, O, noise: float | None) -> tuple[str, str] | None:
     """Why a solve cannot be written ((cause, fix)), or None: it did not converge (folded
     lens mapping inside the field the board covered, residuals far above the corner noise)
     or its views do not determine it (focal length or principal point uncertain by
-    :data:`MAX_RELATIVE_SIGMA`)."""
+    :data:`MAX_RELATIVE_SIGMA`, its projection by :data:`MAX_PROJECTION_SIGMA`, of the focal
+    length)."""
     cam = m.camera
     key = lens_key(cam)
     other = ("or try --model plumb_bob" if key == "fisheye" else
@@ -113,6 +120,8 @@ def diagnose(m: Model, O, noise: float | None) -> tuple[str, str] | None:
                 f"({noise:.2f} px, measured without a lens model)", "check --board and "
                 "--square and that the board is flat, remove views of a moving board, "
                 + other)
+    fix = ("add views with the board tilted toward each side and at other distances, "
+           "or use a model with fewer coefficients")
     sd = m.std
     rel = np.array([sd[0] / cam.fx, sd[1] / cam.fy, sd[2] / cam.fx, sd[3] / cam.fy])
     if not np.all(np.isfinite(rel)) or rel.max() > MAX_RELATIVE_SIGMA:
@@ -121,6 +130,12 @@ def diagnose(m: Model, O, noise: float | None) -> tuple[str, str] | None:
         return (f"is not determined by these views: 1-sigma of {name} is "
                 f"{rel[worst] * 100:.0f} % of the focal length" if np.isfinite(rel[worst])
                 else f"is not determined by these views: {name} has no finite uncertainty",
-                "add views with the board tilted toward each side and at other distances, "
-                "or use a model with fewer coefficients")
+                fix)
+    p50 = projection_uncertainty(cam, m.covariance).stats()["p50"]
+    f = min(cam.fx, cam.fy)
+    if p50 is None or p50 > MAX_PROJECTION_SIGMA * f:
+        return ("is not determined by these views: its projection is uncertain by "
+                + ("an unknown amount everywhere" if p50 is None else
+                   f"{p50:.1f} px (1-sigma) at the median point of the image, more than "
+                   f"{MAX_PROJECTION_SIGMA * 100:g} % of the focal length"), fix)
     return None

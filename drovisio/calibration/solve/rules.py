@@ -35,6 +35,13 @@ def _chi2_quantile(dof: int, sigmas: float) -> float:
     return 0.5 * (lo + hi)
 
 
+def _retry_entry(note: str) -> tuple[str, str]:
+    """A retry's note (``k4, k5, k6 held at 0: ...``) as a ``fixed`` entry: the names, and
+    the rest (the report says them as ``NAMES REST``, the names once)."""
+    names, _, rest = note.partition(" held at 0")
+    return names, "held at 0" + rest
+
+
 def fit_with_rules(views: list[ViewInput], size, model: str, opt: SolveOptions
                     ) -> tuple[Model, dict[str, str], dict | None]:
     """One solve of ``model`` with the k3 rule (plumb_bob): (model, fixed, free_model)."""
@@ -42,7 +49,7 @@ def fit_with_rules(views: list[ViewInput], size, model: str, opt: SolveOptions
     if model != "plumb_bob":
         m = fit_model(views, size, model=model)
         if m.retry_note:
-            fixed[m.retry_note.split(" held at 0")[0]] = m.retry_note
+            fixed.update([_retry_entry(m.retry_note)])
             return m, fixed, None
         # the k3 rule for every model: its highest-order coefficients (fisheye k3 k4,
         # rational k4-k6...) are held at 0 when together they do not differ from 0 (a narrow
@@ -75,7 +82,7 @@ def fit_with_rules(views: list[ViewInput], size, model: str, opt: SolveOptions
         return fit_model(views, size, fix_k3=True), fixed, None
     m = fit_model(views, size, fix_k3=False)
     if m.retry_note:
-        fixed["k3"] = m.retry_note
+        fixed.update([_retry_entry(m.retry_note)])
         return m, fixed, None
     if opt.fix_k3 != "auto":
         return m, fixed, None
