@@ -113,11 +113,17 @@ def _radiance_size(data: bytes) -> tuple[int, int] | None:
 
 _STDERR_LOCK = threading.Lock()
 _stderr_sink: list = []   # one temporary file, reused by every decode (made on first use)
-#: how the decoders' own lines begin (libpng, libjpeg, libtiff, OpenCV's log); any other line
-#: caught while decoding was another thread's and goes back to stderr as it was
-_LIBRARY_LINE = re.compile(r"(libpng |libtiff|TIFF|\[ *(WARN|ERROR|INFO)|Premature end of JPEG|"
-                           r"Corrupt JPEG|Invalid JPEG|Not a JPEG|Bogus |Unsupported |"
-                           r"Huffman |Quantization |Warning: |JPEG)")
+#: the decoders' own lines: libpng's errors and warnings, libjpeg's messages (their fixed
+#: texts), libtiff's, and OpenCV's log lines from its image readers (loadsave, grfmt). Any
+#: other line caught while decoding was another thread's and goes back to stderr as it was;
+#: a generic "Warning:" or an OpenCV line from its camera code is never taken for the image's.
+_LIBRARY_LINE = re.compile(
+    r"(libpng (error|warning)|TIFFRead|TIFFFetch|"
+    r"\[ *(WARN|ERROR)[^\]]*\].*(imdecode|imread|loadsave|grfmt)|"
+    r"(Premature end of JPEG|Corrupt JPEG data|Invalid JPEG|Not a JPEG file|Bogus (marker|"
+    r"Huffman|DQT|DHT|sampling|input colorspace|message code)|Huffman table|Quantization "
+    r"table|Unsupported JPEG|JPEG datastream|Inconsistent progression|Invalid SOS|Warning: "
+    r"unknown JFIF|Suspension not allowed|Unsupported marker))")
 
 
 @contextlib.contextmanager
@@ -148,16 +154,17 @@ def _library_messages() -> Iterator[list[str]]:
             os.dup2(saved, 2)
             os.close(saved)
             sink.seek(0)
-            others = b""
-            for line in sink.read(64 * 1024).splitlines(keepends=True):
+            others: list[bytes] = []
+            for line in sink:   # everything caught: another thread's lines are all given back
                 text = line.decode("utf-8", "replace").strip()
                 if _LIBRARY_LINE.match(text):
-                    said.append(text)
+                    if len(said) < 8:   # the image's line says the first few
+                        said.append(text)
                 elif text:
-                    others += line
+                    others.append(line)
             if others:
                 with contextlib.suppress(OSError):
-                    os.write(2, others)
+                    os.write(2, b"".join(others))
 
 
 def _decode_through_file(data: bytes, suffix: str) -> np.ndarray | None:

@@ -157,4 +157,7 @@ class PipelineStatus:
             "sinks": self.sinks}
         if self.recording is not None:
             out["recording"] = self.recording
+        if self.unfit_frames:   # frames of another size than the camera file's, and why
+            out["unfit_frames"] = self.unfit_frames
+            out["unfit"] = self.unfit
         return out

@@ -19,6 +19,7 @@ their recorded timing.
 from __future__ import annotations
 
 import json
+import os
 import queue
 import re
 import threading
@@ -80,6 +81,27 @@ def stop_writer(q: queue.Queue, thread: threading.Thread, timeout: float) -> Non
     thread.join(max(0.0, deadline - time.monotonic()))
 
 
+def _drop_cut_line(index: Path) -> None:
+    """Before a recording is continued, cut its index back to its last whole line: a line
+    cut by a crash (no line end) would otherwise be glued to the next entry, and the index
+    could no longer be read past it."""
+    try:
+        with open(index, "rb+") as f:
+            size = f.seek(0, os.SEEK_END)
+            if size == 0:
+                return
+            f.seek(size - 1)
+            if f.read(1) == b"\n":
+                return
+            start = max(0, size - MAX_LINE_BYTES - 2)
+            f.seek(start)
+            tail = f.read()
+            nl = tail.rfind(b"\n")
+            f.truncate(start + nl + 1 if nl >= 0 else 0 if start == 0 else size)
+    except FileNotFoundError:
+        return
+
+
 class Recorder:
     """Writes a recording folder (see the module doc) without ever replacing a file in it.
 
@@ -117,6 +139,7 @@ class Recorder:
                                   json.dumps(manifest, indent=1), overwrite=False)
             except FileExistsError:
                 self.continued = True  # made meanwhile by another writer: kept
+        _drop_cut_line(self.folder / "frames.jsonl")
         self._index = open(self.folder / "frames.jsonl", "a", encoding="utf-8")
         self.quality = int(jpeg_quality)
         self._q: queue.Queue = queue.Queue(maxsize=max_queue)
@@ -227,9 +250,9 @@ def read_index(folder: str | Path) -> list[RecordedFrame]:
     out: list[RecordedFrame] = []
     try:
         with open(idx, "rb") as f:
-            for n, line in enumerate(iter(lambda: f.readline(MAX_LINE_BYTES + 1), b""), 1):
+            for n, line in enumerate(iter(lambda: f.readline(MAX_LINE_BYTES + 2), b""), 1):
                 where = f"{idx}, line {n}"
-                if len(line) > MAX_LINE_BYTES:
+                if len(line.rstrip(b"\r\n")) > MAX_LINE_BYTES:
                     raise InputError(f"{where}: longer than {MAX_LINE_BYTES >> 20} MiB; this "
                                      "is not a recording's index")
                 if not line.strip():

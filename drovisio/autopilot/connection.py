@@ -14,6 +14,7 @@ import contextlib
 import io
 import os
 import socket
+import threading
 import time
 from typing import Any
 
@@ -146,6 +147,9 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
               "MAVLink TCP server's (the autopilot's, SITL's or mavlink-router's) and that no "
               "other program holds its connection")
     next_try = [0.0]
+    # a connect runs on its own thread: a peer that drops packets holds it up to its
+    # deadline, and the link is used from the pipeline's thread (a frame must not wait)
+    attempt: dict[str, Any] = {"thread": None, "sock": None, "error": None}
 
     def shut() -> None:
         if link.port is not None:
@@ -155,20 +159,33 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
         link.fd = None    # pymavlink then waits instead of polling a dead descriptor
         raise LinkClosed(closed)
 
-    def connect_again() -> None:
-        now = time.monotonic()
-        if not reconnect or not isinstance(addr, tuple) or now < next_try[0]:
-            raise LinkClosed(closed)
-        next_try[0] = now + RECONNECT_EVERY_S
+    def try_connect() -> None:
         try:
             sock = socket.create_connection(addr, timeout=min(
                 RECONNECT_EVERY_S, LIMITS.connect_timeout_s))
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            attempt["sock"] = sock
         except OSError as e:
-            raise LinkClosed(f"{closed} (connecting again: {e.strerror or e})") from None
-        sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        link.port = sock
-        link.fd = sock.fileno()
+            attempt["error"] = e.strerror or str(e)
+
+    def connect_again() -> None:
+        if not reconnect or not isinstance(addr, tuple):
+            raise LinkClosed(closed)
+        sock, attempt["sock"] = attempt["sock"], None
+        if sock is not None:          # the last attempt connected: use it
+            link.port = sock
+            link.fd = sock.fileno()
+            return
+        error, attempt["error"] = attempt["error"], None
+        now = time.monotonic()
+        busy = attempt["thread"] is not None and attempt["thread"].is_alive()
+        if not busy and now >= next_try[0]:
+            next_try[0] = now + RECONNECT_EVERY_S
+            attempt["thread"] = threading.Thread(target=try_connect, daemon=True,
+                                                 name="mavlink-reconnect")
+            attempt["thread"].start()
+        raise LinkClosed(closed + (f" (connecting again: {error})" if error else ""))
 
     link.handle_eof = shut
     link.handle_disconnect = shut

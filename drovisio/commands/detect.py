@@ -78,7 +78,17 @@ def _no_constant(name: str) -> None:
     raise ValueError(name)   # NaN, Infinity: parse_json then names them
 
 
-_DECODER = json.JSONDecoder(parse_constant=_no_constant)
+def _short_int(digits: str) -> int:
+    from drovisio.errors import LIMITS
+
+    if len(digits.lstrip("-")) > LIMITS.max_digits:
+        raise ValueError(digits[:8])   # parse_json then says it, with its length
+    return int(digits)
+
+
+#: the C decoder with parse_json's rules (no NaN or Infinity, at most 30 digits): a line it
+#: refuses is read again by parse_json, which words the refusal
+_DECODER = json.JSONDecoder(parse_constant=_no_constant, parse_int=_short_int)
 
 
 def _check_gravity(g: object, where: str) -> tuple[float, float, float]:

@@ -118,6 +118,8 @@ def test_bad_gravity_file_is_named(scene_files, tmp_path, capsys):
     ('{"file": "a.png", "gravity": [1e308, 1e308, 0]}\n',
      "line 1: gravity: [1e+308, 1e+308, 0] is not a unit vector (each number from -1.05 to "
      "1.05); give the direction of gravity, pointing down, camera frame"),
+    ('{"file": "v.mp4", "frame": ' + "9" * 4200 + ', "gravity": [0, 1, 0]}\n',
+     "line 1: a number of 4200 digits; give at most 30"),
 ])
 def test_gravity_file_refusals_are_one_line(scene_files, tmp_path, capsys, text, says):
     grav = tmp_path / "g.jsonl"

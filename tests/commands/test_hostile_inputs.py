@@ -128,9 +128,14 @@ def test_only_the_decoders_lines_are_kept_off_stderr_while_decoding(capfd):
     from drovisio.images import _library_messages
 
     with _library_messages() as said:      # another thread's line may land in the window
-        os.write(2, b"libpng error: IDAT: CRC error\ndrovisio run: 12 fps\n")
+        os.write(2, b"libpng error: IDAT: CRC error\ndrovisio run: 12 fps\n"
+                    b"Warning: a thread's own warning\n"
+                    b"[ WARN:0@1.2] global cap_v4l.cpp:999 open VIDEOIO(V4L2:/dev/video0)\n"
+                    + b"x" * 100_000 + b"\n")
     assert said == ["libpng error: IDAT: CRC error"]
-    assert capfd.readouterr().err == "drovisio run: 12 fps\n"
+    assert capfd.readouterr().err == ("drovisio run: 12 fps\nWarning: a thread's own warning\n"
+                                      "[ WARN:0@1.2] global cap_v4l.cpp:999 open "
+                                      "VIDEOIO(V4L2:/dev/video0)\n" + "x" * 100_000 + "\n")
 
 
 def test_detect_never_reads_a_pipe(tmp_path):
@@ -322,6 +327,19 @@ def test_run_says_frames_that_do_not_fit_the_camera_file_and_exits_2(capsys, fra
     assert err.splitlines()[-1] == (
         f"drovisio run: {CAMERA}: frames not measured: 3 of 3, image is 320x240 but the "
         "camera file is for 640x480; give the camera file of this camera at this resolution")
+    # the live page's status says them too
+    from drovisio.pipeline_config import PipelineConfig
+    from drovisio.startup import build_pipeline
+
+    p = build_pipeline(PipelineConfig(source=str(small), camera=str(CAMERA),
+                                      layouts=[str(CENTRE)], sinks=[], pace="max"),
+                       default_sinks=())
+    try:
+        p.run()
+        st = p.status()
+    finally:
+        p.close()
+    assert st["unfit_frames"] == 3 and "image is 320x240" in st["unfit"]
 
 
 def test_run_refuses_a_camera_index_no_device_has(capsys):

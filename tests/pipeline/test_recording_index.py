@@ -87,6 +87,26 @@ def test_a_last_line_cut_by_a_crash_is_left_out(tmp_path):
     assert read_index(rec) == [RecordedFrame(0, 1000.0, "frames/000000.jpg")]
 
 
+def test_a_recording_continued_after_a_crash_drops_the_cut_line(tmp_path):
+    from types import SimpleNamespace
+
+    data = (_line() + "\n" + _line(frame=1)[:20]).encode()
+    rec = _recording(tmp_path / "rec", data)
+    r = recording.Recorder(rec)
+    r.add(SimpleNamespace(image=np.zeros((48, 64, 3), np.uint8), index=7, seq=7,
+                          t_wall=1001.0), SimpleNamespace(to_json=lambda: {}))
+    r.close()
+    frames = read_index(rec)
+    assert [f.frame for f in frames] == [0, 7], frames   # the new entry not glued to the cut
+    assert (rec / "frames.jsonl").read_bytes().startswith((_line() + "\n").encode())
+
+
+def test_a_line_of_exactly_the_limit_is_read(tmp_path, monkeypatch):
+    line = _line()
+    monkeypatch.setattr(recording, "MAX_LINE_BYTES", len(line))
+    assert len(read_index(_recording(tmp_path / "rec", [line]))) == 1
+
+
 def test_a_picture_linked_out_of_the_folder_is_an_error_frame(tmp_path):
     outside = tmp_path / "secret.jpg"
     cv2.imwrite(str(outside), np.zeros((48, 64, 3), np.uint8))

@@ -221,10 +221,16 @@ def test_a_closed_tcp_link_is_said_quietly_and_reconnected_at_most_once_a_second
     monkeypatch.setattr(connection, "RECONNECT_EVERY_S", 1e6)
     link = open_link("mavlink:tcp:x", f"tcp:127.0.0.1:{closing_peer.port}", source_system=1,
                      source_component=191, reconnect=True)
+    def reconnects_done():   # a reconnect runs on its own thread: the reader never waits
+        for t in threading.enumerate():
+            if t.name == "mavlink-reconnect":
+                t.join(timeout=30)
+
     for _ in range(4):
         with pytest.raises(LinkClosed, match=f"127.0.0.1:{closing_peer.port} closed the "
                                              "connection"):
             link.recv_match(blocking=True, timeout=10)
+        reconnects_done()
     link.mav.heartbeat_send(18, 8, 0, 0, 4)    # dropped while closed, never raised
     # the start-up probe, pymavlink's connect and one reconnect; none after
     assert closing_peer.accepted == 3
