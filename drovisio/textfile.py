@@ -198,9 +198,32 @@ def _check_depth(obj: Any, source: str) -> Any:
     return obj
 
 
+def _refuse(name: str) -> Any:
+    raise ValueError(name)
+
+
+def _short_int(digits: str) -> int:
+    if len(digits.lstrip("-")) > LIMITS.max_digits:
+        raise ValueError(digits[:8])
+    return int(digits)
+
+
+#: parse_json's rules (no NaN or Infinity, at most LIMITS.max_digits digits) in one decoder
+#: made once: a text it refuses is read again with the hooks that word the refusal (a
+#: decoder made per call cost most of the time of a file of many short lines)
+_STRICT = json.JSONDecoder(parse_constant=_refuse, parse_int=_short_int)
+
+
 def parse_json(text: str | bytes, source: str, **kw: Any) -> Any:
     """JSON with its nesting bounded; finite numbers only (NaN and Infinity are refused,
     unless ``parse_constant`` is given: the caller then checks its fields' numbers itself)."""
+    if not kw and isinstance(text, str):
+        try:
+            data = _STRICT.decode(text)
+        except (ValueError, RecursionError):
+            pass   # said below, in words
+        else:
+            return _check_depth(data, source)
     def no_constant(name: str) -> Any:
         raise InputError(f"{source}: {name} is not a number JSON allows; give a finite number")
 

@@ -61,10 +61,7 @@ def _gravity_line(line: str, where: str) -> tuple[str, int | None, tuple[float, 
     """(file, frame or None, gravity as given) of one gravity-file line."""
     from drovisio.textfile import parse_json
 
-    try:
-        rec = _DECODER.decode(line)   # the C decoder; a line it refuses is read again below
-    except (ValueError, RecursionError):
-        rec = parse_json(line, where)   # says what is wrong, and where
+    rec = parse_json(line, where)
     if not isinstance(rec, dict) or "file" not in rec or "gravity" not in rec:
         raise InputError(f'{where}: expected an object with "file" and "gravity"')
     f = rec["file"]
@@ -72,23 +69,6 @@ def _gravity_line(line: str, where: str) -> tuple[str, int | None, tuple[float, 
         raise InputError(f'{where}: file: must be a non-empty string')
     g = _check_gravity(rec["gravity"], where)   # said before a bad frame, as always
     return f, _frame_of(rec.get("frame"), where), g
-
-
-def _no_constant(name: str) -> None:
-    raise ValueError(name)   # NaN, Infinity: parse_json then names them
-
-
-def _short_int(digits: str) -> int:
-    from drovisio.errors import LIMITS
-
-    if len(digits.lstrip("-")) > LIMITS.max_digits:
-        raise ValueError(digits[:8])   # parse_json then says it, with its length
-    return int(digits)
-
-
-#: the C decoder with parse_json's rules (no NaN or Infinity, at most 30 digits): a line it
-#: refuses is read again by parse_json, which words the refusal
-_DECODER = json.JSONDecoder(parse_constant=_no_constant, parse_int=_short_int)
 
 
 def _check_gravity(g: object, where: str) -> tuple[float, float, float]:

@@ -120,6 +120,8 @@ def test_bad_gravity_file_is_named(scene_files, tmp_path, capsys):
      "1.05); give the direction of gravity, pointing down, camera frame"),
     ('{"file": "v.mp4", "frame": ' + "9" * 4200 + ', "gravity": [0, 1, 0]}\n',
      "line 1: a number of 4200 digits; give at most 30"),
+    ('{"file": "a.png", "gravity": [0, 1, 0], "x": ' + "[" * 200 + "]" * 200 + '}\n',
+     "line 1: nested more than 32 levels deep; this is not a file Drovisio writes or reads"),
 ])
 def test_gravity_file_refusals_are_one_line(scene_files, tmp_path, capsys, text, says):
     grav = tmp_path / "g.jsonl"
