@@ -6,7 +6,9 @@ percent-encoded NUL and invalid UTF-8, 300-byte names), odd query strings (repea
 keys without values, 4,000-character values, ``%00``/``%ff``, 5,000-digit numbers) and odd
 headers (a ``Content-Type`` of nothing or of garbage, ``Range`` of 20 digits, a huge cookie,
 ``Origin: null``, another scheme or port, ``Sec-Fetch-Site: cross-site``). Whatever the
-request: a status below 500 with a body a browser can read; a write (any method but GET,
+request: a status below 500 with a body a browser can read (or the documented 503 "not
+available" / 507 "disk full" with its one-line reason: a camera that is still starting after
+the long poll's wait is a real answer on a loaded machine, a crash never is); a write (any method but GET,
 HEAD, OPTIONS) from another origin never succeeds and changes nothing in the data folder.
 """
 
@@ -83,6 +85,15 @@ odd_headers = st.dictionaries(
     max_size=4)
 
 
+def _designed(r) -> bool:
+    """A 503 or 507 the tool answers on purpose: its JSON ``detail`` is one line of words."""
+    if r.status_code not in (503, 507) or not r.headers.get("content-type", "").startswith(
+            "application/json"):
+        return False
+    detail = json.loads(r.content).get("detail")
+    return isinstance(detail, str) and 0 < len(detail) < 300 and "\n" not in detail
+
+
 def _is_cross_origin(headers: dict[str, str]) -> bool:
     return (("origin" in headers and headers["origin"] != LOCAL)
             or headers.get("sec-fetch-site") == "cross-site")
@@ -104,9 +115,10 @@ def test_every_route_answers_odd_requests_below_500(app_and_data, ledger, data):
     before = _digest(folder)
     ledger.tried_one("web: odd requests")
     r = client.request(method.upper(), url, headers=headers)
-    if r.status_code >= 500:
+    if r.status_code >= 500 and not _designed(r):
         ledger.failure("HTTP 500")
-    assert r.status_code < 500, (method, url, headers, r.status_code, r.text[:300])
+    assert r.status_code < 500 or _designed(r), (method, url, headers, r.status_code,
+                                                 r.text[:300])
     if r.headers.get("content-type", "").startswith("application/json") and r.content:
         json.loads(r.content, parse_constant=lambda c: pytest.fail(f"{c} in {url}"))
     if method.upper() not in ("GET", "HEAD", "OPTIONS") and _is_cross_origin(headers):

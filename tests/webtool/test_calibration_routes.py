@@ -554,3 +554,33 @@ def test_the_page_offers_every_lens_model_the_calibration_knows(make_client):
     lens = html.split('id="lens"')[1].split("</select>")[0]
     offered = re.findall(r'<option value="([a-z_]+)"', lens)
     assert sorted(offered) == sorted(MODEL_CHOICES)
+
+
+def test_the_first_frame_is_waited_for_while_the_camera_starts():
+    """A page's first request (no ``after``) waits for the camera's first picture instead of
+    being told "Starting the camera…" at once."""
+    from webtool.calibration.feed import CameraFeed
+
+    go = threading.Event()
+
+    class Slow(ScriptedSource):
+        def open(self) -> None:
+            go.wait(30)
+
+    feed = CameraFeed(lambda: Slow(still([0]), hold=True),
+                      on_frame=lambda f: feed.publish(f, b"\xff\xd8jpeg", lambda: None),
+                      views=lambda: 0, on_read_error=lambda _m: None)
+
+    async def main() -> tuple[bytes | None, int]:
+        feed.touch()
+        waiting = asyncio.create_task(feed.latest_frame(-1, wait=60))  # a bound, not a timing
+        await asyncio.sleep(0.1)
+        assert not waiting.done() and feed.status.state == "starting"
+        go.set()
+        return await asyncio.wait_for(waiting, 90)
+
+    try:
+        data, seq = asyncio.run(main())
+    finally:
+        feed.close()
+    assert data == b"\xff\xd8jpeg" and seq >= 1

@@ -102,13 +102,14 @@ class CameraFeed:
 
     async def latest_frame(self, after: int = -1, wait: float = 1.0) -> tuple[bytes | None, int]:
         """The latest annotated frame (JPEG), waiting up to ``wait`` s for one newer than
-        ``after``; (None, seq) when there is no live picture (camera lost or not started).
+        ``after`` (or for the first one while the camera starts); (None, seq) when there is
+        no live picture (camera lost, or still starting when the wait ends).
 
         Waits on the event loop, like the designer's long poll: a page waiting for its next
         frame must not hold one of the server's worker threads (forty waiting requests would
         stall every other route)."""
         deadline = time.monotonic() + max(0.0, wait)
-        while (self.seq <= after and self.status.state in ("ok", "starting")
+        while (self.seq <= max(after, 0) and self.status.state in ("ok", "starting")
                and not self.closed and time.monotonic() < deadline):
             await asyncio.sleep(0.05)
         with self.cond:  # held by the worker only while it swaps the latest frame
