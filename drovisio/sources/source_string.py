@@ -73,7 +73,10 @@ def reader_for(source: str, loop: bool = False, folder_fps: float = 10.0) -> Rea
     s = str(source).strip()
     cam = _camera_index(s)
     if cam is not None:
-        return CameraReader(cam)
+        reader = CameraReader(cam)
+        if s.isdigit() and os.path.lexists(s):  # said in every message that names the source
+            reader.label += f" (not the file or folder {s} here: that is ./{s})"
+        return reader
     if _is_url(s):
         _check_url(s)
         return StreamReader(s)

@@ -50,6 +50,16 @@ def test_reader_kinds(tmp_path):
     assert type(reader_for(str(tmp_path))).__name__ == "ImageFolderReader"
 
 
+def test_a_number_is_a_camera_even_beside_a_folder_of_that_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert reader_for("3").label == "camera 3"
+    (tmp_path / "3").mkdir()
+    cam = reader_for("3")
+    assert type(cam).__name__ == "CameraReader" and cam.index == 3
+    assert cam.label == "camera 3 (not the file or folder 3 here: that is ./3)"
+    assert type(reader_for("./3")).__name__ == "ImageFolderReader"
+
+
 def test_video_plays_at_its_frame_rate():
     src = FrameSource(reader_for(str(APPROACH / "approach.mp4")), pace="realtime").start()
     frames = []
