@@ -20,7 +20,7 @@ from typing import Any
 
 from drovisio.errors import LIMITS
 
-__all__ = ["AddressError", "LinkClosed", "check_host", "mavutil2", "open_link",
+__all__ = ["AddressError", "LinkClosed", "LinkDown", "check_host", "mavutil2", "open_link",
            "parse_connection", "split_connection"]
 
 #: Least time between two attempts to connect a closed TCP link again (the sink's).
@@ -31,9 +31,16 @@ class AddressError(ValueError):
     """A MAVLink connection string that cannot be used (the message names it)."""
 
 
-class LinkClosed(ConnectionError):
-    """The other end of a TCP link closed it (and, for a link that reconnects, it could not be
-    made again yet); the message names the address and what to check."""
+class LinkDown(ConnectionError):
+    """A message the link could not send now: nothing (or not all of it) went out. The
+    message names the connection and what to check; the caller counts the message as lost,
+    never as sent."""
+
+
+class LinkClosed(LinkDown):
+    """The other end of a TCP link closed it, or a serial device stopped answering (and, for
+    a link that reconnects, it could not be made again yet); the message names the address
+    or device and what to check."""
 
 
 def mavutil2() -> Any:
@@ -103,13 +110,14 @@ def open_link(name: str, conn: str, *, source_system: int, source_component: int
               reconnect: bool = False) -> Any:
     """pymavlink's connection to ``conn`` (``DEVICE[,BAUD]``), opened the one way the sink
     and ``autopilot check`` both use: the address checked first (:func:`check_host`),
-    MAVLink 2, pymavlink's own messages kept off stdout, and a TCP link bounded
-    (:func:`_bounded_tcp`).
+    MAVLink 2, pymavlink's own messages kept off stdout, and a TCP link or a serial port
+    bounded (:func:`_bounded_tcp`, :func:`_bounded_serial`): a write it cannot send raises
+    :class:`LinkDown` instead of being dropped in silence.
 
     Args:
         name: How messages name the connection (``mavlink:...`` or the string given).
-        reconnect: Connect a closed TCP link again (at most once a second) when it is next
-            used, and a dead serial port (pymavlink's ``autoreconnect``).
+        reconnect: Connect a closed TCP link again, and open a dead serial port again, at
+            most once a second, when it is next used.
 
     Raises:
         AddressError: an address that cannot be used or opened (one line naming it).
@@ -128,6 +136,8 @@ def open_link(name: str, conn: str, *, source_system: int, source_component: int
         raise AddressError(f"{name}: cannot open the MAVLink connection ({e})") from None
     if isinstance(link, mavutil.mavtcp):     # and its Unix-socket kind
         _bounded_tcp(link, name, reconnect)
+    elif isinstance(link, mavutil.mavserial):
+        _bounded_serial(link, name, reconnect)
     return link
 
 
@@ -136,10 +146,12 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
 
     pymavlink prints "EOF on TCP socket" and returns at every read of a link the other end
     closed; the socket stays readable, so a read loop printed it hundreds of thousands of
-    times a second. Here a closed link is shut on our side, each read or reconnect raises
-    :class:`LinkClosed` (the callers say it in one line or note it), and a link that
-    reconnects tries once per :data:`RECONNECT_EVERY_S`, each try within that time, never
-    pymavlink's retries with their sleeps.
+    times a second; and it drops every write while the link is closed (or its peer is not
+    reading) without a word. Here a closed link is shut on our side, each read, write or
+    reconnect raises :class:`LinkClosed` (the callers say it in one line, or count the
+    message as lost), a write the peer has no room for raises :class:`LinkDown`, and a link
+    that reconnects tries once per :data:`RECONNECT_EVERY_S`, each try within that time,
+    never pymavlink's retries with their sleeps.
     """
     addr = link.destination_addr            # (host, port), or a Unix socket's path
     where = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
@@ -150,6 +162,8 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
     # a connect runs on its own thread: a peer that drops packets holds it up to its
     # deadline, and the link is used from the pipeline's thread (a frame must not wait)
     attempt: dict[str, Any] = {"thread": None, "sock": None, "error": None}
+    # the reader's thread and the writer's both reconnect: one takes a connected socket
+    lock = threading.Lock()
 
     def shut() -> None:
         if link.port is not None:
@@ -172,24 +186,91 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
     def connect_again() -> None:
         if not reconnect or not isinstance(addr, tuple):
             raise LinkClosed(closed)
-        sock, attempt["sock"] = attempt["sock"], None
-        if sock is not None:          # the last attempt connected: use it
-            link.port = sock
-            link.fd = sock.fileno()
-            return
-        error, attempt["error"] = attempt["error"], None
-        now = time.monotonic()
-        busy = attempt["thread"] is not None and attempt["thread"].is_alive()
-        if not busy and now >= next_try[0]:
-            next_try[0] = now + RECONNECT_EVERY_S
-            attempt["thread"] = threading.Thread(target=try_connect, daemon=True,
-                                                 name="mavlink-reconnect")
-            attempt["thread"].start()
+        with lock:
+            if link.port is not None:     # the other thread took a connected socket
+                return
+            sock, attempt["sock"] = attempt["sock"], None
+            if sock is not None:          # the last attempt connected: use it
+                link.port = sock
+                link.fd = sock.fileno()
+                return
+            error, attempt["error"] = attempt["error"], None
+            now = time.monotonic()
+            busy = attempt["thread"] is not None and attempt["thread"].is_alive()
+            if not busy and now >= next_try[0]:
+                next_try[0] = now + RECONNECT_EVERY_S
+                attempt["thread"] = threading.Thread(target=try_connect, daemon=True,
+                                                     name="mavlink-reconnect")
+                attempt["thread"].start()
         raise LinkClosed(closed + (f" (connecting again: {error})" if error else ""))
+
+    def write(buf: bytes) -> None:
+        port = link.port
+        if port is None:
+            connect_again()               # raises until a reconnect has connected
+            port = link.port
+        try:
+            n = port.send(buf)
+        except BlockingIOError:
+            n = 0
+        except OSError:                   # reset, broken pipe, or shut by the reader
+            if link.port is port:
+                shut()
+            raise LinkClosed(closed) from None
+        if n < len(buf):   # the cut message is skipped by the peer's parser at the next one
+            raise LinkDown(f"{name}: {where} is not reading what is sent (its buffer is full); "
+                           "check that the peer reads the link")
 
     link.handle_eof = shut
     link.handle_disconnect = shut
     link.reconnect = connect_again
+    link.write = write
+
+
+def _bounded_serial(link: Any, name: str, reconnect: bool) -> None:
+    """A pymavlink serial port whose failing write raises :class:`LinkClosed`.
+
+    pymavlink prints "Device ... is dead" on stdout (where ``jsonl:-`` writes), drops that
+    write and every later one without a word, and reopens the port at each write, printing
+    again when it works. Here a failed write raises :class:`LinkClosed` naming the device
+    and what to check (the callers say it in one line, or count the message as lost), and a
+    port that reconnects is opened again at most once per :data:`RECONNECT_EVERY_S`,
+    silently.
+    """
+    dead = (f"{name}: {link.device} stopped answering; check the cable (or USB adapter) and "
+            "that the flight controller is powered" + ("; opening it again once a second"
+                                                       if reconnect else ""))
+    next_try = [0.0]
+
+    def reopen() -> bool:
+        import serial  # pymavlink's own dependency, loaded by its serial link already
+
+        now = time.monotonic()
+        if not reconnect or now < next_try[0]:
+            return False
+        next_try[0] = now + RECONNECT_EVERY_S
+        try:
+            port = serial.Serial(link.device, link.baud, timeout=0, dsrdtr=False,
+                                 rtscts=False, xonxoff=False)
+        except (OSError, ValueError, serial.SerialException):
+            return False
+        with contextlib.suppress(Exception):
+            link.port.close()
+        link.port = port
+        link.fd = port.fileno()
+        link.portdead = False
+        return True
+
+    def write(buf: bytes) -> None:
+        if link.portdead and not reopen():
+            raise LinkClosed(dead)
+        try:
+            link.port.write(bytes(buf))
+        except Exception as e:  # noqa: BLE001 - pyserial raises several kinds for a lost port
+            link.portdead = True
+            raise LinkClosed(f"{dead} ({e})") from None
+
+    link.write = write
 
 
 def _probe_tcp(name: str, host: str, port: int) -> None:

@@ -11,8 +11,10 @@ read) ends the run at once with one line and exit status 2; one that ends ends t
 exit status 1 when nothing could be read from it. Cameras and stream URLs keep reconnecting
 (said on a line when lost, even with --quiet; the status line says so too). Frames of
 another size than the camera file's are not measured: said on a line at the first, and the
-exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable link) is
-counted and shown in the status line, and makes the exit status 1 at the end.
+exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable link, a link
+whose peer went away) is counted (never as sent), said on a line when it starts failing and
+when it works again (even with --quiet), shown in the status line, and makes the exit status
+1 at the end, which says how many messages each sink did not send.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import signal
 import sys
 import time
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from drovisio.arguments import Command, bounded, drone_id, positive_int
 from drovisio.errors import InputError
@@ -33,8 +35,8 @@ if TYPE_CHECKING:   # the pipeline loads OpenCV, which `drovisio --help` must no
     from drovisio.pipeline_status import PipelineStatus
     from drovisio.sources import SourceStatus
 
-__all__ = ["COMMAND", "Alarms", "add_arguments", "add_pipeline_arguments", "build_pipeline",
-           "new_notes", "run", "sink_failures", "status_line"]
+__all__ = ["COMMAND", "Alarms", "SinkFailure", "add_arguments", "add_pipeline_arguments",
+           "build_pipeline", "new_notes", "run", "sink_failures", "status_line"]
 
 # The command's own modules (OpenCV, the pipeline and its configuration, numpy) are imported
 # inside the functions that run it: `drovisio --help` imports every command module and must
@@ -53,13 +55,26 @@ def _sinks_of(st: PipelineStatus | Mapping[str, Any]) -> list[dict[str, Any]]:
     return list(st.get("sinks", [])) if isinstance(st, Mapping) else st.sinks
 
 
-def sink_failures(st: PipelineStatus | Mapping[str, Any]) -> list[tuple[str, int, str | None]]:
-    """(sink, failures, last error) for every sink that failed at least once."""
+class SinkFailure(NamedTuple):
+    """What a sink did not deliver (its status's ``errors`` and ``lost``)."""
+
+    sink: str
+    errors: int
+    """Writes that failed."""
+    lost: int
+    """Messages dropped while its link was down (nothing written)."""
+    sent: int
+    last_error: str | None
+
+
+def sink_failures(st: PipelineStatus | Mapping[str, Any]) -> list[SinkFailure]:
+    """Every sink that failed to deliver at least once."""
     out = []
     for s in _sinks_of(st):
-        n = int(s.get("errors") or 0)
-        if n:
-            out.append((s.get("sink", "?"), n, s.get("last_error")))
+        f = SinkFailure(s.get("sink", "?"), int(s.get("errors") or 0), int(s.get("lost") or 0),
+                        int(s.get("sent") or 0), s.get("last_error"))
+        if f.errors or f.lost:
+            out.append(f)
     return out
 
 
@@ -83,8 +98,12 @@ def _trouble_words(st: PipelineStatus) -> str:
     extra = f" | {st.detector_errors} detector errors" if st.detector_errors else ""
     if st.unfit_frames:
         extra += f" | {st.unfit_frames} frames not measured ({st.unfit})"
-    for name, n, last in sink_failures(st):
-        extra += f" | sink {name}: {n} failed" + (f" ({last})" if last else "")
+    for f in sink_failures(st):
+        if f.errors:
+            extra += f" | sink {f.sink}: {f.errors} failed" + (f" ({f.last_error})"
+                                                               if f.last_error else "")
+        if f.lost:
+            extra += f" | sink {f.sink}: {f.lost} not sent (link down)"
     if st.sink_errors:
         extra += f" | {st.sink_errors} sink exceptions"
     if st.duplicates:
@@ -155,12 +174,15 @@ def _unfit_line(camera: object, why: object) -> str:
 class Alarms:
     """Failures said on a line of their own as they happen, ``--quiet`` or not (quiet hides
     the status line, the progress, never a failure): a source lost (once each time it is
-    lost: it is being retried), frames that do not fit the camera file (the first)."""
+    lost: it is being retried), frames that do not fit the camera file (the first), a sink
+    that stops delivering (once each time, and once when it delivers again)."""
 
     def __init__(self, camera: object) -> None:
         self.camera = camera
         self._lost = False
         self._unfit = False
+        # per sink: its messages not delivered at the last status, and at the loss said
+        self._sinks: dict[str, tuple[int, int | None]] = {}
 
     def new(self, st: PipelineStatus) -> list[str]:
         """The lines to say for this status (none when nothing new went wrong)."""
@@ -175,6 +197,26 @@ class Alarms:
         if st.unfit_frames and not self._unfit:
             self._unfit = True
             out.append(_unfit_line(self.camera, st.unfit))
+        for s in _sinks_of(st):
+            out += self._sink(s)
+        return out
+
+    def _sink(self, s: Mapping[str, Any]) -> list[str]:
+        """A sink's loss (its ``down`` or more messages not delivered), and its return."""
+        name = str(s.get("sink", "?"))
+        failed = int(s.get("errors") or 0) + int(s.get("lost") or 0)
+        down = s.get("down")
+        before, since = self._sinks.get(name, (0, None))
+        out = []
+        if since is None and (down or failed > before):
+            since = before
+            why = str(down or s.get("last_error") or "messages not delivered")
+            out.append(f"sink {name} lost ({why.removeprefix(name + ': ')}); its messages are "
+                       "not sent until it comes back")
+        if since is not None and not down:
+            out.append(f"sink {name} back ({failed - since} messages not sent meanwhile)")
+            since = None
+        self._sinks[name] = (failed, since)
         return out
 
 
@@ -226,8 +268,13 @@ def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
         _err(f"{config.source}: nothing could be read from the source")
         code = 1
     failures = sink_failures(st)
-    for name, count, last in failures:
-        _err(f"sink {name}: {count} sends failed" + (f" (last: {last})" if last else ""))
+    for f in failures:
+        if f.errors:
+            _err(f"sink {f.sink}: {f.errors} sends failed" + (f" (last: {f.last_error})"
+                                                              if f.last_error else ""))
+        if f.lost:
+            _err(f"sink {f.sink}: {f.lost} messages not sent while its link was down "
+                 f"({f.sent} sent)")
     if failures or st.sink_errors:
         code = 1
     if st.unfit_frames:   # the camera file is not this source's: bad input

@@ -2,7 +2,9 @@
 
 Every sink has ``send(output)`` (called by the pipeline once per processed frame, with a
 :class:`drovisio.pipeline.FrameOutput`; it must return quickly and never raise for a network
-or disk problem — it counts and reports it instead), ``close()`` and ``status() -> dict``.
+or disk problem — it counts and reports it instead, through
+:class:`drovisio.sinks.base.Delivery`: only what its link or file took is ``sent``),
+``close()`` and ``status() -> dict``.
 
 SINK strings (``--sink`` of ``drovisio run``, :func:`open_sink`):
 

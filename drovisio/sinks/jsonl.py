@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from drovisio.sinks.base import SinkError
+from drovisio.sinks.base import Delivery, SinkError
 
 __all__ = ["JsonlSink"]
 
@@ -16,9 +16,7 @@ class JsonlSink:
     def __init__(self, path: str = "-", with_covariance: bool = True):
         self.name = f"jsonl:{path}"
         self.with_covariance = with_covariance
-        self.lines = 0
-        self.errors = 0
-        self.last_error: str | None = None
+        self.delivery = Delivery()
         if path in ("-", ""):
             self._f = sys.stdout
             self._own = False
@@ -40,10 +38,10 @@ class JsonlSink:
             self._f.write(json.dumps(output.to_json(self.with_covariance),
                                      separators=(",", ":")) + "\n")
             self._f.flush()
-            self.lines += 1
         except (OSError, ValueError) as e:  # disk full, closed stdout: count, go on
-            self.errors += 1
-            self.last_error = str(e)
+            self.delivery.failed(str(e))
+            return
+        self.delivery.delivered()
 
     def close(self) -> None:
         if self._own:
@@ -53,5 +51,4 @@ class JsonlSink:
                 pass
 
     def status(self) -> dict:
-        return {"sink": self.name, "sent": self.lines, "errors": self.errors,
-                "last_error": self.last_error}
+        return {"sink": self.name, **self.delivery.status()}

@@ -65,6 +65,7 @@ import numpy as np
 from drovisio.autopilot.check import Facts, evaluate, param_names
 from drovisio.autopilot.connection import (
     AddressError,
+    LinkDown,
     mavutil2,
     open_link,
     parse_connection,
@@ -73,7 +74,7 @@ from drovisio.autopilot.connection import (
 from drovisio.autopilot.link import MSG_ATTITUDE, MSG_LOCAL_POSITION_NED, ParamReader, StreamKeeper
 from drovisio.geometry import ned_from_body, quat_wxyz
 from drovisio.mount import Mount, down_camera_mount
-from drovisio.sinks.base import SinkError
+from drovisio.sinks.base import Delivery, SinkError
 from drovisio.sinks.target import TargetSelector
 
 __all__ = [
@@ -264,10 +265,9 @@ class MavlinkSink:
         self.send_held = send_held
         self.held_not_sent = 0
         """Frames whose target was held over (not measured): nothing sent for them."""
-        self.sent = 0
+        self.delivery = Delivery()
+        """LANDING_TARGETs sent, and lost while the link was down (never counted as sent)."""
         self.sent_position_valid = 0
-        self.errors = 0
-        self.last_error: str | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._mavutil = mavutil2()
@@ -286,24 +286,31 @@ class MavlinkSink:
         self._thread.start()
 
     # ------------------------------------------------------------------ link
-    def _send_heartbeat(self) -> None:
-        m = self._mavutil.mavlink
-        try:
-            with self._lock:
-                self.conn.mav.heartbeat_send(m.MAV_TYPE_ONBOARD_CONTROLLER,
-                                             m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE)
-        except Exception as e:  # noqa: BLE001
-            self.errors += 1
-            self.last_error = f"heartbeat: {e}"
-
-    def _send_with(self, fn) -> None:
-        """Send one request (stream, parameter) through the shared connection."""
+    def _write(self, what: str, fn, target: bool = False) -> bool:
+        """Write one message through the shared connection: counted (``target``: a
+        LANDING_TARGET) as sent only once the link took it, as lost when the link is down.
+        A heartbeat or request the link drops says the link is down but counts nothing."""
         try:
             with self._lock:
                 fn(self.conn.mav)
-        except Exception as e:  # noqa: BLE001 - a request that fails is asked again
-            self.errors += 1
-            self.last_error = f"request: {e}"
+        except LinkDown as e:             # closed, or its device gone: said once, counted
+            self.delivery.dropped(str(e), count=target)
+            return False
+        except Exception as e:  # noqa: BLE001 - never let the link stop the pipeline
+            self.delivery.failed(f"{what}: {e}")
+            return False
+        self.delivery.delivered(count=target)
+        return True
+
+    def _send_heartbeat(self) -> None:
+        m = self._mavutil.mavlink
+        self._write("heartbeat", lambda mav: mav.heartbeat_send(
+            m.MAV_TYPE_ONBOARD_CONTROLLER, m.MAV_AUTOPILOT_INVALID, 0, 0, m.MAV_STATE_ACTIVE))
+
+    def _send_with(self, fn) -> None:
+        """Send one request (stream, parameter) through the shared connection (a request
+        that fails is asked again)."""
+        self._write("request", fn)
 
     def _reader(self) -> None:
         next_hb = time.monotonic() + self.heartbeat_period
@@ -311,7 +318,7 @@ class MavlinkSink:
             try:
                 msg = self.conn.recv_match(blocking=True, timeout=0.05)
             except Exception as e:  # noqa: BLE001 - link hiccup: note it, keep reading
-                self.last_error = f"receive: {e}"
+                self.delivery.note(f"receive: {e}")
                 self._stop.wait(0.2)
                 msg = None
             now = time.monotonic()
@@ -361,18 +368,17 @@ class MavlinkSink:
         try:
             f = landing_target_fields(brick, t_wall, self.mount, self.autopilot, att, pos,
                                       self.sizes.get(brick.layout), camera_from_brick=T_cb)
-            with self._lock:
-                self.conn.mav.landing_target_send(
-                    f["time_usec"], f["target_num"], f["frame"], f["angle_x"], f["angle_y"],
-                    f["distance"], f["size_x"], f["size_y"], f["x"], f["y"], f["z"], f["q"],
-                    f["type"], f["position_valid"])
-            self.sent += 1
-            self.sent_position_valid += int(f["position_valid"])
-            if T_cb is not None and brick.measured:
-                self._latency.append(time.monotonic() - t_mono)
-        except Exception as e:  # noqa: BLE001 - never let the link stop the pipeline
-            self.errors += 1
-            self.last_error = str(e)
+        except Exception as e:  # noqa: BLE001 - never let one pose stop the pipeline
+            self.delivery.failed(str(e))
+            return
+        if not self._write("landing target", lambda mav: mav.landing_target_send(
+                f["time_usec"], f["target_num"], f["frame"], f["angle_x"], f["angle_y"],
+                f["distance"], f["size_x"], f["size_y"], f["x"], f["y"], f["z"], f["q"],
+                f["type"], f["position_valid"]), target=True):
+            return
+        self.sent_position_valid += int(f["position_valid"])
+        if brick.measured:
+            self._latency.append(time.monotonic() - t_mono)
 
     def close(self) -> None:
         self._stop.set()
@@ -411,10 +417,9 @@ class MavlinkSink:
     def status(self) -> dict:
         now = time.monotonic()
         v = self.streams.vehicle
-        return {"sink": self.name, "autopilot": self.autopilot, "sent": self.sent,
-                "position_valid": self.sent_position_valid, "errors": self.errors,
+        return {"sink": self.name, "autopilot": self.autopilot, **self.delivery.status(),
+                "position_valid": self.sent_position_valid,
                 "held_not_sent": self.held_not_sent,
-                "last_error": self.last_error,
                 "attitude": self.vehicle.attitude_at(now, 1.0) is not None,
                 "vehicle": None if v is None else {"system": v.system,
                                                    "component": v.component,

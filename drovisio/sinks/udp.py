@@ -6,7 +6,7 @@ import json
 import socket
 from urllib.parse import urlsplit
 
-from drovisio.sinks.base import SinkError
+from drovisio.sinks.base import Delivery, SinkError
 
 __all__ = ["MAX_DATAGRAM", "UdpSink"]
 
@@ -25,9 +25,7 @@ class UdpSink:
         self.sock = socket.socket(info[0], socket.SOCK_DGRAM)
         self.sock.setblocking(False)
         self.dest = info[4]
-        self.sent = 0
-        self.errors = 0
-        self.last_error: str | None = None
+        self.delivery = Delivery()
 
     @classmethod
     def from_url(cls, url: str) -> UdpSink:
@@ -46,14 +44,13 @@ class UdpSink:
                 data = json.dumps(js, separators=(",", ":")).encode()
         try:
             self.sock.sendto(data, self.dest)
-            self.sent += 1
         except OSError as e:  # no listener (ICMP refused), network down: count, go on
-            self.errors += 1
-            self.last_error = str(e)
+            self.delivery.failed(str(e))
+            return
+        self.delivery.delivered()
 
     def close(self) -> None:
         self.sock.close()
 
     def status(self) -> dict:
-        return {"sink": self.name, "sent": self.sent, "errors": self.errors,
-                "last_error": self.last_error}
+        return {"sink": self.name, **self.delivery.status()}

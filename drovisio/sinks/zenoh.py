@@ -25,6 +25,9 @@ Never in the flight controller's way: :meth:`ZenohSink.send` only queues (a boun
 the oldest frame is dropped when the link is slow, counted); a background thread opens the
 session and publishes with congestion control *drop*. Zenoh reconnects a lost link by itself
 (``connect/retry``), so a link that comes back carries the next frames without a restart.
+A frame is counted as sent only when a peer or router is connected to take it: one that
+waited for a session that did not open, or met nobody connected (Zenoh would drop it without
+a word), is counted as lost (:class:`drovisio.sinks.base.Delivery`).
 
 The session is closed by the thread that opened it, once it stops; a sink still open when
 the interpreter exits is closed by an ``atexit`` hook first: Zenoh's runtime must not be
@@ -48,7 +51,7 @@ from typing import Any
 from drovisio.ros.messages import TOPIC_TYPES, RosMessages
 from drovisio.ros.msgdefs import encoder
 from drovisio.ros.type_hash import dds_type_name, full_name, rihs01
-from drovisio.sinks.base import SinkError
+from drovisio.sinks.base import Delivery, SinkError
 from drovisio.zenoh_endpoint import ENDPOINT_HELP, endpoint_problem
 
 __all__ = ["ZenohSink", "parse_spec", "topic_key"]
@@ -137,10 +140,11 @@ class ZenohSink:
         ns = messages.namespace.strip("/").split("/")
         self.drone_id: str | None = ns[1] if len(ns) > 1 else None
         self.domain = self.opts["domain"]
-        self.sent = 0
+        self.delivery = Delivery()
         self.dropped = 0
-        self.errors = 0
-        self.last_error: str | None = None
+        ends = ", ".join(self.opts["connect"] + self.opts["listen"])
+        self._nobody = (f"{spec}: no Zenoh peer or router connected on {ends}; check that the "
+                        "station (or router) runs and the network reaches it")
         self._seq: dict[str, int] = {}
         self._gid = os.urandom(16)
         self._keys: dict[tuple[str, str], str] = {}
@@ -186,8 +190,7 @@ class ZenohSink:
             self._token = self._session.liveliness().declare_token(
                 f"drovisio_lv/{self.domain}/{self.drone_id or '_'}")
         except Exception as e:  # noqa: BLE001 - said in the status, the pipeline goes on
-            self.errors += 1
-            self.last_error = f"cannot open a Zenoh session: {e}"
+            self.delivery.failed(f"{self.name}: cannot open a Zenoh session: {e}")
             return
         try:
             while not self._stop.is_set():
@@ -200,8 +203,7 @@ class ZenohSink:
                 try:
                     self._publish(item)
                 except Exception as e:  # noqa: BLE001
-                    self.errors += 1
-                    self.last_error = str(e)
+                    self.delivery.failed(str(e))
         finally:
             # also when close() gave up waiting while the session was still being opened
             self._close_session()
@@ -237,6 +239,10 @@ class ZenohSink:
                           attachment=attachment(seq, int(t * 1e9), self._gid))
 
     def _publish(self, output) -> None:
+        info = self._session.info
+        if not info.peers_zid() and not info.routers_zid():   # Zenoh would drop it silently
+            self.delivery.dropped(self._nobody)
+            return
         now = time.monotonic()
         image, self._image = self._image, None
         if image is not None:
@@ -254,7 +260,7 @@ class ZenohSink:
             self._last_tf = now
         for topic, type_name, msg in self.messages.frame_messages(output, None):
             self._put(topic, type_name, msg, output.t)
-        self.sent += 1
+        self.delivery.delivered()
 
     def _put_image(self, t: float, bgr: Any) -> None:
         import cv2
@@ -282,7 +288,8 @@ class ZenohSink:
         self._image = (output.t, frame.image)
 
     def send(self, output) -> None:
-        """Queue the frame (never waits: the oldest queued frame gives way)."""
+        """Queue the frame (never waits: the oldest queued frame gives way: ``dropped`` on a
+        slow link, ``lost`` while no session is open to take it)."""
         while True:
             try:
                 self._q.put_nowait(output)
@@ -290,9 +297,12 @@ class ZenohSink:
             except queue.Full:
                 try:
                     self._q.get_nowait()
-                    self.dropped += 1
                 except queue.Empty:
-                    pass
+                    continue
+                if self._session is None:
+                    self.delivery.dropped(self.delivery.last_error or self._nobody)
+                else:
+                    self.dropped += 1
 
     def close(self) -> None:
         self._stop.set()
@@ -305,6 +315,5 @@ class ZenohSink:
         _OPEN_SINKS.discard(self)
 
     def status(self) -> dict:
-        return {"sink": self.name, "sent": self.sent, "dropped": self.dropped,
-                "errors": self.errors, "last_error": self.last_error,
+        return {"sink": self.name, **self.delivery.status(), "dropped": self.dropped,
                 "state": "open" if self._session is not None else "connecting"}

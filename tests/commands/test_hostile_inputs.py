@@ -360,7 +360,7 @@ def test_a_lost_source_is_said_even_with_quiet(capsys):
     def status(state: str, unfit: int = 0):
         return SimpleNamespace(source=SimpleNamespace(state=state, label="camera 7",
                                                       error="cannot open camera 7"),
-                               unfit_frames=unfit, unfit="image is 320x240")
+                               unfit_frames=unfit, unfit="image is 320x240", sinks=[])
 
     class Pipeline:
         said = [status("lost"), status("lost"), status("live"), status("lost", unfit=2),

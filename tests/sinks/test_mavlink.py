@@ -231,7 +231,9 @@ def test_a_closed_tcp_link_is_said_quietly_and_reconnected_at_most_once_a_second
                                              "connection"):
             link.recv_match(blocking=True, timeout=10)
         reconnects_done()
-    link.mav.heartbeat_send(18, 8, 0, 0, 4)    # dropped while closed, never raised
+    # a write while closed raises too (pymavlink dropped it silently): the sink counts it lost
+    with pytest.raises(LinkClosed, match=f"127.0.0.1:{closing_peer.port} closed the connection"):
+        link.mav.heartbeat_send(18, 8, 0, 0, 4)
     # the start-up probe, pymavlink's connect and one reconnect; none after
     assert closing_peer.accepted == 3
     cap = capfd.readouterr()

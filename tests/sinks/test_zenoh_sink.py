@@ -159,7 +159,13 @@ def test_a_lost_link_comes_back_without_a_restart():
     try:
         for i in range(50):   # nobody listens yet: nothing waits, nothing fails
             sink.send(_output(i))
-        assert sink.status()["errors"] == 0 and sink.status()["state"] == "connecting"
+        status = sink.status()
+        assert status["errors"] == 0 and status["state"] == "connecting"
+        # what did not fit the queue while no session could take it: lost, never sent
+        assert (status["sent"], status["lost"], status["dropped"]) == (0, 50 - 16, 0)
+        assert status["down"] == (f"zenoh:connect=tcp/127.0.0.1:{port}: no Zenoh peer or "
+                                  f"router connected on tcp/127.0.0.1:{port}; check that the "
+                                  "station (or router) runs and the network reaches it")
         for attempt in range(2):   # the station comes, goes, and comes back
             st = Station(port, key)
             try:
@@ -172,8 +178,23 @@ def test_a_lost_link_comes_back_without_a_restart():
                 assert st.samples, f"nothing arrived (attempt {attempt})"
                 data = json.loads(decoder("std_msgs/String")(st.samples[-1][1]).data)
                 assert data["file"] == "test" and data["bricks"] == []
+                assert sink.status()["sent"] >= 1 and sink.status()["down"] is None
             finally:
                 st.close()
+            # nobody connected: Zenoh would drop the frames silently; they are counted lost
+            lost = sink.status()["lost"]
+            deadline = time.monotonic() + 20
+            while sink.status()["lost"] == lost and time.monotonic() < deadline:
+                sink.send(_output(i))
+                time.sleep(0.05)
+            status = sink.status()
+            assert status["lost"] > lost and "no Zenoh peer or router connected" in status["down"]
+            sink.send(_output(i))        # taken by the sink's thread: lost, not sent
+            deadline = time.monotonic() + 20
+            while sink.status()["lost"] == status["lost"] and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert sink.status()["sent"] == status["sent"]
+            assert sink.status()["lost"] >= status["lost"] + 1
     finally:
         sink.close()
 

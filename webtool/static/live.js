@@ -24,13 +24,13 @@
     if (!fc.length) $("fc-panel").hidden = true;
     if (fc.length) {
       const k = fc[0];
-      $("fig-fc").textContent = k.sent + " targets sent" + (k.held_not_sent ? ", " + k.held_not_sent + " frames without the target (nothing sent)" : "") + (k.errors ? ", " + k.errors + " failed" : "");
-      $("fc-note").textContent = k.note ? "No data from the autopilot: " + k.note : "";
+      $("fig-fc").textContent = k.sent + " targets sent" + (k.held_not_sent ? ", " + k.held_not_sent + " frames without the target (nothing sent)" : "") + (k.lost ? ", " + k.lost + " not sent (link down)" : "") + (k.errors ? ", " + k.errors + " failed" : "");
+      $("fc-note").textContent = k.down ? "Link down: " + k.down : k.note ? "No data from the autopilot: " + k.note : "";
       const bad = (k.check || []).filter((c) => c.status === "wrong" || c.status === "warn");
       $("fc-check-head").textContent = !k.vehicle ? "" : bad.length ? "Autopilot check (" + k.vehicle.autopilot + ", system " + k.vehicle.system + "), to fix:" : "Autopilot check (" + k.vehicle.autopilot + ", system " + k.vehicle.system + "): everything read is ok.";
       const list = $("fc-check");
       list.replaceChildren(...bad.map((c) => { const li = document.createElement("li"); li.textContent = c.item + ": " + c.text; return li; }));
-      $("fc-panel").hidden = !k.note && !k.vehicle;
+      $("fc-panel").hidden = !k.down && !k.note && !k.vehicle;
     }
     const s = msg.stream || {};
     $("fig-stream").textContent = fmt(s.kbps, " kbit/s", 0);
