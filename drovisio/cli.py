@@ -120,6 +120,29 @@ def _sub_commands() -> list[str]:
     return out
 
 
+def unknown_command(word: str) -> str:
+    """The line for a first word that names no command: the commands users type (those of
+    ``drovisio --help``; never the internal names the two-word actions are parsed as), and
+    the nearest one when it is close."""
+    import difflib  # deferred: only a mistyped command needs it
+
+    typed = {(c.spelled or c.name): c for c in COMMANDS.values()}
+    near = difflib.get_close_matches(word.replace("-", " ").lower(), list(typed), n=1)
+    listed = ", ".join(c.name for c in COMMANDS.values() if not c.spelled)
+    hint = f"did you mean '{near[0]}'? " if near else ""
+    return f"unknown command {one_line(repr(word), 60)}; {hint}the commands are {listed}"
+
+
+class _TopParser(ArgumentParser):
+    """The top-level parser: an unknown command is said by :func:`unknown_command` (argparse
+    would list every sub-parser's name, internal ones included)."""
+
+    def _check_value(self, action: argparse.Action, value: object) -> None:
+        if isinstance(action, argparse._SubParsersAction) and value not in action.choices:
+            raise argparse.ArgumentError(None, unknown_command(str(value)))
+        super()._check_value(action, value)
+
+
 def build_command_parser(cmd: Command) -> argparse.ArgumentParser:
     """One command's parser on its own (no help option), as listed in the top-level help."""
     p = ArgumentParser(prog=f"{PROG} {cmd.spelled or cmd.name}", add_help=False)
@@ -129,7 +152,7 @@ def build_command_parser(cmd: Command) -> argparse.ArgumentParser:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``drovisio`` parser: the top-level options and one sub-parser per command."""
-    parser = ArgumentParser(
+    parser = _TopParser(
         prog=PROG,
         description="Drovisio: local positioning for builder drones.\n"
                     "Finds bricks by their colour dots or ArUco codes and gives each brick's "
@@ -143,7 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     parser.add_argument("--debug", action="store_true",
                         help="print the full traceback of an unexpected error")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands",
+                                parser_class=ArgumentParser)
     for cmd in COMMANDS.values():
         p = sub.add_parser(
             cmd.name,

@@ -118,6 +118,34 @@ def test_a_usage_error_is_one_line_pointing_to_the_help(argv, line, capsys):
     assert out == "" and err == line + "\n"     # no usage block: the help has it
 
 
+COMMAND_LIST = ("the commands are detect, calibrate, run, serve, bench, station, study, "
+                "mission, autopilot, synth (see drovisio --help)")
+
+
+@pytest.mark.parametrize("word,hint", [
+    ("calibrat", "did you mean 'calibrate'? "),
+    ("calibrate-bord", "did you mean 'calibrate board'? "),
+    ("mision", "did you mean 'mission'? "),
+    ("foo", ""),
+])
+def test_an_unknown_command_lists_only_the_commands_users_type(word, hint, capsys):
+    assert cli.main([word]) == 2
+    out, err = capsys.readouterr()
+    # the internal names of "calibrate board" and "calibrate mount" are never offered
+    assert out == "" and err == f"drovisio: unknown command '{word}'; {hint}{COMMAND_LIST}\n"
+
+
+def test_the_internal_names_still_run(capsys):
+    # tests and scripts may type them; only the listing hides them
+    assert cli.main(["calibrate-board", "--help"]) == 0
+    assert capsys.readouterr().out.startswith("usage: drovisio calibrate board")
+    assert cli.main(["calibrate-mount", "--help"]) == 0
+    assert capsys.readouterr().out.startswith("usage: drovisio calibrate mount")
+    # an action's parser keeps argparse's own list of its actions
+    assert cli.main(["mission", "chek"]) == 2
+    assert "invalid choice: 'chek' (choose from 'check', " in capsys.readouterr().err
+
+
 def test_help_still_shows_the_usage_block(capsys):
     assert cli.main(["detect", "--help"]) == 0
     out = capsys.readouterr().out

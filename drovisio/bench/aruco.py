@@ -130,7 +130,7 @@ def _parser() -> argparse.ArgumentParser:
                         "medians and p90, per dictionary (4x4, 6x6, tag36h11; --dictionary: "
                         "one). E.g. OpenCV's vtest.avi, Debian's opencv-doc: "
                         "/usr/share/doc/opencv-doc/examples/data/vtest.avi")
-    p.add_argument("--max-frames", type=int, default=300, metavar="N",
+    p.add_argument("--max-frames", type=whole(1, 100_000), default=300, metavar="N",
                    help="with --video: at most this many frames (default 300)")
     p.add_argument("--camera", type=Path, metavar="CAMERA_FILE",
                    help="with --video: the frames' camera file (default: a 60 deg pinhole "
@@ -490,8 +490,6 @@ def _timed_against_plain(bench: _Bench, fr: Frame, st: Stats) -> list[BrickPose]
 
 def _video_main(args: argparse.Namespace) -> int:
     """``--video``: timing on real frames (:mod:`drovisio.bench.aruco_video`)."""
-    if args.max_frames < 1:
-        raise InputError(f"--max-frames {args.max_frames}: give a positive number of frames")
     dicts = (args.dictionary,) if args.dictionary else aruco_video.DEFAULT_DICTIONARIES
     for d in dicts:
         try:

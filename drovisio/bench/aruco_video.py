@@ -42,50 +42,78 @@ import numpy as np
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector, plain_detector
 from drovisio.detect.corners import normalized_grid
-from drovisio.errors import InputError
-from drovisio.images import IMAGE_SUFFIXES, ImageError, read_image
+from drovisio.errors import LIMITS, InputError
 from drovisio.layout import load_layouts, shipped_layouts_dir, with_dictionary
-from drovisio.sources import list_folder
+from drovisio.raw_frame import EndOfStream
+from drovisio.sources import ImageFolderReader, VideoFileReader
 from drovisio.study.methods import apriltag_detector
 
 DEFAULT_DICTIONARIES = ("DICT_4X4_50", "DICT_6X6_250", "DICT_APRILTAG_36h11")
 
 
 def read_frames(path: Path, max_frames: int) -> list[np.ndarray]:
-    """Up to ``max_frames`` BGR frames of a video file or of a folder's images (name order).
+    """Up to ``max_frames`` BGR frames of a video file or of a folder's images (name order),
+    read by the sources' readers (:class:`~drovisio.sources.VideoFileReader`,
+    :class:`~drovisio.sources.ImageFolderReader`), so the bench gets their bounds: the frame
+    size refused from the header before anything is decoded, a file that is no video (or a
+    pipe, a device) refused in one line. A folder's unreadable pictures, and pictures of
+    another size than the first, are skipped; a video that cannot be decoded further (cut
+    short, damaged) ends there, said in one line on stderr, and its frames before are timed.
 
     Raises:
-        InputError: The path is missing, not a video or holds no readable frame.
+        InputError: The path is missing, not a video, holds no readable frame, or the frames
+            asked for would take more memory than the work cap.
     """
     if not path.exists():
         raise InputError(f"{path}: --video: no such file or folder; give a video file or a "
                          "folder of images")
+    reader = ImageFolderReader(path) if path.is_dir() else VideoFileReader(path)
+    try:
+        reader.open()
+    except OSError as e:   # the reader's own reason, said with the option
+        raise InputError(f"{path}: --video: {str(e).removeprefix(f'{path}: ')}") from None
     frames: list[np.ndarray] = []
-    if path.is_dir():
-        for p in list_folder(path):
-            if len(frames) >= max_frames:
+    try:
+        while len(frames) < max_frames:
+            try:
+                fr = reader.read()
+            except EndOfStream:
                 break
-            if p.suffix.lower() in IMAGE_SUFFIXES:
-                try:
-                    im = read_image(p)[0]
-                except ImageError:
+            if fr is None:
+                break
+            if fr.image is None:
+                if isinstance(reader, ImageFolderReader):
                     continue     # the bench runs on the pictures that can be read
-                if not frames or im.shape == frames[0].shape:
-                    frames.append(im)
-    else:
-        cap = cv2.VideoCapture(str(path))
-        try:
-            while cap.isOpened() and len(frames) < max_frames:
-                ok, im = cap.read()
-                if not ok or im is None:
-                    break
-                frames.append(im)
-        finally:
-            cap.release()
+                print(f"drovisio bench: {path} frame {fr.index}: {fr.error}; timing the "
+                      f"{len(frames)} frame(s) before it", file=sys.stderr)
+                break
+            if not frames:
+                _check_memory(path, fr.image, max_frames, reader)
+            if not frames or fr.image.shape == frames[0].shape:
+                frames.append(fr.image)
+    finally:
+        reader.close()
     if not frames:
         raise InputError(f"{path}: --video: no frame could be read; give a video OpenCV can "
                          "decode or a folder of images of one size")
     return frames
+
+
+def _check_memory(path: Path, first: np.ndarray, max_frames: int,
+                  reader: ImageFolderReader | VideoFileReader) -> None:
+    """Refuse frames that, all held at once (colour and grey), would pass the work cap.
+
+    Raises:
+        InputError: naming the frames' size, their count and what to do.
+    """
+    count = len(reader.files) if isinstance(reader, ImageFolderReader) else reader.count
+    n = min(max_frames, count) if count else max_frames
+    need = n * first.shape[0] * first.shape[1] * 4   # BGR and grey, one byte a sample
+    if need > LIMITS.max_work_bytes:
+        raise InputError(f"{path}: --max-frames: {n} frames of {first.shape[1]}x"
+                         f"{first.shape[0]} held at once need {need / 2**30:.1f} GiB, more "
+                         f"than the {LIMITS.max_work_bytes / 2**30:.1f} GiB cap; give fewer "
+                         "--max-frames (DROVISIO_MAX_WORK_MIB raises the cap)")
 
 
 def _apriltag_default():

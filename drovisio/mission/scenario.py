@@ -38,8 +38,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from pydantic import ValidationError
+from pydantic import PrivateAttr, ValidationError
 
+from drovisio.camera import Camera
+from drovisio.camera_file import load_camera
 from drovisio.errors import InputError, one_line
 from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layouts_dir
 from drovisio.mission.frames import wrap_half
@@ -80,6 +82,18 @@ class Scenario(ScenarioModel):
     """A validated mission scenario (see the module docstring; fields and planned poses in
     :class:`~drovisio.mission.scenario_model.ScenarioModel`)."""
 
+    _camera: Camera | None = PrivateAttr(None)
+
+    @property
+    def camera(self) -> Camera:
+        """The drone's camera: the camera file ``drone.camera.file`` names (read once, when
+        the scenario is), else the built-in drone webcam."""
+        if self._camera is None and self.drone.camera.file:
+            base = self._source.parent if self._source is not None else None
+            self._camera = _load_camera(self.drone.camera.file, base,
+                                        str(self._source or "<scenario>"))
+        return self._camera if self._camera is not None else Camera.drone_webcam()
+
     def subset(self, keep: list[str]) -> Scenario:
         """The same scenario building only the bricks ``keep`` (validated again: the bricks a
         kept brick rests on must be kept too)."""
@@ -116,17 +130,34 @@ def shipped_scenario(name: str = "wall-2-courses") -> Path:
     return shipped_scenarios_dir() / f"{name}.yaml"
 
 
+def _in_scenario(name: str, base: Path | None) -> Path:
+    """A file a scenario names: relative to the scenario's folder, or absolute (scenarios are
+    read by the local command line only, like any file given on it)."""
+    p = Path(name)
+    return p if p.is_absolute() or base is None else base / p
+
+
+def _load_camera(name: str, base: Path | None, src: str) -> Camera:
+    """The camera file ``drone.camera.file`` names, read by the camera file reader.
+
+    Raises:
+        ScenarioError: ``SCENARIO: drone.camera.file: the reader's one line``.
+    """
+    try:
+        return load_camera(_in_scenario(name, base))
+    except InputError as e:
+        raise ScenarioError(f"{src}: drone.camera.file: {e}") from None
+
+
 def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     problems = []
     for i, n in enumerate(names):
         if n.endswith(".json"):
-            p = Path(n)
-            if not p.is_absolute() and base is not None:
-                p = base / p
+            p = _in_scenario(n, base)
         else:
             p = shipped_layouts_dir() / f"{n}.json"
-            if not p.exists():
+            if Path(n).name != n or not p.exists():   # a name, never a way out of the folder
                 problems.append(f"{src}: layouts[{i}]: no shipped layout called {n!r}")
                 continue
         try:
@@ -219,6 +250,8 @@ def parse_scenario(data: dict[str, Any] | str | bytes,
     base = Path(src).parent if not src.startswith("<") else None
     scn._source = Path(src) if base is not None else None
     scn._layouts = _load_layouts(scn.layouts, base, src)
+    if scn.drone.camera.file:
+        scn._camera = _load_camera(scn.drone.camera.file, base, src)
     issues = scn._semantic_issues()
     if issues:
         loc, msg = issues[0]

@@ -279,7 +279,8 @@ class Mount(_M):
 class CameraSpec(_M):
     model: Literal["drone-webcam"] | None = "drone-webcam"
     file: str | None = Field(None, max_length=1024,
-                             description="camera file instead of the built-in model")
+                             description="camera file instead of the built-in model "
+                                         "(relative to the scenario, or absolute)")
     mount: Mount = Mount()
 
 

@@ -99,3 +99,82 @@ def test_video_that_cannot_be_read_is_refused_in_one_line(tmp_path, capsys):
     assert main(["bench", "aruco", "--video", str(tmp_path), "--dictionary", "DICT_9"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "--dictionary" in err[1], err
+
+
+def _avi(path, n: int = 30, size=(64, 48)):
+    """An MJPEG AVI of ``n`` noise frames (noise: every frame a different size on disk)."""
+    import cv2
+    import numpy as np
+
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, size)
+    rng = np.random.default_rng(0)
+    for _ in range(n):
+        w.write(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    w.release()
+    return path
+
+
+def _bench_err(capsys, *argv: str) -> tuple[int, list[str]]:
+    from drovisio.cli import main
+
+    rc = main(["bench", "aruco", "--repeat", "1", "--dictionary", "DICT_4X4_50", *argv])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return rc, [ln for ln in err.splitlines() if not ln.startswith("  ... ")]
+
+
+def test_video_is_read_by_the_sources_reader_with_its_bounds(tmp_path, capsys):
+    import os
+    import struct
+
+    # a header announcing 30000x30000 frames: refused before a frame is decoded
+    d = bytearray(_avi(tmp_path / "small.avi", n=3).read_bytes())
+    struct.pack_into("<II", d, d.find(b"avih") + 8 + 32, 30000, 30000)
+    struct.pack_into("<ii", d, d.find(b"strf") + 8 + 4, 30000, 30000)
+    huge = tmp_path / "huge.avi"
+    huge.write_bytes(bytes(d))
+    assert _bench_err(capsys, "--video", str(huge)) == (2, [
+        f"drovisio bench: {huge}: --video: its header announces frames of 30000x30000 "
+        "(900 Mpx), more than the 50 Mpx (and 20000 pixels a side) Drovisio decodes; "
+        "re-encode it smaller (or set DROVISIO_MAX_IMAGE_MPX)"])
+    # a pipe is never opened (reading it would wait for a writer forever)
+    fifo = tmp_path / "clip.mp4"
+    os.mkfifo(fifo)
+    assert _bench_err(capsys, "--video", str(fifo)) == (2, [
+        f"drovisio bench: {fifo}: --video: not a regular file (a folder, a pipe or a device)"])
+    # a text file is no video
+    text = tmp_path / "passwd"
+    text.write_text("root:x:0:0:root:/root:/bin/bash\n")
+    assert _bench_err(capsys, "--video", str(text)) == (2, [
+        f"drovisio bench: {text}: --video: cannot open the video (unknown format, or a "
+        "damaged or cut-short file)"])
+
+
+def test_a_cut_short_video_is_timed_up_to_where_it_ends_said_in_one_line(tmp_path, capsys):
+    data = _avi(tmp_path / "whole.avi").read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[:len(data) // 2])
+    out = tmp_path / "cut.json"
+    rc, err = _bench_err(capsys, "--video", str(cut), "--json", str(out))
+    assert rc == 0
+    assert len(err) == 1 and err[0].startswith(f"drovisio bench: {cut} frame 14: the video "
+                                               "ends at frame 14, 16 frames before the 30 "
+                                               "its header announces"), err
+    assert err[0].endswith("; timing the 14 frame(s) before it")
+    assert json.loads(out.read_text())["frames"] == 14
+
+
+def test_frames_over_the_work_cap_are_refused_before_they_are_held(tmp_path, capsys,
+                                                                    monkeypatch):
+    from drovisio.errors import LIMITS
+
+    clip = _avi(tmp_path / "clip.avi", n=30, size=(320, 240))
+    monkeypatch.setattr(LIMITS, "max_work_bytes", 2**20)
+    rc, err = _bench_err(capsys, "--video", str(clip))
+    assert rc == 2 and err == [
+        f"drovisio bench: {clip}: --max-frames: 30 frames of 320x240 held at once need "
+        "0.0 GiB, more than the 0.0 GiB cap; give fewer --max-frames (DROVISIO_MAX_WORK_MIB "
+        "raises the cap)"]
+    assert _bench_err(capsys, "--video", str(clip), "--max-frames", "3")[0] == 0
+    rc, err = _bench_err(capsys, "--video", str(clip), "--max-frames", "9" * 40)
+    assert rc == 2 and len(err) == 1 and "--max-frames" in err[0], err

@@ -169,6 +169,30 @@ def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger
     assert hit.gravity.tolist() == [0.0, 0.0, 1.0]
 
 
+def test_a_bench_cache_picture_is_read_within_the_image_bounds(tmp_path, monkeypatch, ledger):
+    """bench dots' cache folder is the user's: its pictures go through the image reader (its
+    pixel cap, never a pipe opened); an entry it refuses is a miss, rendered again."""
+    import cv2
+
+    from drovisio.bench.dots import FrameSource
+    from drovisio.errors import LIMITS
+    from drovisio.layout import load_layout
+    from drovisio.resources import layouts_dir
+
+    ledger.tried["writers: bench cache"] += 2
+    src = FrameSource(load_layout(layouts_dir() / "drick-dots-2x3.json"), tmp_path)
+    png, js = tmp_path / "k-1-t.png", tmp_path / "k-1-t.json"
+    js.write_text(json.dumps({"gravity": [0.0, 0.0, 1.0], "bricks": []}))
+    cv2.imwrite(str(png), np.full((48, 64, 3), 7, np.uint8))
+    assert src._cached("k", 1, "t")[0] is not None
+    monkeypatch.setattr(LIMITS, "max_image_pixels", 1000)     # 64x48 is over it now
+    assert src._cached("k", 1, "t")[0] is None
+    monkeypatch.undo()
+    png.unlink()
+    os.mkfifo(png)     # opening it would wait for a writer forever
+    assert src._cached("k", 1, "t")[0] is None
+
+
 def test_a_stale_bench_aruco_cache_file_is_rendered_again_and_replaced_whole(tmp_path,
                                                                             ledger):
     """bench aruco's cache: a pickle of a class that no longer exists (or a cut file) is a

@@ -114,3 +114,52 @@ def test_a_camera_tilt_beyond_the_horizon_is_refused_in_one_line(small, tmp_path
     assert cli.main(["mission", "landing", "--tilt", "1e308"]) == 2
     assert ("argument --tilt: 1e+308 is out of range: give a number from -90 to 90"
             in capsys.readouterr().err)
+
+
+def _with_camera(small, path, camera_file: str):
+    d = small.model_dump(by_alias=True, exclude_none=True)
+    d["drone"]["camera"]["file"] = camera_file
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_a_camera_file_that_cannot_be_read_is_one_line_naming_scenario_and_field(
+        small, tmp_path, capsys):
+    import os
+
+    os.mkfifo(tmp_path / "pipe.yaml")
+    (tmp_path / "text.yaml").write_text("root:x:0:0:root:/root:/bin/bash\n")
+    cases = {
+        "nocam.yaml": f"{tmp_path / 'nocam.yaml'}: camera file not found",
+        "pipe.yaml": f"{tmp_path / 'pipe.yaml'}: not a regular file (a pipe or device); "
+                     "give the camera file itself",
+        str(tmp_path): f"{tmp_path}: is a folder; give the camera file itself",
+        "text.yaml": f"{tmp_path / 'text.yaml'}: not a camera file: expected OpenCV "
+                     "FileStorage fields 'camera_matrix' and 'distortion_coefficients'",
+    }
+    for name, why in cases.items():
+        p = _with_camera(small, tmp_path / "scn.yaml", name)
+        for action in (["check", str(p), "--fault", "no fault"],
+                       ["simulate", str(p), "--record", str(tmp_path / "rec")]):
+            assert cli.main(["mission", *action]) == 2
+            out, err = capsys.readouterr()
+            # said when the scenario is read, before anything is simulated
+            assert out == "" and err == f"drovisio mission: {p}: drone.camera.file: {why}\n"
+    assert not (tmp_path / "rec").exists()
+
+
+def test_a_camera_file_beside_or_anywhere_is_still_read(small, tmp_path):
+    from drovisio.camera import Camera
+    from drovisio.camera_file import save_camera
+    from drovisio.mission.scenario import load_scenario
+    from drovisio.mission.sim import camera_for
+
+    cam = Camera.from_fov(800, 600, 70.0)
+    (tmp_path / "site").mkdir()
+    save_camera(cam, tmp_path / "site" / "cam.yaml")
+    (tmp_path / "plans").mkdir()
+    for name in ("../site/cam.yaml", str(tmp_path / "site" / "cam.yaml")):
+        scn = load_scenario(_with_camera(small, tmp_path / "plans" / "scn.yaml", name))
+        assert camera_for(scn).K.tolist() == cam.K.tolist()
+        assert (camera_for(scn).width, camera_for(scn).height) == (800, 600)
+    assert camera_for(small).width == 640   # the built-in webcam

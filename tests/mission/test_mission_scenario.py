@@ -180,3 +180,33 @@ def test_a_brick_resting_twice_on_one_brick_is_said_once():
         parse_scenario(d, "site/wall.yaml")
     assert str(e.value) == ("site/wall.yaml: wall.plan[5].rests_on: names 'b6' twice: the two "
                             "bricks below must differ")
+
+
+def test_a_layout_name_is_a_name_and_a_layout_path_is_read_where_it_says(tmp_path):
+    import json
+    import os
+
+    from drovisio.layout import shipped_layouts_dir
+
+    shipped = shipped_layouts_dir() / "drick-aruco-pyramids.json"
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "drick-aruco-pyramids.json").write_text(shipped.read_text())
+    # a shipped name that climbs out of the shipped folder is no name
+    climb = os.path.relpath(elsewhere / "drick-aruco-pyramids", shipped_layouts_dir())
+    d = _data()
+    d["layouts"] = [climb]
+    with pytest.raises(ScenarioError) as e:
+        parse_scenario(d, str(tmp_path / "scn.yaml"))
+    assert str(e.value).startswith(f"{tmp_path / 'scn.yaml'}: layouts[0]: no shipped layout "
+                                   f"called {climb!r}")
+    # a .json path: beside the scenario, up from it, or absolute (the command line's files)
+    (tmp_path / "plans").mkdir()
+    for name in ("../elsewhere/drick-aruco-pyramids.json",
+                 str(elsewhere / "drick-aruco-pyramids.json")):
+        d = _data()
+        d["layouts"] = [name]
+        for b in d["bricks"]:
+            b["layout"] = name
+        scn = parse_scenario(json.loads(json.dumps(d)), str(tmp_path / "plans" / "scn.yaml"))
+        assert scn.layout(name).name == "drick-aruco-pyramids"

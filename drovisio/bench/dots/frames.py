@@ -10,12 +10,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect.dots.model import DotModel, occluded_dots
 from drovisio.fileio import atomic_write_text, write_image
+from drovisio.images import read_image
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import (
@@ -29,6 +29,7 @@ from drovisio.synth import (
     rot_z,
     transform,
 )
+from drovisio.textfile import parse_json, read_text
 
 
 @dataclass
@@ -167,11 +168,11 @@ class FrameSource:
         png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
         if png.is_file() and js.is_file():
             try:
-                img = cv2.imread(str(png), cv2.IMREAD_COLOR)
-                meta = json.loads(js.read_text())
-                if img is not None:
-                    return (Frame(image=img, gravity=np.array(meta["gravity"]),
-                                  bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
+                # the cache folder is the user's: read with the image reader's bounds
+                img = read_image(png)[0]
+                meta = parse_json(read_text(js), str(js))
+                return (Frame(image=img, gravity=np.array(meta["gravity"]),
+                              bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
             except (OSError, ValueError, KeyError, TypeError):
                 pass  # a broken or stale cache entry: render it again
         return None, png, js

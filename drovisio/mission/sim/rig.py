@@ -4,14 +4,12 @@ picture on the way down."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from drovisio.autopilot.blind import blind_height
 from drovisio.camera import Camera
-from drovisio.camera_file import load_camera
 from drovisio.mission.scenario import Scenario, ScenarioError
 from drovisio.mount import Mount
 
@@ -19,15 +17,9 @@ __all__ = ["camera_for", "body_from_camera_for", "landing_blind_heights"]
 
 
 def camera_for(scn: Scenario) -> Camera:
-    """The scenario's camera: its camera file (relative to the scenario's), else the built-in
+    """The scenario's camera (:attr:`Scenario.camera`): its camera file, else the built-in
     drone webcam."""
-    spec = scn.drone.camera
-    if spec.file:
-        p = Path(spec.file)
-        if not p.is_absolute() and scn.source is not None:
-            p = scn.source.parent / p
-        return load_camera(p)
-    return Camera.drone_webcam()
+    return scn.camera
 
 
 def body_from_camera_for(scn: Scenario) -> np.ndarray:
