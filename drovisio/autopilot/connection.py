@@ -138,6 +138,8 @@ def open_link(name: str, conn: str, *, source_system: int, source_component: int
         _bounded_tcp(link, name, reconnect)
     elif isinstance(link, mavutil.mavserial):
         _bounded_serial(link, name, reconnect)
+    elif isinstance(link, mavutil.mavudp):
+        _bounded_udp(link, name)
     return link
 
 
@@ -269,6 +271,53 @@ def _bounded_serial(link: Any, name: str, reconnect: bool) -> None:
         except Exception as e:  # noqa: BLE001 - pyserial raises several kinds for a lost port
             link.portdead = True
             raise LinkClosed(f"{dead} ({e})") from None
+
+    link.write = write
+
+
+class _SendErrors:
+    """A UDP socket that keeps what its last ``sendto`` raised (pymavlink's write swallows
+    it); everything else is the socket's."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._sock = sock
+        self.error: OSError | None = None
+
+    def sendto(self, *args: Any) -> int:
+        try:
+            return self._sock.sendto(*args)
+        except OSError as e:
+            self.error = e
+            raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sock, name)
+
+
+def _bounded_udp(link: Any, name: str) -> None:
+    """A pymavlink UDP link whose unsent write raises :class:`LinkDown`.
+
+    pymavlink drops a datagram the network refuses (no route, a full send buffer) without a
+    word, and a listening link (``udpin:``) sends to nobody until a peer has sent to it: both
+    were counted as sent. Here each raises :class:`LinkDown` naming why (the callers count
+    the message as lost and say it once)."""
+    sock = _SendErrors(link.port)
+    link.port = sock
+    wrote = link.write
+    port = link.port.getsockname()[1] if link.udp_server else None
+    nobody = (f"{name}: no MAVLink peer has sent to port {port} yet, so there is nobody to "
+              "send to; start the autopilot (or mavlink-router) that sends there, or give "
+              "udpout:HOST:PORT to send first")
+
+    def write(buf: bytes) -> None:
+        if link.udp_server and not link.clients:
+            raise LinkDown(nobody)
+        sock.error = None
+        wrote(buf)
+        if sock.error is not None:
+            e = sock.error
+            raise LinkDown(f"{name}: the datagram was not sent ({e.strerror or e}); check the "
+                           "address and the network (or that the peer reads the link)")
 
     link.write = write
 

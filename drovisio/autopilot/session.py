@@ -16,6 +16,7 @@ from drovisio.autopilot.check import Facts, param_names
 from drovisio.autopilot.connection import (
     AddressError,
     LinkClosed,
+    LinkDown,
     mavutil2,
     open_link,
     parse_connection,
@@ -37,7 +38,13 @@ class _Link:
     """pymavlink's connection."""
 
     def send(self, fn: Callable[[Any], object]) -> None:
-        fn(self.conn.mav)
+        try:
+            fn(self.conn.mav)
+        except LinkDown as e:
+            if isinstance(e, LinkClosed):
+                raise
+            # a request not sent now (no peer yet on udpin:, a full buffer) is sent again
+            # by the conversation; no answer in time is said as "no HEARTBEAT"
 
 
 def read_vehicle(connection: str, flavour: str, *, timeout_s: float = 5.0,

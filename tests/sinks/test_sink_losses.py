@@ -239,3 +239,60 @@ def test_a_udp_datagram_refused_is_not_sent_and_said_once():
                                        "denied); its messages are not sent until it comes back"]
     finally:
         sink.close()
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_mavlink_udp_listener_sends_nothing_until_a_peer_speaks_and_says_so(capfd):
+    port = _free_udp_port()
+    name = f"mavlink:udpin:127.0.0.1:{port}"
+    sink = MavlinkSink(f"udpin:127.0.0.1:{port}")
+    alarms = Alarms("cam.yaml")
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.bind(("127.0.0.1", 0))
+    try:
+        for _ in range(4):
+            sink.send(_target())
+        st = sink.status()
+        assert (st["sent"], st["lost"]) == (0, 4)      # nobody to send to: not sent
+        said = _said(alarms, sink)
+        assert said == [f"sink {name} lost (no MAVLink peer has sent to port {port} "
+                        "yet, so there is nobody to send to; start the autopilot (or "
+                        "mavlink-router) that sends there, or give udpout:HOST:PORT to send "
+                        "first); its messages are not sent until it comes back"]
+        mav = mavutil2().mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        hb = mav.heartbeat_encode(2, 3, 0, 0, 4).pack(mav)
+        assert _until(lambda: sink.status()["sent"] > 0,
+                      lambda: (peer.sendto(hb, ("127.0.0.1", port)), sink.send(_target())))
+        assert sink.status()["down"] is None
+        assert _said(alarms, sink)[0].startswith(f"sink {name} back (")
+        peer.setblocking(False)
+        seen: set[str] = set()
+
+        def read() -> None:
+            sink.send(_target())
+            while select.select([peer], [], [], 0.05)[0]:
+                seen.update(m.get_type() for m in mav.parse_buffer(peer.recv(4096)) or [])
+
+        assert _until(lambda: "LANDING_TARGET" in seen, read), seen  # it reaches the peer
+    finally:
+        sink.close()
+        peer.close()
+    cap = capfd.readouterr()
+    assert cap.out == "" and cap.err == ""
+
+
+def test_a_refused_mavlink_udp_datagram_is_not_counted_sent():
+    sink = MavlinkSink("udpout:255.255.255.255:9")   # broadcast without SO_BROADCAST: EACCES
+    try:
+        sink.send(_target())
+        st = sink.status()
+        assert (st["sent"], st["lost"]) == (0, 1)
+        assert st["down"].startswith("mavlink:udpout:255.255.255.255:9: the datagram was not "
+                                     "sent (Permission denied); check the address")
+    finally:
+        sink.close()
