@@ -467,7 +467,8 @@ def test_error_overlapping_ids_name_both_layouts(tmp_path):
 
 
 def test_meshes():
-    from drovisio.meshes import drick_mesh, landing_pad_mesh, load_layout_mesh
+    from drovisio.mesh_file import load_layout_mesh
+    from drovisio.meshes import drick_mesh, landing_pad_mesh
 
     m = drick_mesh()
     assert m.is_watertight and m.is_volume

@@ -15,7 +15,7 @@ import numpy as np
 
 from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
 from drovisio.layout import load_layout
-from drovisio.meshes import load_layout_mesh
+from drovisio.mesh_file import load_layout_mesh
 from drovisio.resources import layouts_dir
 from webtool.viewer.scene import ViserScene
 
