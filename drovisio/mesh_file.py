@@ -1,22 +1,27 @@
 """Mesh files from outside (uploaded to the designer, named by a layout): what format the
 bytes are, their declared size bounded before anything is built, and reading them into one
-triangle mesh."""
+triangle mesh. :func:`load_layout_mesh` is the one reader of a layout's ``mesh``: its
+bounds, the dot detector's occluders, the renderer and the 3D views all read through it."""
 
 from __future__ import annotations
 
 import io
 import json
+import os
 import re
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import trimesh
 
 from drovisio.errors import InputError
+from drovisio.meshes import shipped_mesh
+from drovisio.textfile import missing_reason, name_inside, read_bytes, resolve_inside
 
-__all__ = ["MAX_DEPTH", "MAX_FACES", "MAX_NODES", "MESH_TYPES", "read_mesh"]
+__all__ = ["MAX_DEPTH", "MAX_FACES", "MAX_MESH_BYTES", "MAX_NODES", "MESH_TYPES",
+           "NamesAMesh", "load_layout_mesh", "read_mesh"]
 
 #: File extensions :func:`read_mesh` accepts.
 MESH_TYPES = ("stl", "obj", "ply", "glb", "gltf", "off")
@@ -27,6 +32,8 @@ MAX_FACES = 2_000_000
 #: nesting: a few kilobytes of scene graph can otherwise ask for millions of copies.
 MAX_NODES = 10_000
 MAX_DEPTH = 256
+#: Largest mesh file a layout may name (a brick's mesh is a few MB at most).
+MAX_MESH_BYTES = 256 * 2**20
 
 
 def _is_stl(data: bytes) -> bool:
@@ -137,7 +144,7 @@ def _check_gltf(doc: dict, name: str) -> None:
                     for c in (nd.get("children") or []) if isinstance(c, int)}
         roots = [i for i in range(len(nodes)) if i not in children]
     fix = ("Export the brick as one mesh (STL is the safest), or simplify the model in "
-           "your CAD program, and upload it again.")
+           "your CAD program, and use the new file.")
     stack = [(r, 1) for r in roots]
     seen, faces = 0, 0
     while stack:
@@ -180,10 +187,10 @@ def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
         what = f"'.{ext}' files" if ext else "files without an extension"
         raise InputError(f"{name}: {what} are not 3D models this tool can read. Export the "
                          f"brick from your CAD program as {kinds} (STL is the safest) and "
-                         "upload that file.")
+                         "use that file.")
     if not data:
         raise InputError(f"{name}: the file is empty (0 bytes). Export the model again and "
-                         "upload the new file.")
+                         "use the new file.")
     if not _looks_like(ext, data):
         raise InputError(f"{name}: this is not a {ext.upper()} 3D model (its content does not "
                          f"match the format). Check that you picked the right file, or "
@@ -218,4 +225,60 @@ def read_mesh(data: bytes, filename: str) -> trimesh.Trimesh:
     if len(mesh.faces) == 0 or float(np.max(mesh.extents)) <= 0:
         raise InputError(f"{name}: the model has no triangles with an area (all are "
                          "flattened to lines or points). Export the solid brick again.")
+    return mesh
+
+
+class NamesAMesh(Protocol):
+    """What :func:`load_layout_mesh` reads of a layout (a
+    :class:`~drovisio.layout.MarkerLayout`)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def mesh(self) -> str | None: ...
+    @property
+    def source(self) -> Path | None: ...
+    @property
+    def scale_to_m(self) -> float: ...
+
+
+def load_layout_mesh(layout: NamesAMesh) -> trimesh.Trimesh | None:
+    """The mesh a layout names, in metres: the one reader of a layout's ``mesh``.
+
+    The name is read relative to the layout file (the working directory for a layout without
+    one) and only inside that folder, links followed, from a regular file of at most
+    :data:`MAX_MESH_BYTES`, by :func:`read_mesh` (the bounds of an uploaded mesh). A name
+    with nothing behind it that is a shipped mesh's (``meshes/drick.stl``) is built
+    procedurally (:func:`drovisio.meshes.shipped_mesh`, metres).
+
+    Args:
+        layout: a :class:`~drovisio.layout.MarkerLayout`.
+
+    Returns:
+        The mesh in metres (brick frame), or None when the layout names no mesh.
+
+    Raises:
+        InputError: ``LAYOUT: mesh: what is wrong and what to do``, in one line: a name
+            outside the layout's folder (``..``, a link out of it), missing, not a regular
+            file, too large, or not a mesh :func:`read_mesh` reads.
+    """
+    if layout.mesh is None:
+        return None
+    source = layout.source
+    folder = source.parent if source is not None else Path.cwd()
+    where = f"{source or layout.name}: mesh"
+    path = name_inside(folder, layout.mesh, where, "mesh")
+    if missing_reason(path) is not None and not os.path.islink(path):
+        shipped = shipped_mesh(path.name)
+        if shipped is None:
+            raise InputError(f"{where}: {layout.mesh!r} not found in {folder}; put the mesh "
+                             "there or remove the mesh field")
+        return shipped
+    path = resolve_inside(folder, layout.mesh, where, "mesh")
+    try:
+        mesh = read_mesh(read_bytes(path, "mesh", MAX_MESH_BYTES), path.name)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+    if layout.scale_to_m != 1.0:
+        mesh.apply_scale(layout.scale_to_m)
     return mesh

@@ -17,10 +17,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from drovisio.errors import InputError
 from drovisio.fileio import atomic_write
-from drovisio.layout import MarkerLayout, shipped_layouts_dir
-from drovisio.mesh_file import read_mesh
+from drovisio.resources import layouts_dir
 
 __all__ = [
     "DRICK_BODY",
@@ -33,7 +31,6 @@ __all__ = [
     "landing_pad_mesh",
     "shipped_mesh",
     "write_shipped_meshes",
-    "load_layout_mesh",
 ]
 
 #: Drick body size (x, y, z) in metres; the body spans z in [-0.10, 0].
@@ -152,7 +149,7 @@ def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[P
     Returns:
         The files written.
     """
-    out = Path(folder) if folder is not None else shipped_layouts_dir() / "meshes"
+    out = Path(folder) if folder is not None else layouts_dir() / "meshes"
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, make in _SHIPPED.items():
@@ -160,56 +157,6 @@ def write_shipped_meshes(folder: str | os.PathLike[str] | None = None) -> list[P
         atomic_write(path, _stl_writer(make))
         written.append(path)
     return written
-
-
-MAX_MESH_BYTES = 256 * 2**20
-"""Largest mesh file a layout may name (a brick's mesh is a few MB at most)."""
-
-
-def load_layout_mesh(layout: MarkerLayout) -> trimesh.Trimesh | None:
-    """The mesh of a layout, scaled to metres.
-
-    Reads ``layout.mesh`` (relative to the layout file, in the layout's units); if that file
-    is missing but names a shipped mesh, builds it procedurally.
-
-    Args:
-        layout: a :class:`drovisio.layout.MarkerLayout`.
-
-    Returns:
-        The mesh in metres (brick frame), or None if the layout names no mesh.
-
-    Raises:
-        InputError: the mesh file is missing (and is not a shipped one), not a regular file,
-            outside the layout's folder, too large, or not a mesh :func:`.mesh_file.read_mesh`
-            reads (its refusal, prefixed with the layout and field).
-    """
-    path = layout.mesh_path()
-    if path is None:
-        return None
-    # a path from inside a file: only inside the layout's folder, a regular file, bounded
-    source = getattr(layout, "_source", None)
-    base = Path(source).parent if source is not None else Path.cwd()
-    where = f"{source or layout.name}: mesh"
-    if not path.is_relative_to(base.resolve()):
-        raise InputError(f"{where}: {layout.mesh!r} is outside the layout's folder {base}; "
-                         "put the mesh beside the layout (e.g. meshes/NAME.stl)")
-    if path.is_file():
-        size = path.stat().st_size
-        if size > MAX_MESH_BYTES:
-            raise InputError(f"{where}: {path} is {size / 2**20:.0f} MiB, more than the "
-                             f"{MAX_MESH_BYTES // 2**20} MiB of a brick's mesh; simplify it")
-        try:   # the same reader and bounds as an uploaded mesh
-            mesh = read_mesh(path.read_bytes(), path.name)
-        except InputError as e:
-            raise InputError(f"{where}: {e}") from None
-        if layout.scale_to_m != 1.0:
-            mesh.apply_scale(layout.scale_to_m)
-        return mesh
-    shipped = shipped_mesh(path.name)
-    if shipped is None:
-        raise InputError(f"{where}: {path} not found (or not a regular file); put the mesh "
-                         "beside the layout or remove the mesh field")
-    return shipped
 
 
 if __name__ == "__main__":

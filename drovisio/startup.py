@@ -268,16 +268,18 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
     reader = checked if checked is not None and not loop else reader_for(config.source,
                                                                           loop=loop)
     target = TargetSelector(config.target or "nearest", layouts=layouts)  # checked above
+
+    def make_detectors(cam: Camera) -> list[Detector]:
+        return detectors_for(cam, layouts)
+
+    # before any sink is opened: a layout the detectors refuse (its mesh) leaves no file
+    detectors = make_detectors(camera) if camera.size_known else []
     sinks = open_sinks_of(config, target, mount, layouts, default_sinks, camera=camera)
     mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
     _blind_height(mav, camera, mount, layouts)
     source = FrameSource(reader, pace=config.pace)
     recorder = _recorder(config, config.source, camera, mount, layouts)
-
-    def make_detectors(cam: Camera) -> list[Detector]:
-        return detectors_for(cam, layouts)
-
-    pipeline = Pipeline(source, make_detectors(camera) if camera.size_known else [],
+    pipeline = Pipeline(source, detectors,
                         sinks=sinks, mount=mount, target=target, gravity=_gravity(mav, mount),
                         recorder=recorder, max_age=config.max_age,
                         layouts=layouts, camera=camera, detector_factory=make_detectors)

@@ -19,8 +19,8 @@ import yaml
 from drovisio.errors import LIMITS, InputError, one_line
 
 __all__ = ["BoundedYamlLoader", "check_regular_file", "missing_reason", "name_inside",
-           "parse_json", "parse_yaml", "path_text_problem", "read_inside", "read_structured",
-           "read_text", "resolve_inside", "unreachable"]
+           "parse_json", "parse_yaml", "path_text_problem", "read_bytes", "read_inside",
+           "read_structured", "read_text", "resolve_inside", "unreachable"]
 
 
 def unreachable(path: str | os.PathLike, e: OSError) -> str:
@@ -71,25 +71,39 @@ def check_regular_file(path: str | os.PathLike, what: str = "file") -> Path:
     return p
 
 
-def read_text(path: str | os.PathLike, what: str = "file",
-              max_bytes: int | None = None) -> str:
-    """The UTF-8 text of a small file (at most ``max_bytes``, default
-    :attr:`~drovisio.errors.Limits.max_file_bytes`)."""
+def _amount(n: int) -> str:
+    """A byte limit in words: KiB up to 16 MiB (the text files' limit), MiB above."""
+    return f"{n // 2**20} MiB" if n > 16 * 2**20 else f"{n // 1024} KiB"
+
+
+def read_bytes(path: str | os.PathLike, what: str = "file",
+               max_bytes: int | None = None) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes`` (default
+    :attr:`~drovisio.errors.Limits.max_file_bytes`): a larger one is refused from its size,
+    before anything is read (a sparse file of terabytes costs nothing)."""
     p = check_regular_file(path, what)
     limit = LIMITS.max_file_bytes if max_bytes is None else max_bytes
     try:
         with open(p, "rb") as f:
-            data = f.read(limit + 1)
+            size = os.fstat(f.fileno()).st_size
+            data = f.read(limit + 1) if size <= limit else b""
     except OSError as e:
         raise InputError(f"{p}: cannot read the {what} ({e.strerror or e})") from None
-    if len(data) > limit:
-        raise InputError(f"{p}: the {what} is larger than {limit // 1024} KiB; is it the "
+    if size > limit or len(data) > limit:   # the second: a file that grew while read
+        raise InputError(f"{p}: the {what} is larger than {_amount(limit)}; is it the "
                          "right file?")
+    return data
+
+
+def read_text(path: str | os.PathLike, what: str = "file",
+              max_bytes: int | None = None) -> str:
+    """The UTF-8 text of a small file (:func:`read_bytes`)."""
+    data = read_bytes(path, what, max_bytes)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
-        raise InputError(f"{p}: not UTF-8 text (byte {e.start}); the {what} must be a text "
-                         "file") from None
+        raise InputError(f"{Path(path)}: not UTF-8 text (byte {e.start}); the {what} must be a "
+                         "text file") from None
 
 
 def path_text_problem(name: str) -> str | None:

@@ -70,6 +70,21 @@ def test_shipped_layouts_listed_and_load_together():
     check_id_clashes(layouts)  # no clash
 
 
+@pytest.mark.parametrize("name", ["../marker_layouts/drick-aruco-centre", "/etc/passwd",
+                                  "meshes/../drick-aruco-centre", ".drick", "drick\x00x",
+                                  "drick-aruco-centre.json", "", 3, None])
+def test_a_layout_name_is_a_shipped_name_never_a_path(name):
+    from drovisio.errors import InputError
+    from drovisio.layout import shipped_layout_file
+
+    for p in list_shipped_layouts():
+        assert shipped_layout_file(p.stem) == p
+    with pytest.raises(InputError) as e:
+        shipped_layout_file(name)
+    assert str(e.value) == (f"no shipped layout called {name!r}; give one of "
+                            f"{', '.join(p.stem for p in list_shipped_layouts())}")
+
+
 def test_shipped_ids():
     centre, pyramids, dots, pad = (_shipped(n) for n in SHIPPED)
     assert centre.all_ids() == list(range(0, 20))
@@ -467,7 +482,8 @@ def test_error_overlapping_ids_name_both_layouts(tmp_path):
 
 
 def test_meshes():
-    from drovisio.meshes import drick_mesh, landing_pad_mesh, load_layout_mesh
+    from drovisio.mesh_file import load_layout_mesh
+    from drovisio.meshes import drick_mesh, landing_pad_mesh
 
     m = drick_mesh()
     assert m.is_watertight and m.is_volume

@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import pickle
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -62,6 +61,7 @@ import trimesh
 
 from drovisio.bench import aruco_video
 from drovisio.bench.aruco_report import FLIP_DEG, MIN_CODE_PX, SIZE_BINS, Rows, Stats, report
+from drovisio.bench.cache import read_entry, write_entry
 from drovisio.bounds import MAX_SUPERSAMPLING, ArgumentParser, whole
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
@@ -69,7 +69,7 @@ from drovisio.detect.aruco import ArucoBrickDetector, CodeDetection, plain_detec
 from drovisio.detect.corners import normalized_grid
 from drovisio.detect.result import BrickPose
 from drovisio.errors import InputError
-from drovisio.fileio import atomic_write_bytes, atomic_write_text, check_output_path
+from drovisio.fileio import atomic_write_text, check_output_path
 from drovisio.layout import (
     LayoutError,
     MarkerLayout,
@@ -190,29 +190,104 @@ def _visibility(scene: Scene) -> dict[int, float]:
     return out
 
 
+CACHE_SCHEMA = "drovisio/bench-aruco-frame@1"
+"""What a ``--cache`` entry's truth says it is: any other is stale, rendered again."""
+
+
+def _truth_json(fr: Frame) -> dict[str, Any]:
+    """A frame's truth as a cache entry writes it (JSON floats read back exactly)."""
+    return {"schema": CACHE_SCHEMA, "gravity": fr.gravity.tolist(), "blur": fr.blur,
+            "visible": {str(k): v for k, v in fr.visible.items()},
+            "bricks": [{"layout": b.layout, "instance": b.instance,
+                        "camera_from_brick": b.camera_from_brick.tolist(),
+                        "code_ids": b.code_ids,
+                        "code_corners_px": {str(k): c.tolist()
+                                            for k, c in b.code_corners_px.items()},
+                        "dot_centers_px": b.dot_centers_px.tolist()} for b in fr.bricks]}
+
+
+def _array(v: object, shape: tuple[int, ...]) -> np.ndarray:
+    a = np.asarray(v, np.float64).reshape(shape)
+    if not np.all(np.isfinite(a)):
+        raise ValueError("a number that is not finite")
+    return a
+
+
+def _frame_of(image: np.ndarray, truth: Any, size: tuple[int, int]) -> Frame:
+    """A cached frame from its picture and truth (:func:`_truth_json`).
+
+    Raises:
+        ValueError, KeyError, TypeError: not an entry of this version (ValueError: why).
+    """
+    if not isinstance(truth, dict) or truth.get("schema") != CACHE_SCHEMA:
+        raise ValueError(f"not a {CACHE_SCHEMA} entry")
+    if image.shape != (size[1], size[0], 3):
+        raise ValueError(f"its picture is not {size[0]}x{size[1]}")
+    bricks = [BrickTruth(layout=str(b["layout"]),
+                         instance=None if b["instance"] is None else int(b["instance"]),
+                         camera_from_brick=_array(b["camera_from_brick"], (4, 4)),
+                         code_ids=[int(i) for i in b["code_ids"]],
+                         code_corners_px={int(k): _array(c, (4, 2))
+                                          for k, c in b["code_corners_px"].items()},
+                         dot_centers_px=_array(b["dot_centers_px"], (-1, 2)))
+              for b in truth["bricks"]]
+    return Frame(image, bricks, _array(truth["gravity"], (3,)),
+                 {int(k): float(v) for k, v in truth["visible"].items()}, float(truth["blur"]))
+
+
+def _cached(stem: Path, size: tuple[int, int], stale: list[str]) -> Frame | None:
+    """The frame of cache entry ``stem`` (``stem.png`` + ``stem.json``), or None: not there, or
+    stale (an older version's pickle, which is never read; an entry the readers or
+    :func:`_frame_of` refuse), said in ``stale``."""
+    png, js, pkl = (Path(f"{stem}{ext}") for ext in (".png", ".json", ".pkl"))
+    try:
+        got = read_entry(png, js)
+    except ValueError as e:
+        stale.append(str(e))
+        return None
+    if got is None:
+        if pkl.exists():
+            stale.append(f"{pkl}: a cache entry of an older version (a pickle: never read, "
+                         "loading one can run code)")
+        return None
+    try:
+        return _frame_of(*got, size)
+    except ValueError as e:
+        stale.append(f"{js}: {e}")
+    except (KeyError, TypeError, AttributeError):   # a field missing or of another kind
+        stale.append(f"{js}: not a {CACHE_SCHEMA} entry")
+    return None
+
+
 def _frames(kind: str, n_bricks: int, count: int, seed0: int,
-            layouts: list[MarkerLayout], ss: int, cache: Path | None) -> Iterator[Frame]:
+            layouts: list[MarkerLayout], ss: int, cache: Path | None,
+            stale: list[str] | None = None) -> Iterator[Frame]:
+    """The frames of one scene kind, from ``cache`` where it holds them; a stale entry is
+    rendered again and replaced (the first said in one line on stderr, all counted in
+    ``stale``)."""
+    stale = [] if stale is None else stale
     spec = SceneSpec(layouts=layouts, n_bricks=n_bricks, props=4 if n_bricks == 0 else 0)
     names = "+".join(lay.name for lay in layouts)
+    cam = Camera.drone_webcam()   # random_scene's camera
     for i in range(count):
         seed = seed0 + 100_000 * (n_bricks + 1) + i
-        path = None
+        stem = None
         if cache is not None:
-            path = cache / f"{kind}-{names}-b{n_bricks}-s{seed}-ss{ss}.pkl"
-            if path.exists():
-                try:
-                    with open(path, "rb") as fh:
-                        yield pickle.load(fh)
-                    continue
-                except Exception:  # noqa: BLE001,S110 - unpickling a stale or cut file can
-                    pass           # raise almost anything (a renamed class: ImportError): render again
+            stem = cache / f"{kind}-{names}-b{n_bricks}-s{seed}-ss{ss}"
+            said = len(stale)
+            fr = _cached(stem, (cam.width, cam.height), stale)
+            if fr is not None:
+                yield fr
+                continue
+            if said == 0 and stale:
+                print(f"bench aruco --cache: {stale[0]}; rendering the frame again (and any "
+                      "other stale entry)", file=sys.stderr)
         scene, fx = random_scene(seed, spec)
         r = render(scene, fx, ss=ss)
         fr = Frame(r.image, r.bricks, gravity_in_camera(r.camera_from_world),
                    _visibility(scene), float(fx.blur_sigma_px))
-        if path is not None:
-            # beside and renamed: a run killed mid-write leaves no half pickle behind
-            atomic_write_bytes(path, pickle.dumps(fr), make_parents=True)
+        if stem is not None:
+            write_entry(Path(f"{stem}.png"), Path(f"{stem}.json"), fr.image, _truth_json(fr))
         yield fr
 
 
@@ -433,9 +508,11 @@ def _run(bench: _Bench, args: argparse.Namespace, corner_acc: dict[str, list[flo
     plan = [("bricks", n, args.frames) for n in bench.counts] + (
         [("empty", 0, args.empty)] if args.empty > 0 else [])
     t_start = time.perf_counter()
+    stale: list[str] = []   # the cache's stale entries, the first said once
     for kind, n_b, count in plan:
         st_g, st_n, st_p = Stats(), Stats(), Stats()
-        for fr in _frames(kind, n_b, count, args.seed, bench.coded, args.ss, args.cache):
+        for fr in _frames(kind, n_b, count, args.seed, bench.coded, args.ss, args.cache,
+                          stale):
             _measure(bench, fr, (st_g, st_n, st_p), corner_acc)
         rows[(kind, n_b)] = (st_g, st_n, st_p)
         print(f"  ... {kind} {n_b}: {count} frames done ({time.perf_counter() - t_start:.0f} s)",

@@ -321,6 +321,8 @@ def _detect(item, res, streams: _Streams, gravity: GravityTable | None,
     stream = item.is_video or item.source != item.file   # a video or a folder
     try:
         dets = streams.detectors(item.source, stream, (img.shape[1], img.shape[0]))
+    except InputError:   # a layout's mesh that cannot be read: the run's input, not the frame's
+        raise
     except ValueError as e:
         res.error = str(e)
         dets = []

@@ -56,7 +56,11 @@ from drovisio.layout.markers import UP_MIN_ANGLE_DEG, ArucoMarker, DotMarker, Ma
 from drovisio.layout.model import SCHEMA_ID, UNITS_TO_M, MarkerLayout, layout_json_schema
 from drovisio.layout.palette import DEFAULT_PALETTE, ColorSpec
 from drovisio.layout.sets import check_id_clashes, check_layout_set, load_layouts
-from drovisio.layout.shipped import list_shipped_layouts, shipped_layouts_dir
+from drovisio.layout.shipped import (
+    list_shipped_layouts,
+    shipped_layout_file,
+    shipped_layouts_dir,
+)
 from drovisio.layout.square import (
     SQUARE_ANGLE_TOL_DEG,
     SQUARE_PLANAR_REL_TOL,
@@ -97,4 +101,5 @@ __all__ = [
     "layout_json_schema",
     "shipped_layouts_dir",
     "list_shipped_layouts",
+    "shipped_layout_file",
 ]

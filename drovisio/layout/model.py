@@ -7,9 +7,10 @@ the layout defines.
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from pydantic import (
@@ -161,7 +162,12 @@ class MarkerLayout(BaseModel):
     def dimensions_m(self) -> np.ndarray:
         """Bounding box size [x, y, z] in metres, (3,) float64: ``dimensions`` when the file
         gives them, else the bounding box of the markers and of the mesh (each side at
-        least 1 mm: a flat tag still has a thickness to draw)."""
+        least 1 mm: a flat tag still has a thickness to draw).
+
+        Raises:
+            InputError: the mesh cannot be read
+                (:func:`drovisio.mesh_file.load_layout_mesh`).
+        """
         if self.dimensions is not None:
             return np.array(self.dimensions, np.float64) * self.scale_to_m
         lo, hi = self._markers_bounds_m()
@@ -185,10 +191,15 @@ class MarkerLayout(BaseModel):
         return np.min(lo, axis=0), np.max(hi, axis=0)
 
     def _mesh_bounds_m(self) -> tuple[np.ndarray, np.ndarray] | None:
-        path = self.mesh_path()
-        if path is None or not path.is_file():
+        if self.mesh is None:
             return None
-        return _mesh_bounds(str(path), path.stat().st_mtime_ns, self.scale_to_m)
+        try:   # the file's identity keys the cache: an edited mesh is read again
+            st = os.stat(self.mesh_path())   # type: ignore[arg-type]
+            stamp: tuple[int, ...] | None = (st.st_dev, st.st_ino, st.st_mtime_ns, st.st_size)
+        except (OSError, RuntimeError, ValueError):   # nothing there: the reader says why
+            stamp = None
+        return _mesh_bounds(_MeshName(self.name, self.mesh, self._source, self.scale_to_m),
+                            stamp)
 
     @property
     def source(self) -> Path | None:
@@ -353,17 +364,28 @@ class MarkerLayout(BaseModel):
         return layout_json_text(self.to_dict())
 
 
-@lru_cache(maxsize=32)
-def _mesh_bounds(path: str, _mtime_ns: int, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Bounds of a mesh file in metres (None when it cannot be read: the markers decide)."""
-    try:
-        import trimesh  # deferred: heavy, and only layouts without dimensions need it
+class _MeshName(NamedTuple):
+    """What names a layout's mesh (hashable, unlike the layout): a cache key and what
+    :func:`drovisio.mesh_file.load_layout_mesh` reads."""
 
-        mesh = trimesh.load(path, force="mesh")
-        b = np.asarray(mesh.bounds, np.float64) * scale
-    except Exception:  # noqa: BLE001 - a broken mesh is reported where it is drawn
-        return None
-    return (b[0], b[1]) if b.shape == (2, 3) and np.all(np.isfinite(b)) else None
+    name: str
+    mesh: str | None
+    source: Path | None
+    scale_to_m: float
+
+
+@lru_cache(maxsize=32)
+def _mesh_bounds(named: _MeshName, _stamp: tuple[int, ...] | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of a layout's mesh in metres, read by the one reader of a layout's mesh (its
+    refusal is the layout's: one line naming the file and the field)."""
+    # deferred: trimesh is heavy, and only layouts without dimensions need it
+    from drovisio.mesh_file import load_layout_mesh
+
+    mesh = load_layout_mesh(named)
+    assert mesh is not None      # the layout names a mesh
+    b = np.asarray(mesh.bounds, np.float64)
+    return b[0], b[1]
 
 
 def layout_json_schema() -> dict[str, Any]:

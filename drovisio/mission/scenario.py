@@ -43,7 +43,7 @@ from pydantic import PrivateAttr, ValidationError
 from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.errors import InputError, one_line
-from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layouts_dir
+from drovisio.layout import LayoutError, check_layout_set, load_layout, shipped_layout_file
 from drovisio.mission.frames import wrap_half
 from drovisio.mission.scenario_model import (
     MAX_FILE_BYTES,
@@ -156,9 +156,10 @@ def _load_layouts(names: list[str], base: Path | None, src: str) -> dict[str, An
         if n.endswith(".json"):
             p = _in_scenario(n, base)
         else:
-            p = shipped_layouts_dir() / f"{n}.json"
-            if Path(n).name != n or not p.exists():   # a name, never a way out of the folder
-                problems.append(f"{src}: layouts[{i}]: no shipped layout called {n!r}")
+            try:   # a name, never a way out of the folder
+                p = shipped_layout_file(n)
+            except InputError as e:
+                problems.append(f"{src}: layouts[{i}]: {e}")
                 continue
         try:
             lay = load_layout(p)

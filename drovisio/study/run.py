@@ -25,7 +25,7 @@ from drovisio.camera import Camera
 from drovisio.camera_file import load_camera
 from drovisio.errors import InputError
 from drovisio.geometry import rotation_about
-from drovisio.layout import LayoutError, load_layout, shipped_layouts_dir, with_dictionary
+from drovisio.layout import LayoutError, load_layout, shipped_layout_file, with_dictionary
 from drovisio.mount import Mount
 from drovisio.scenes import SceneSpec, random_scene
 from drovisio.study.analysis import frame_errors
@@ -59,8 +59,10 @@ def resolve_layouts(protocol: Protocol, base: Path) -> dict:
     override applied)."""
     out = {}
     for ref in protocol.layouts:
-        shipped = shipped_layouts_dir() / f"{ref.layout}.json"
-        path = shipped if shipped.is_file() else base / ref.layout   # (absolute stays so)
+        try:
+            path = shipped_layout_file(ref.layout)
+        except InputError:   # not a shipped name: a path (relative to the protocol)
+            path = base / ref.layout   # (absolute stays so)
         try:
             lay = load_layout(path)
             out[ref.name] = with_dictionary(lay, ref.dictionary) if ref.dictionary else lay

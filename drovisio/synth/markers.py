@@ -62,17 +62,19 @@ def draw_mesh(canvas: Canvas, mesh: Any, camera_from_object: np.ndarray,
 
 
 def brick_mesh_for(layout: MarkerLayout) -> Any:
-    """The mesh a layout's brick is drawn with: its ``mesh`` file if it has one, else a box
-    of its ``dimensions`` whose top face is z = 0 (metres)."""
+    """The mesh a layout's brick is drawn with: the mesh it names, else (it names none) a box
+    of its ``dimensions`` whose top face is z = 0 (metres).
+
+    Raises:
+        InputError: the mesh it names cannot be read
+            (:func:`drovisio.mesh_file.load_layout_mesh`).
+    """
     import trimesh  # heavy, and only needed once a brick is drawn
 
-    mesh_path = getattr(layout, "mesh_path", None)
-    path = mesh_path() if callable(mesh_path) else None
-    scale = float(getattr(layout, "scale_to_m", 1.0))
-    if path is not None and path.exists():
-        mesh = trimesh.load(path, force="mesh")
-        mesh = mesh.copy()
-        mesh.apply_scale(scale)
+    from drovisio.mesh_file import load_layout_mesh
+
+    mesh = load_layout_mesh(layout)
+    if mesh is not None:
         return mesh
     dims = np.asarray(layout.dimensions_m, float)
     box = trimesh.creation.box(extents=dims)

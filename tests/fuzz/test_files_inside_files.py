@@ -298,7 +298,7 @@ def test_a_calibration_session_folder_with_hostile_images_opens(tmp_path, ledger
                                   "meshes/missing.stl", "meshes/../../outside.stl"])
 def test_a_layouts_mesh_is_read_only_inside_the_layouts_folder(tmp_path, ledger, mesh):
     from drovisio.layout import load_layout
-    from drovisio.meshes import load_layout_mesh
+    from drovisio.mesh_file import load_layout_mesh
     from drovisio.resources import layouts_dir
 
     d = tmp_path / "lib" / "layouts"

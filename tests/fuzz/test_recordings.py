@@ -193,27 +193,102 @@ def test_a_bench_cache_picture_is_read_within_the_image_bounds(tmp_path, monkeyp
     assert src._cached("k", 1, "t")[0] is None
 
 
-def test_a_stale_bench_aruco_cache_file_is_rendered_again_and_replaced_whole(tmp_path,
-                                                                            ledger):
-    """bench aruco's cache: a pickle of a class that no longer exists (or a cut file) is a
-    miss; the fresh frame is written beside and renamed (no half pickle is ever left)."""
-    import pickle
-
+def _aruco_frames(tmp_path, capsys):
+    """bench aruco's one frame of one brick, from its cache in ``tmp_path``: (frame, files
+    of the entry, what was said on stderr)."""
     from drovisio.bench.aruco import _frames
     from drovisio.layout import load_layout
     from drovisio.resources import layouts_dir
 
-    ledger.tried_one("writers: bench cache")
     lay = load_layout(layouts_dir() / "drick-aruco-centre.json")
-    seed = 0 + 100_000 * 2 + 0
-    path = tmp_path / f"t-{lay.name}-b1-s{seed}-ss1.pkl"
-    from collections import OrderedDict
-
-    # a pickle of a class whose module is gone (same length: the opcodes stay valid)
-    path.write_bytes(pickle.dumps(OrderedDict()).replace(b"collections", b"no_such_mod"))
-    with pytest.raises(ImportError):
-        pickle.loads(path.read_bytes())
     fr = next(_frames("t", 1, 1, 0, [lay], 1, tmp_path))
-    again = pickle.loads(path.read_bytes())
-    assert np.array_equal(again.image, fr.image) and again.image.ndim == 3
-    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary left beside
+    stem = tmp_path / f"t-{lay.name}-b1-s{100_000 * 2}-ss1"
+    return fr, (Path(f"{stem}.png"), Path(f"{stem}.json"), Path(f"{stem}.pkl")), \
+        capsys.readouterr().err
+
+
+def test_a_bench_aruco_cache_entry_reads_back_the_frame_it_wrote(tmp_path, capsys, ledger):
+    """bench aruco's cache: a picture (PNG) and its truth (JSON) that read back exactly."""
+    ledger.tried_one("writers: bench cache")
+    fr, (png, js, _), err = _aruco_frames(tmp_path, capsys)
+    assert err == "" and sorted(p.name for p in tmp_path.iterdir()) == [js.name, png.name]
+    before = {p: p.read_bytes() for p in (png, js)}
+    again, _, err = _aruco_frames(tmp_path, capsys)
+    assert err == "" and {p: p.read_bytes() for p in (png, js)} == before   # read, not made
+    assert np.array_equal(again.image, fr.image) and again.image.dtype == np.uint8
+    assert np.array_equal(again.gravity, fr.gravity) and again.blur == fr.blur
+    assert again.visible == fr.visible and len(again.bricks) == len(fr.bricks) == 1
+    a, b = again.bricks[0], fr.bricks[0]
+    assert (a.layout, a.instance, a.code_ids) == (b.layout, b.instance, b.code_ids)
+    assert np.array_equal(a.camera_from_brick, b.camera_from_brick)
+    assert np.array_equal(a.dot_centers_px, b.dot_centers_px) and a.dot_centers_px.shape[1] == 2
+    assert a.code_corners_px.keys() == b.code_corners_px.keys()
+    assert all(np.array_equal(a.code_corners_px[k], b.code_corners_px[k])
+               for k in a.code_corners_px)
+
+
+class _Planted:
+    """A pickle that writes a file when loaded (what anyone who can write to the cache
+    folder could plant in the old format)."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (str(self.path), "w"))
+
+
+def test_an_old_pickle_in_the_bench_aruco_cache_is_never_loaded(tmp_path, capsys, ledger):
+    import pickle
+
+    ledger.tried_one("writers: bench cache")
+    _, (png, js, pkl), _ = _aruco_frames(tmp_path / "ref", capsys)   # the entry's name
+    pkl = tmp_path / pkl.name
+    planted = tmp_path / "ran"
+    pkl.write_bytes(pickle.dumps(_Planted(planted)))
+    fr, (png, js, _), err = _aruco_frames(tmp_path, capsys)
+    assert err == (f"bench aruco --cache: {pkl}: a cache entry of an older version (a pickle: "
+                   "never read, loading one can run code); rendering the frame again (and "
+                   "any other stale entry)\n")
+    assert not planted.exists() and png.is_file() and js.is_file()
+    assert pickle.dumps(_Planted(planted)) == pkl.read_bytes()      # left as it was
+
+
+@pytest.mark.parametrize("case", ["schema", "truth", "nan", "picture", "size", "huge"])
+def test_an_unknown_bench_aruco_cache_entry_is_stale_and_rendered_again(tmp_path, capsys,
+                                                                        case, ledger):
+    import cv2
+
+    from drovisio.bench.aruco import CACHE_SCHEMA
+
+    ledger.tried_one("writers: bench cache")
+    fr, (png, js, _), _ = _aruco_frames(tmp_path, capsys)
+    truth = json.loads(js.read_text())
+    why = {"schema": f"{js}: not a {CACHE_SCHEMA} entry",
+           "truth": f"{js}: not a {CACHE_SCHEMA} entry",
+           "nan": f"{js}: a number that is not finite",
+           "picture": f"{png}: cannot be read as an image (corrupt, truncated or not an image)",
+           "size": f"{js}: its picture is not 640x480",
+           "huge": f"{js}: the bench cache entry is larger than 16384 KiB; is it the right "
+                   "file?"}[case]
+    if case == "schema":
+        truth["schema"] = "drovisio/bench-aruco-frame@0"
+    elif case == "truth":
+        del truth["bricks"][0]["code_ids"]
+    elif case == "nan":
+        truth["gravity"] = "G"
+    elif case == "picture":
+        png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 64)
+    elif case == "size":
+        cv2.imwrite(str(png), fr.image[:240, :320])
+    if case == "huge":
+        with open(js, "wb") as f:
+            f.truncate(2**34)    # sparse: 16 GiB, refused from its size
+    elif case not in ("picture", "size"):
+        js.write_text(json.dumps(truth).replace('"G"', "[0, 0, 1e999]"))   # 1e999: inf
+    again, _, err = _aruco_frames(tmp_path, capsys)
+    assert err == (f"bench aruco --cache: {why}; rendering the frame again (and any other "
+                   "stale entry)\n"), err
+    assert np.array_equal(again.image, fr.image)                   # rendered again ...
+    assert json.loads(js.read_text())["schema"] == CACHE_SCHEMA    # ... and replaced whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([png.name, js.name])

@@ -119,3 +119,48 @@ def test_events_read_in_words_and_odd_fields_do_not_break_them():
         "brick b1 seen (3 frames)"
     assert _describe({"t": 1.0, "kind": "gust", "speed": 4}) == "gust: speed=4"
     assert _describe({"kind": ["x"]}) == "['x']"
+
+
+@pytest.mark.parametrize("name", ["../../../../../../../tmp/evil", "/etc/passwd", ".hidden",
+                                  "drick-aruco-centre/..", "a\x00b", "nope", 12, None])
+def test_a_layout_name_in_a_recording_is_a_shipped_name_or_a_box(recordings, tmp_path, name):
+    import json
+    import shutil
+
+    from drovisio.layout import list_shipped_layouts
+
+    rec = tmp_path / "replays" / "odd"
+    shutil.copytree(recordings / "one-brick", rec)
+    manifest = json.loads((rec / "manifest.json").read_text())
+    manifest["bricks"][0]["layout"] = name
+    (rec / "manifest.json").write_text(json.dumps(manifest))
+    before = {p.name: p.read_bytes() for p in rec.iterdir()}
+    with TestClient(create_app(Settings(replay_dir=rec.parent)), base_url=LOCAL) as c:
+        r = c.post("/api/replay/load", json={"name": "odd"})
+        assert r.status_code == 200, r.text
+        assert c.get("/api/replay/state").json()["note"] == (
+            f"{rec / 'manifest.json'}: bricks[0].layout: no shipped layout called {name!r}; "
+            f"give one of {', '.join(p.stem for p in list_shipped_layouts())}; the 3D view "
+            "draws these bricks as boxes")
+    assert {p.name: p.read_bytes() for p in rec.iterdir()} == before
+
+
+def test_the_replay_scene_reads_no_layout_a_name_climbs_to(tmp_path):
+    import os
+
+    from drovisio.layout import shipped_layouts_dir
+    from webtool.replay.scene import ReplayScene
+
+    # a layout (and its mesh) outside the shipped folder, named by climbing out of it
+    shipped = shipped_layouts_dir()
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "drick.stl").write_bytes((shipped / "meshes/drick.stl").read_bytes())
+    (tmp_path / "evil.json").write_text((shipped / "drick-aruco-centre.json").read_text())
+    climb = os.path.relpath(tmp_path / "evil", shipped_layouts_dir())
+    scene = ReplayScene()
+    assert scene._mesh(climb) is None
+    assert scene._mesh("drick-aruco-centre") is not None     # a shipped name: its mesh
+
+
+def test_a_recording_of_shipped_layouts_has_no_note(client):
+    assert client.post("/api/replay/load", json={"name": "one-brick"}).json()["note"] is None

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from drovisio.geometry import quat_wxyz
-from drovisio.meshes import load_layout_mesh
+from drovisio.mesh_file import load_layout_mesh
 from drovisio.mount import Mount, down_camera_mount
 from webtool.viewer.scene import ViserScene
 

@@ -14,9 +14,8 @@ import math
 import numpy as np
 
 from drovisio.geometry import quat_wxyz, yaw_quat_wxyz
-from drovisio.layout import load_layout
-from drovisio.meshes import load_layout_mesh
-from drovisio.resources import layouts_dir
+from drovisio.layout import load_layout, shipped_layout_file
+from drovisio.mesh_file import load_layout_mesh
 from webtool.viewer.scene import ViserScene
 
 __all__ = ["ReplayScene"]
@@ -43,15 +42,14 @@ class ReplayScene(ViserScene):
         self.updates = 0
 
     def _mesh(self, layout: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """The mesh of a shipped layout the recording names; None (a box) for any other name
+        (the replay state says why: :func:`webtool.replay.service.layouts_note`)."""
         if layout not in self._meshes:
             mesh = None
             try:
-                f = layouts_dir() / f"{layout}.json"
-                if f.is_file():
-                    m = load_layout_mesh(load_layout(f))
-                    if m is not None:
-                        mesh = (np.asarray(m.vertices, np.float32),
-                                np.asarray(m.faces, np.int32))
+                m = load_layout_mesh(load_layout(shipped_layout_file(layout)))
+                if m is not None:
+                    mesh = (np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))
             except Exception:  # noqa: BLE001 - fall back to a box
                 mesh = None
             self._meshes[layout] = mesh

@@ -17,13 +17,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from drovisio.errors import one_line
+from drovisio.errors import InputError, one_line
+from drovisio.layout import shipped_layout_file
 from drovisio.mission.record import load_manifest, load_recording
 from drovisio.textfile import path_text_problem
 from webtool.errors import BadInput, Conflict, Forbidden, NotFound
 from webtool.replay.scene import ReplayScene
 
-__all__ = ["Playback", "ReplayService"]
+__all__ = ["Playback", "ReplayService", "layouts_note"]
 
 log = logging.getLogger(__name__)
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
@@ -64,6 +65,30 @@ def _describe(e: dict) -> str:
     return f"{k}" + (f": {rest}" if rest else "")
 
 
+def layouts_note(manifest: dict, where: str) -> str | None:
+    """Why bricks of a recording are drawn as boxes, in one line naming the manifest
+    (``where``) and the field: the 3D view reads only shipped layouts (a recording is outside
+    input: its layout names never reach a path); None when every brick's layout is one."""
+    bricks = manifest.get("bricks")
+    first: str | None = None
+    seen, bad = set(), 0
+    for i, b in enumerate(bricks if isinstance(bricks, list) else []):
+        name = b.get("layout") if isinstance(b, dict) else None
+        key = name if isinstance(name, str) else type(name).__name__
+        if key in seen:
+            continue
+        seen.add(key)
+        try:
+            shipped_layout_file(name)
+        except InputError as e:
+            bad += 1
+            first = first or f"{where}: bricks[{i}].layout: {e}"
+    if first is None:
+        return None
+    more = f"; {bad - 1} more such name(s)" if bad > 1 else ""
+    return f"{first}; the 3D view draws these bricks as boxes{more}"
+
+
 # ------------------------------------------------------------------------------------------
 # Playback
 # ------------------------------------------------------------------------------------------
@@ -83,6 +108,7 @@ class Playback:
         self.t = self.times[0]
         self.playing = False
         self.speed = 1.0
+        self.note = layouts_note(manifest, str(path / "manifest.json"))
 
     def index(self, t: float | None = None) -> int:
         t = self.t if t is None else t
@@ -251,6 +277,7 @@ class ReplayService:
                                 for e in ev[-8:]],
                 "placed": pb.placed(), "bricks_total": _count(pb.manifest.get("bricks")),
                 "scene_updates": self.scene.updates if self.scene is not None else 0,
+                "note": pb.note,
             }
 
     # --------------------------------------------------------------- scene + thread

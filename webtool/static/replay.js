@@ -27,6 +27,7 @@
     $("replay-state").textContent = st.state;
     $("replay-placed").textContent = st.placed.length + " of " + st.bricks_total;
     $("replay-holding").textContent = st.holding ? "(carrying " + st.holding + ")" : "";
+    $("replay-scene-note").textContent = st.note || "";
     $("replay-play").textContent = st.playing ? "Playing…" : "Play";
     $("replay-speed").value = String(st.speed);
     const ol = $("replay-events");

@@ -4,7 +4,6 @@ cached on disk (PNG + truth JSON), and the timing part's grid of bricks."""
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -12,10 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from drovisio.bench.cache import read_entry, write_entry
 from drovisio.camera import Camera
 from drovisio.detect.dots.model import DotModel, occluded_dots
-from drovisio.fileio import atomic_write_text, write_image
-from drovisio.images import read_image
 from drovisio.layout import load_layout, shipped_layouts_dir
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
 from drovisio.synth import (
@@ -29,7 +27,6 @@ from drovisio.synth import (
     rot_z,
     transform,
 )
-from drovisio.textfile import parse_json, read_text
 
 
 @dataclass
@@ -166,15 +163,14 @@ class FrameSource:
             return None, None, None
         stem = f"{key}-{seed}-{tag}"
         png, js = self.cache / f"{stem}.png", self.cache / f"{stem}.json"
-        if png.is_file() and js.is_file():
-            try:
-                # the cache folder is the user's: read with the image reader's bounds
-                img = read_image(png)[0]
-                meta = parse_json(read_text(js), str(js))
+        try:
+            got = read_entry(png, js)
+            if got is not None:
+                img, meta = got
                 return (Frame(image=img, gravity=np.array(meta["gravity"]),
                               bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
-            except (OSError, ValueError, KeyError, TypeError):
-                pass  # a broken or stale cache entry: render it again
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a broken or stale cache entry: render it again
         return None, png, js
 
     def get_scene(self, key: str, seed: int, build) -> Frame:
@@ -197,13 +193,8 @@ class FrameSource:
         frame = Frame(image=res.image, gravity=gravity_in_camera(res.camera_from_world),
                       bricks=_visibility(scene, res, self.camera))
         if png is not None:
-
-            # each file written beside and renamed; the picture last, as the entry's mark of
-            # completeness (an entry is read only when both are there)
-            atomic_write_text(js, json.dumps({"gravity": frame.gravity.tolist(),
-                                              "bricks": [asdict(b) for b in frame.bricks]}),
-                              make_parents=True)
-            write_image(png, frame.image)
+            write_entry(png, js, frame.image, {"gravity": frame.gravity.tolist(),
+                                               "bricks": [asdict(b) for b in frame.bricks]})
         return frame
 
 

@@ -22,7 +22,7 @@ from drovisio.designer.model.meshfile import UNITS, guess_units, read_mesh, unit
 from drovisio.designer.raycast import FlatFaces, cast_ray
 from drovisio.geometry import invert
 from drovisio.layout import DEFAULT_PALETTE, UNITS_TO_M, ColorSpec, MarkerLayout, aruco_family
-from drovisio.meshes import load_layout_mesh
+from drovisio.mesh_file import load_layout_mesh
 
 __all__ = ["DesignState"]
 

@@ -10,7 +10,6 @@ mesh triangles that can hide a dot (a drick's pyramids). Poses are ``camera_from
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -252,21 +251,18 @@ class DotModel:
 
 
 def _occluders(layout: MarkerLayout, X: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Triangles of the layout's mesh above the dots' plane (brick frame, metres)."""
-    try:
-        path = layout.mesh_path()
-    except Exception:  # noqa: BLE001 - a layout without a usable mesh has no occluders
-        path = None
-    if path is None or not path.exists():
-        return np.zeros((0, 3, 3))
-    try:
-        import trimesh  # heavy: loaded only for a layout with a mesh
+    """Triangles of the layout's mesh above the dots' plane (brick frame, metres).
 
-        mesh: Any = trimesh.load(path, force="mesh")
-        V = np.asarray(mesh.vertices, np.float64) * float(layout.scale_to_m)
-        F = np.asarray(mesh.faces, np.int64)
-    except Exception:  # noqa: BLE001 - unreadable mesh: no occlusion model
+    Raises:
+        InputError: the mesh cannot be read (:func:`drovisio.mesh_file.load_layout_mesh`).
+    """
+    from drovisio.mesh_file import load_layout_mesh  # heavy (trimesh): a layout with a mesh
+
+    mesh = load_layout_mesh(layout)
+    if mesh is None:
         return np.zeros((0, 3, 3))
+    V = np.asarray(mesh.vertices, np.float64)
+    F = np.asarray(mesh.faces, np.int64)
     tris = V[F]
     height = (tris - X.mean(axis=0)) @ n
     return tris[height.max(axis=1) > 1e-3].copy()
