@@ -90,10 +90,7 @@ class RosMessages:
         self.sizes: Mapping[str, np.ndarray] = {}
         sizes = {}
         for lay in layouts:
-            try:
-                sizes[lay.name] = np.asarray(lay.dimensions_m(), np.float64)
-            except Exception:  # noqa: BLE001 - a box of zero size says "unknown"
-                sizes[lay.name] = np.zeros(3)
+            sizes[lay.name] = np.asarray(lay.dimensions_m, np.float64)
         self.sizes = sizes
         self.namespace = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.body_frame = frame_prefix + BODY_FRAME

@@ -139,3 +139,14 @@ def test_uncertainty_in_words():
     C = np.diag([0.03 ** 2] * 3 + [math.radians(2.5) ** 2] * 3)
     assert uncertainty_words(C) == "± 30 mm, ± 2.5°"
     assert uncertainty_words(None) == ""
+
+
+def test_the_brick_boxes_are_sized_by_their_layouts():
+    """Each layout's box is its ``dimensions`` in metres (it was 0 × 0 × 0 for every one)."""
+    from drovisio.layout import load_layout
+    from drovisio.resources import layouts_dir
+
+    lay = load_layout(layouts_dir() / "drick-aruco-centre.json")
+    msgs = RosMessages(layouts=[lay])
+    np.testing.assert_allclose(msgs.sizes[lay.name], lay.dimensions_m)
+    assert (msgs.sizes[lay.name] > 0.05).all()
