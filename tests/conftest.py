@@ -94,7 +94,7 @@ def browser(chromium_path: Path):
 def page(browser):
     context = browser.new_context()
     pg = context.new_page()
-    pg.set_default_timeout(15_000)
+    pg.set_default_timeout(60_000)   # waits on state: a bound for failures only
     try:
         yield pg
     finally:
