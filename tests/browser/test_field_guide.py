@@ -230,7 +230,7 @@ def test_the_fleet_page_of_a_station(browser, live_server_factory, tmp_path, siz
         _shot(page, f"fleet-{size}", tmp_path / "shots")
     finally:
         stop.set()
-        feeder.join(2)
+        feeder.join(60)
         for sink in sinks:
             sink.close()
         context.close()

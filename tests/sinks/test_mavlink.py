@@ -74,7 +74,7 @@ class Listener:
 
     def close(self):
         self.stop.set()
-        self.th.join(2)
+        self.th.join(60)
         self.conn.close()
 
 

@@ -62,7 +62,7 @@ def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones
         # kill -9: the page says lost (why — the session's end — is checked without a browser
         # in test_two_drones)
         os.kill(one.pid, signal.SIGKILL)
-        one.wait(10)
+        one.wait(60)
         page.wait_for_function(
             """() => { const r = document.querySelector('tr[data-drone="drone1"]');
                        return r && r.className === "lost"; }""", timeout=60_000)
@@ -77,5 +77,5 @@ def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones
         for p in procs:
             if p.poll() is None:
                 p.kill()
-                p.wait(10)
+                p.wait(60)
         log.close()
