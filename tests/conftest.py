@@ -94,7 +94,7 @@ def browser(chromium_path: Path):
 def page(browser):
     context = browser.new_context()
     pg = context.new_page()
-    pg.set_default_timeout(15_000)
+    pg.set_default_timeout(60_000)   # waits on state: a bound for failures only
     try:
         yield pg
     finally:
@@ -122,7 +122,7 @@ class _ServerThread:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start(self, timeout: float = 20.0) -> str:
+    def start(self, timeout: float = 120.0) -> str:   # a bound for failures only
         self.thread.start()
         deadline = time.monotonic() + timeout
         while not self.server.started:
@@ -135,7 +135,7 @@ class _ServerThread:
 
     def stop(self) -> None:
         self.server.should_exit = True
-        self.thread.join(timeout=10)
+        self.thread.join(timeout=60)
         self.sock.close()
 
 

@@ -96,7 +96,7 @@ def test_serve_from_the_wheel_serves_every_page(installed):
                             stderr=subprocess.STDOUT, text=True)
     try:
         base = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 300     # bounds for failures only (a loaded machine)
         while True:
             try:
                 urllib.request.urlopen(base + "/api/health", timeout=2).read()
@@ -107,9 +107,9 @@ def test_serve_from_the_wheel_serves_every_page(installed):
                 time.sleep(0.5)
         for path in ("/", "/calibration", "/designer", "/live", "/static/live.js",
                      "/static/calibration.css", "/api/calibration/state", "/live/3d/"):
-            with urllib.request.urlopen(base + path, timeout=30) as r:
+            with urllib.request.urlopen(base + path, timeout=120) as r:
                 assert r.status == 200, path
                 assert len(r.read()) > 100, path
     finally:
         proc.terminate()
-        proc.wait(10)
+        proc.wait(60)

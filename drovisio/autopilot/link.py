@@ -227,6 +227,11 @@ class StreamKeeper:
             last = s.last()
             asked = s.first_request is not None and now - s.first_request >= self.missing_after
             if asked and (last is None or now - last > self.missing_after):
+                if s.mode == "requested":
+                    # still being asked (its ACK, a retry or the fallback is due): the note
+                    # waits for the answer, so that it is said once, naming the last way
+                    # tried, however late a busy machine polls
+                    return
                 missing.append(s)
         if not missing:
             self._say(None)

@@ -28,9 +28,17 @@ __all__ = ["COMMAND", "add_arguments", "measure_pipeline", "run"]
 # stay light.
 
 
+#: Seconds the pipeline may take to give its first frame before the measuring gives up.
+START_S = 60.0
+
+
 def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | None, float]:
-    """Run the pipeline (no sinks) for ``seconds``: (median capture-to-send latency in s,
-    target measurements per second)."""
+    """Run the pipeline (no sinks) for ``seconds`` from its first frame out: (median
+    capture-to-send latency in s, target measurements per second).
+
+    The start-up (opening the source, loading the detectors' kernels) is not what the
+    autopilot will see, and on a busy machine it could fill the whole window: the window opens
+    with the first frame, which may take up to :data:`START_S` seconds."""
     from drovisio.pipeline_config import PipelineConfig
     from drovisio.startup import build_pipeline
 
@@ -39,11 +47,16 @@ def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | 
     pipeline = build_pipeline(config, default_sinks=())
     measured: list[float] = []
     latency: list[float] = []
+    window = threading.Timer(seconds, pipeline.stop)
+    opened: list[float] = []      # when the window opened (monotonic)
 
     class _Probe:
         name = "probe"
 
         def send(self, out) -> None:
+            if not opened:
+                opened.append(time.monotonic())
+                window.start()
             t = out.target
             if t is not None and t.measured:
                 measured.append(out.t_mono)
@@ -56,20 +69,21 @@ def measure_pipeline(args: argparse.Namespace, seconds: float) -> tuple[float | 
             return {"sink": "probe", "errors": 0}
 
     pipeline.sinks.append(_Probe())
-    timer = threading.Timer(seconds, pipeline.stop)
+    start_up = threading.Timer(START_S + seconds, pipeline.stop)
     t0 = time.monotonic()
-    timer.start()
+    start_up.start()
     try:
         pipeline.run()
     finally:
-        timer.cancel()
+        window.cancel()
+        start_up.cancel()
         pipeline.close()
     lat = sorted(latency)[len(latency) // 2] if latency else None
-    # between the first and the last measurement: the start-up (camera opening, first
-    # frames) is not the rate the autopilot will see
+    # between the first and the last measurement: the first frames are not the rate the
+    # autopilot will see either
     if len(measured) >= 2 and measured[-1] > measured[0]:
         return lat, (len(measured) - 1) / (measured[-1] - measured[0])
-    return lat, len(measured) / max(time.monotonic() - t0, 1e-6)
+    return lat, len(measured) / max(time.monotonic() - (opened[0] if opened else t0), 1e-6)
 
 
 def _blind(args: argparse.Namespace) -> tuple[float | None, list[str]]:
@@ -163,7 +177,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "picture)")
     c.add_argument("--target", default="nearest", metavar="TARGET", help="as run --target")
     c.add_argument("--seconds", type=positive_float, default=5.0,
-                   help="how long to measure the pipeline (default 5)")
+                   help="how long to measure the pipeline, from its first frame (default 5)")
     c.add_argument("--latency-ms", type=nonnegative_float, metavar="MS",
                    help="capture-to-send latency measured elsewhere (instead of --source)")
 

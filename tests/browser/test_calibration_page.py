@@ -34,7 +34,7 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     outline0 = page.get_attribute("#hint-outline", "points")
 
     # auto-capture keeps views by itself; the heatmap and the hint follow
-    page.wait_for_function(f"{VIEWS} >= {N_VIEWS}", timeout=45_000)
+    page.wait_for_function(f"{VIEWS} >= {N_VIEWS}", timeout=120_000)
     page.wait_for_function("document.getElementById('live').naturalWidth > 0")
     assert page.inner_html("#heatmap") != heat0
     assert page.text_content("#next-action") != hint0
@@ -63,7 +63,7 @@ def test_whole_session_on_the_sample(page, live_server_factory, tmp_path):
     page.select_option("#lens", "auto")
     page.wait_for_function(
         "document.getElementById('lens-result').textContent.includes('held-out RMS')",
-        timeout=30000)
+        timeout=120_000)
     assert "kept plumb_bob" in page.text_content("#lens-result")
     assert page.locator("#params tbody tr").count() == 9
 

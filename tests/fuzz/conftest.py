@@ -79,10 +79,11 @@ class Hang(BaseException):
 
 @pytest.fixture
 def cli(ledger):
-    """``cli(*argv, cls="...", seconds=60) -> (status, stdout, stderr)``."""
+    """``cli(*argv, cls="...", seconds=180) -> (status, stdout, stderr)``: ``seconds`` bounds
+    a hang only (a loaded machine, or a first run compiling the kernels, is slow, not wrong)."""
     from drovisio.cli import main
 
-    def run(*argv, cls: str = "cli argv", seconds: int = 60) -> tuple[int, str, str]:
+    def run(*argv, cls: str = "cli argv", seconds: int = 180) -> tuple[int, str, str]:
         out, err = io.StringIO(), io.StringIO()
 
         def alarm(signum, frame):

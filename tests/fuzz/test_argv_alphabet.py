@@ -140,7 +140,7 @@ FULL = sorted(w for w in LEAVES if w not in STUBBED)
 def test_any_command_line_ends_in_one_line(cli, hostile_files, scratch, data):
     words, argv = data.draw(command_lines(FULL, hostile_files))
     rc, out, err = cli(*argv, *_stoppers(words, hostile_files), cls="cli argv: alphabet",
-                       seconds=90)
+                       seconds=180)
     assert rc in (0, 1, 2), (argv, rc, err[-400:])
     assert "Traceback" not in err and "internal error" not in err, (argv, err[-400:])
     if rc == 2:
@@ -162,7 +162,7 @@ def test_long_commands_refuse_or_reach_their_work(cli, hostile_files, scratch, m
 
     monkeypatch.setattr(cli_mod, "resolve", lambda _entry: stub)
     words, argv = data.draw(command_lines(sorted(STUBBED), hostile_files))
-    rc, out, err = cli(*argv, cls="cli argv: alphabet (parsed and guarded)", seconds=60)
+    rc, out, err = cli(*argv, cls="cli argv: alphabet (parsed and guarded)", seconds=180)
     assert "Traceback" not in err and "internal error" not in err, (argv, err[-400:])
     assert rc in (0, 2), (argv, rc, err[-400:])
     assert (rc == 0) == bool(reached), (argv, err[-300:])

@@ -92,7 +92,7 @@ def test_every_numeric_option_refuses_what_no_command_can_use(cli, hostile_files
     words, option = case
     tmp = tmp_path_factory.mktemp("argv")
     rc, out, err = cli(*argv_with(words, option, value, hostile_files, tmp),
-                       cls="cli argv: numbers", seconds=60)
+                       cls="cli argv: numbers", seconds=180)
     assert rc == 2, (words, option, value[:40], err[-400:])
     assert option in err or option.lstrip("-") in err, (words, option, err[-300:])
     assert "Traceback" not in err and "internal error" not in err
@@ -155,7 +155,7 @@ def test_every_file_option_refuses_what_is_not_its_file(cli, hostile_files, tmp_
         argv += [bad]
     elif words == "study run":
         argv += ["--out", str(tmp_path / "study"), "--quick"]
-    rc, out, err = cli(*argv, cls="cli argv: files", seconds=60)
+    rc, out, err = cli(*argv, cls="cli argv: files", seconds=180)
     assert "Traceback" not in err and "internal error" not in err, err[-400:]
     if option == "--source" and kind == "sparse":
         # a file named like an image is a one-frame source, checked as an image (never read

@@ -180,7 +180,7 @@ def test_a_render_too_large_for_memory_is_refused_before_it_starts(cli, tmp_path
                  "steps: [{figure: '6.7', layout: c, vary: distance, value: 1.0, frames: 1}]\n")
     ledger.tried_one("limits: render memory")
     rc, _, err = cli("study", "run", "--protocol", p, "--out", tmp_path / "o",
-                     "--memory-seconds", "0", cls="limits: files", seconds=60)
+                     "--memory-seconds", "0", cls="limits: files", seconds=180)
     assert rc == 2 and "20000x20000" in err and "GiB" in err, err
 
 

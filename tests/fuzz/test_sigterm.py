@@ -27,7 +27,9 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 CAMERA = REPO / "sample_sessions" / "camera.yaml"
 LAYOUT = REPO / "marker_layouts" / "drick-aruco-centre.json"
-BOUND_S = 30
+#: bounds for failures (a hang) only: a loaded machine is slow, not wrong
+BOUND_S = 60
+START_S = 300
 
 
 class _StallingStream:
@@ -99,17 +101,19 @@ def _start(argv: list[str]) -> subprocess.Popen:
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
-def test_run_on_a_stalled_endless_stream_ends_on_sigterm(stalling_stream, ledger):
+def test_run_on_a_stalled_endless_stream_ends_on_sigterm(stalling_stream, ledger, tmp_path):
     ledger.tried_one("signals: SIGTERM")
+    outputs = tmp_path / "out.jsonl"
     proc = _start(["run", "--source", stalling_stream.url, "--camera", str(CAMERA),
-                   "--layout", str(LAYOUT), "--sink", "jsonl:-"])
+                   "--layout", str(LAYOUT), "--sink", f"jsonl:{outputs}"])
     try:
-        # the frames it was sent come through; then the stream stalls
-        deadline = time.monotonic() + 60
-        while not stalling_stream.conns and time.monotonic() < deadline:
-            assert proc.poll() is None
+        # the frames it was sent come through (waited for: a first run compiles the
+        # detectors' kernels first); then the stream stalls
+        deadline = time.monotonic() + START_S
+        while not (outputs.is_file() and outputs.read_text().count("\n") >= 2):
+            assert proc.poll() is None, proc.stdout.read() if proc.stdout else ""
+            assert time.monotonic() < deadline, "run never processed the stream's frames"
             time.sleep(0.2)
-        assert stalling_stream.conns, "run never connected to the stream"
         time.sleep(3)  # past the read deadline: the reader is reconnecting or waiting
         assert proc.poll() is None, "run ended on its own on an endless source"
     except BaseException:
@@ -118,7 +122,8 @@ def test_run_on_a_stalled_endless_stream_ends_on_sigterm(stalling_stream, ledger
     rc, out = _terminate(proc)
     assert "Traceback" not in out and "internal error" not in out, out[-2000:]
     assert rc in (0, 1), out[-2000:]
-    assert '"file":' in out or '"bricks"' in out  # the two frames were processed
+    lines = outputs.read_text().splitlines()
+    assert len(lines) >= 2 and all('"bricks"' in x for x in lines)  # the frames sent
 
 
 def test_serve_ends_on_sigterm_with_a_viewer_on_a_stalled_stream(stalling_stream, ledger):
@@ -131,7 +136,7 @@ def test_serve_ends_on_sigterm_with_a_viewer_on_a_stalled_stream(stalling_stream
                    "--camera", str(CAMERA), "--layout", str(LAYOUT)])
     held: list = []
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + START_S
         while True:
             try:
                 urllib.request.urlopen(base + "/api/health", timeout=2).read()
@@ -141,13 +146,13 @@ def test_serve_ends_on_sigterm_with_a_viewer_on_a_stalled_stream(stalling_stream
                 assert time.monotonic() < deadline, "serve did not start"
                 time.sleep(0.5)
         # a live viewer: starts the pipeline on the stalling stream
-        ws = connect(f"ws://127.0.0.1:{port}/api/live/ws", origin=base, open_timeout=20)
+        ws = connect(f"ws://127.0.0.1:{port}/api/live/ws", origin=base, open_timeout=BOUND_S)
         held.append(ws)
         # a client that stalls in the middle of its request headers (slow loris)
         s = socket.create_connection(("127.0.0.1", port))
         s.sendall(b"GET /api/live/status HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
         held.append(s)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + START_S
         while not stalling_stream.conns and time.monotonic() < deadline:
             time.sleep(0.2)
         assert stalling_stream.conns, "the live pipeline never connected to the stream"
@@ -193,7 +198,7 @@ def test_serve_ends_on_sigterm_after_requests_on_fifos(tmp_path, ledger):
     base = f"http://127.0.0.1:{port}"
     proc = _start(["serve", "--port", str(port), "--replay-dir", str(root)])
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + START_S
         while True:
             try:
                 urllib.request.urlopen(base + "/api/health", timeout=2).read()

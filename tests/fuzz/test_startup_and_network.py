@@ -97,7 +97,7 @@ def test_a_fifo_sink_nobody_reads_is_refused_not_waited_for(cli, hostile_files, 
     fifo = tmp_path / "out.jsonl"
     os.mkfifo(fifo)
     argv = (_run if command == "run" else _serve)(hostile_files, "--sink", f"jsonl:{fifo}")
-    rc, _, err = cli(*argv, cls="start-up: run and serve", seconds=30)
+    rc, _, err = cli(*argv, cls="start-up: run and serve", seconds=180)
     assert rc == 2 and "--sink" in err, err[-300:]
 
 
@@ -107,7 +107,7 @@ def test_a_silent_mavlink_peer_is_reported_after_the_deadline(cli, hostile_files
     argv = (_run if command == "run" else _serve)(
         hostile_files, "--sink", f"mavlink:tcp:127.0.0.1:{silent_peer}")
     ledger.tried_one("network: connect deadline")
-    rc, _, err = cli(*argv, cls="start-up: run and serve", seconds=30)
+    rc, _, err = cli(*argv, cls="start-up: run and serve", seconds=180)
     assert rc == 2 and "no answer" in err and "0.5 s" in err, err[-300:]
 
 
@@ -118,7 +118,7 @@ def test_a_refused_mavlink_peer_is_reported_at_once(cli, hostile_files, ledger):
     s.close()                                   # nothing listens there now
     ledger.tried_one("network: connect deadline")
     rc, _, err = cli(*_run(hostile_files, "--sink", f"mavlink:tcp:127.0.0.1:{port}"),
-                     cls="start-up: run and serve", seconds=30)
+                     cls="start-up: run and serve", seconds=180)
     assert rc == 2 and "cannot connect" in err, err[-300:]
 
 
@@ -159,6 +159,6 @@ def test_serve_ends_with_one_line_when_its_lifespan_fails(monkeypatch, cli, host
     rc, out, err = cli("serve", "--port", port, "--source", hostile_files["video"],
                        "--camera", hostile_files["camera"], "--layout",
                        hostile_files["layout"], "--sink", "bogus",
-                       cls="start-up: run and serve", seconds=60)
+                       cls="start-up: run and serve", seconds=180)
     assert rc == 2 and "the pipeline could not start" in err and "unknown sink" in err, err
     assert "Traceback" not in err

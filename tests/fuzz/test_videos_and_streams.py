@@ -211,7 +211,7 @@ def test_a_silent_stream_is_reported_within_its_connect_deadline(ledger):
         t0 = time.monotonic()
         with pytest.raises(OSError) as e:
             r.open()
-        assert time.monotonic() - t0 < 30  # bounded: the deadline, not FFmpeg's default
+        assert time.monotonic() - t0 < 60  # bounded: the deadline, not FFmpeg's default
         msg = str(e.value)
         assert url in msg and "within 1 s" in msg and "\n" not in msg
     finally:
@@ -250,7 +250,7 @@ def test_a_stalled_stream_is_lost_after_its_read_deadline(ledger):
         with pytest.raises(OSError) as e:
             for _ in range(50):
                 frames.append(r.read())
-        assert time.monotonic() - t0 < 30
+        assert time.monotonic() - t0 < 60   # bounded (a bound for failures only)
         r.close()
         # the frames it sent arrive, with their pixels; then the stall is named in one line
         assert 1 <= len(frames) <= 3
@@ -298,7 +298,7 @@ def test_a_stream_url_that_can_never_connect_is_refused_at_start_up(cli, hostile
             str(f["layout"])]
     argv += (["--sink", "jsonl:-", "--quiet"] if command == "run"
              else ["--port", str(f["busy_port"])])
-    rc, out, err = cli(*argv, cls="network: stream URLs", seconds=30)
+    rc, out, err = cli(*argv, cls="network: stream URLs", seconds=180)
     assert rc == 2, err[-300:]
     line = err.strip().splitlines()[-1]
     assert f"{url}: --source:" in line and "cannot listen" not in err

@@ -20,34 +20,32 @@ LAYOUTS = [REPO / "marker_layouts" / f"{n}.json"
 
 
 class FlakyReader:
-    """Synthetic frames at ``fps``; between ``fail_at`` and ``back_at`` seconds after the first
-    open, reads fail and opens raise (a camera unplugged and plugged back in)."""
+    """Synthetic frames at up to ``fps``; after :meth:`unplug` reads fail and opens raise
+    until :meth:`plug` (a camera unplugged and plugged back in: the test says when, so that
+    nothing depends on how fast a loaded machine runs). With ``n``: a finite source of ``n``
+    frames, each with its media time, like a file."""
 
     finite = False
 
-    def __init__(self, fps: float = 30.0, fail_at: float | None = None,
-                 back_at: float | None = None, n: int | None = None, size=(64, 48)):
+    def __init__(self, fps: float = 30.0, n: int | None = None, size=(64, 48)):
         self.label = "fake camera"
         self.fps = fps
-        self.fail_at, self.back_at = fail_at, back_at
         self.n = n
         self.finite = n is not None
         self.size = size
-        self.t0: float | None = None
         self.i = 0
         self.opens = 0
         self.is_open = False
+        self.unplugged = threading.Event()
 
-    def _down(self) -> bool:
-        if self.fail_at is None or self.t0 is None:
-            return False
-        dt = time.monotonic() - self.t0
-        return self.fail_at <= dt < self.back_at
+    def unplug(self) -> None:
+        self.unplugged.set()
+
+    def plug(self) -> None:
+        self.unplugged.clear()
 
     def open(self) -> None:
-        if self.t0 is None:
-            self.t0 = time.monotonic()
-        if self._down():
+        if self.unplugged.is_set():
             raise OSError("device not found")
         self.opens += 1
         self.is_open = True
@@ -56,24 +54,23 @@ class FlakyReader:
         if self.n is not None and self.i >= self.n:
             raise EndOfStream()
         time.sleep(1.0 / self.fps)
-        if self._down() or not self.is_open:
+        if self.unplugged.is_set() or not self.is_open:
             return None
         img = np.full((self.size[1], self.size[0], 3), self.i % 250 + 1, np.uint8)
         self.i += 1
-        return RawFrame(img, self.i - 1)
+        return RawFrame(img, self.i - 1,
+                        media_time=(self.i - 1) / self.fps if self.finite else None)
 
     def close(self) -> None:
         self.is_open = False
 
 
 class FakeDetector:
-    """One brick per frame at a fixed pose plus noise; optionally slow, or raising."""
+    """One brick per frame at a fixed pose plus noise; optionally raising."""
 
     name = "fake"
 
-    def __init__(self, delay: float = 0.0, noise: float = 0.0, raise_every: int = 0,
-                 seed: int = 0):
-        self.delay = delay
+    def __init__(self, noise: float = 0.0, raise_every: int = 0, seed: int = 0):
         self.noise = noise
         self.raise_every = raise_every
         self.calls = 0
@@ -84,8 +81,6 @@ class FakeDetector:
         with self.lock:
             self.calls += 1
             k = self.calls
-        if self.delay:
-            time.sleep(self.delay)
         if self.raise_every and k % self.raise_every == 0:
             raise RuntimeError("boom")
         n = self.rng.normal(0, self.noise, 6) if self.noise else np.zeros(6)

@@ -60,19 +60,65 @@ def test_a_number_is_a_camera_even_beside_a_folder_of_that_name(tmp_path, monkey
     assert type(reader_for("./3")).__name__ == "ImageFolderReader"
 
 
+def until(cond, bound: float = 60.0) -> None:
+    """Wait until ``cond()`` holds; the bound only turns a hang into a failure (a loaded
+    machine is slow, not wrong)."""
+    end = time.monotonic() + bound
+    while not cond():
+        assert time.monotonic() < end, "the condition never held"
+        time.sleep(0.02)
+
+
+class _Lossless:
+    """A reader whose frames are each handed over (the consumer's pace, none dropped)."""
+
+    lossless = True
+
+    def __init__(self, reader):
+        self.reader, self.label, self.finite = reader, reader.label, reader.finite
+
+    def open(self):
+        self.reader.open()
+
+    def read(self):
+        return self.reader.read()
+
+    def close(self):
+        self.reader.close()
+
+
+class _VirtualTime(FrameSource):
+    """A source whose pacing waits move a virtual monotonic clock instead of taking time:
+    when frames are due does not depend on how fast a loaded machine decodes them."""
+
+    def __init__(self, reader, **kw):
+        self.t = 1000.0
+        super().__init__(reader, clock=(lambda: self.t, time.time), **kw)
+
+    def _sleep(self, s: float) -> None:
+        self.t += max(0.0, s)
+
+
 def test_video_plays_at_its_frame_rate():
-    src = FrameSource(reader_for(str(APPROACH / "approach.mp4")), pace="realtime").start()
+    before = time.time()
+    src = _VirtualTime(_Lossless(reader_for(str(APPROACH / "approach.mp4"))),
+                       pace="realtime")
+    start = src.t
+    src.start()
     frames = []
-    t0 = time.monotonic()
-    while len(frames) < 8:
-        f = src.get(1.0)
-        assert f is not None
-        frames.append(f)
-    src.stop()
-    dt = np.diff([f.t_mono for f in frames])
-    assert np.median(dt) == pytest.approx(1 / 15, abs=0.01)
-    assert frames[0].t_wall == pytest.approx(time.time(), abs=2.0)
-    assert time.monotonic() - t0 < 2.0
+    try:
+        while len(frames) < 8:
+            f = src.get(60)
+            assert f is not None
+            frames.append(f)
+    finally:
+        src.stop()
+    after = time.time()
+    # each frame handed over when due at the video's 15 fps, the first at once
+    assert [f.index for f in frames] == list(range(8))
+    assert [f.t_mono - start for f in frames] == pytest.approx(
+        [k / 15 for k in range(8)], abs=1e-3)
+    assert before <= frames[0].t_wall <= after      # stamped with the wall clock
 
 
 def test_image_folder_in_name_order_then_ends(tmp_path):
@@ -81,16 +127,18 @@ def test_image_folder_in_name_order_then_ends(tmp_path):
     (tmp_path / "notes.txt").write_text("not an image")
     src = FrameSource(ImageFolderReader(tmp_path, fps=100), pace="max").start()
     names = []
-    while (f := src.get(1.0)) is not None:
+    while (f := src.get(60)) is not None:    # None: the folder ended
         names.append(f.name)
     assert names == ["a.png", "b.png", "c.png"] and src.state == SourceState.ENDED
 
 
 def test_missing_camera_is_lost_and_retried_not_raised():
     src = FrameSource(reader_for("/dev/video97"), backoff=(0.02, 0.05)).start()
-    time.sleep(0.3)
-    st = src.status()
-    src.stop()
+    try:
+        until(lambda: src.status().state != "starting")
+        st = src.status()
+    finally:
+        src.stop()
     assert st.state == "lost" and st.error and st.frames == 0
 
 
@@ -147,25 +195,18 @@ def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch
         seen = [pull() for _ in range(5)]
         assert all(f is not None and f.shape == (48, 64, 3) for f in seen)
         assert len({int(f[0, 0, 0]) for f in seen}) == 5           # a new frame each read
-        fr = live.get(timeout=2.0)
+        fr = live.get(timeout=60)
         assert fr is not None and live.status().state == "live"
         assert _FakeV4L2.open_now == 1 and _FakeV4L2.opened == 1    # one open device
         # unplugged: both see the loss, nothing raises; plugged back: both recover
         _FakeV4L2.unplugged = True
-        deadline = time.monotonic() + 3
-        while live.status().state != "lost" and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert live.status().state == "lost" and pull() is None
+        until(lambda: live.status().state == "lost")
+        assert pull() is None
         _FakeV4L2.unplugged = False
-        deadline = time.monotonic() + 5
-        while live.status().state != "live" and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert live.status().state == "live"
+        until(lambda: live.status().state == "live")
         assert pull() is not None and _FakeV4L2.open_now == 1
     finally:
         live.stop()
         calib.close()
-    deadline = time.monotonic() + 3
-    while _FakeV4L2.open_now and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert _FakeV4L2.open_now == 0 and not SharedCamera._registry
+    until(lambda: _FakeV4L2.open_now == 0)
+    assert not SharedCamera._registry

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import socket
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -61,11 +62,16 @@ def test_run_sample_video_jsonl_and_udp(tmp_path):
     for lay in LAYOUTS:
         args += ["--layout", str(lay)]
     assert main(args) == 0
+    lines = [json.loads(x) for x in out.read_text().splitlines()]
+    # every datagram is sent by now; the listener may still be reading them (waited for:
+    # the bound is for failures only)
+    end = time.monotonic() + 60
+    while len(datagrams) < len(lines) and time.monotonic() < end:
+        time.sleep(0.01)
     stop.set()
-    th.join(2)
+    th.join(60)
     rx.close()
 
-    lines = [json.loads(x) for x in out.read_text().splitlines()]
     assert [d["frame"] for d in lines] == list(range(150))  # --pace max: every frame
     udp = [json.loads(d) for d in datagrams]
     assert [d["frame"] for d in udp] == [d["frame"] for d in lines]

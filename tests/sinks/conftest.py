@@ -115,7 +115,7 @@ class ScriptedVehicle:
 
     def close(self) -> None:
         self.stop.set()
-        self.th.join(2)
+        self.th.join(60)
         self.conn.close()
 
 

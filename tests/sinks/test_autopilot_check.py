@@ -78,7 +78,7 @@ def test_against_nothing_one_line_within_its_deadline(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert len(err) == 1 and "no HEARTBEAT from an autopilot within 1 s" in err[0]
-    assert took < 10   # generous: the deadline is 1 s
+    assert took < 60   # bounded (a bound for failures only: the deadline is 1 s)
 
 
 def test_bad_connection_options_exit_2(capsys):
@@ -118,7 +118,7 @@ def test_measures_latency_rate_and_blind_height_on_the_sample_video(vehicle, ard
     # loaded machine)
     rate = float(re.search(r"detection rate: (?:target measured )?([0-9.]+)",
                            lines["rate"]).group(1))
-    assert 0.0 < rate <= 15.0 * 1.1          # never faster than the 15 fps video
+    assert 0.0 < rate <= 15.0 * 1.1, out      # never faster than the 15 fps video
     latency_ms = float(lines["latency"].split("capture to send ")[1].split(" ms")[0])
     lag = plnd_lag_for(latency_ms / 1e3)
     assert f"set PLND_LAG = {lag:.2f}" in out
@@ -126,6 +126,49 @@ def test_measures_latency_rate_and_blind_height_on_the_sample_video(vehicle, ard
     assert lines["PLND_LAG"].startswith("wrong" if wrong else "ok")
     assert (code == 1) == (wrong or rate < 3.0)
     assert "leaves the picture 1.6" in out or "leaves the picture 1.7" in out
+
+
+def test_the_measuring_window_opens_with_the_first_frame(monkeypatch):
+    """A start-up longer than ``--seconds`` (a source slow to open, the detectors' kernels
+    loading on a busy machine) is not measured as no detection at all: the window opens with
+    the first frame (it closed before the first frame, before)."""
+    import argparse
+
+    import numpy as np
+
+    from drovisio import startup
+    from drovisio.commands.autopilot import measure_pipeline
+    from drovisio.detect.result import BrickPose
+    from drovisio.pipeline import Pipeline
+    from drovisio.sources import FrameSource, RawFrame
+
+    class SlowToOpen:
+        label, finite = "slow camera", False
+
+        def open(self):
+            time.sleep(0.5)           # longer than the whole window below
+
+        def read(self):
+            time.sleep(0.02)
+            return RawFrame(np.zeros((48, 64, 3), np.uint8), 0)
+
+        def close(self):
+            pass
+
+    class OneBrick:
+        name = "fake"
+
+        def detect(self, image, gravity=None):
+            return [BrickPose("drick-aruco-centre", 1, "aruco", np.array([3.1, 0.0, 0.0]),
+                              np.array([0.1, 0.0, 1.5]), 0.2, markers=[1],
+                              covariance=np.eye(6) * 1e-5)]
+
+    monkeypatch.setattr(startup, "build_pipeline", lambda config, default_sinks=():
+                        Pipeline(FrameSource(SlowToOpen()), [OneBrick()]))
+    args = argparse.Namespace(source="slow", camera="c.yaml", layout=[], mount=None,
+                              target="nearest", autopilot="ardupilot")
+    latency, rate = measure_pipeline(args, 0.1)
+    assert latency is not None and rate > 0
 
 
 def test_a_refused_tcp_link_is_one_line_on_stderr_only(capsys):

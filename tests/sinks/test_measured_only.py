@@ -85,13 +85,14 @@ class Listener:
                                                source_component=1)
         self.port = self.conn.port.getsockname()[1]
 
-    def drain(self, timeout: float = 1.0) -> list:
-        out, deadline = [], time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            m = self.conn.recv_match(type="LANDING_TARGET", blocking=True, timeout=0.1)
+    def drain(self, n: int) -> list:
+        """The ``n`` messages already sent, waited for (the bound only turns a lost message
+        into a failure: a loaded machine delivers late, not never)."""
+        out, deadline = [], time.monotonic() + 60
+        while len(out) < n and time.monotonic() < deadline:
+            m = self.conn.recv_match(type="LANDING_TARGET", blocking=True, timeout=0.5)
             if m is not None:
                 out.append(m)
-                deadline = time.monotonic() + 0.3
         return out
 
     def close(self):
@@ -112,8 +113,7 @@ def run(script, autopilot="ardupilot", send_held=False, extra_sinks=(), sway=Fal
     p.add_listener(lambda f, o: o is not None and outs.append(o))
     try:
         p.run()
-        time.sleep(0.2)
-        msgs = lst.drain()
+        msgs = lst.drain(sinks[0].sent)
     finally:
         p.close()
         lst.close()

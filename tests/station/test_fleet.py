@@ -111,7 +111,7 @@ def test_the_station_drops_what_it_cannot_read():
         key = topic_key(0, "/drovisio/evil/output", "std_msgs/msg/String")
         bad = [b"\x00\x01garbage", encoder("std_msgs/String")({"data": "[1, 2, 3]"}),
                encoder("std_msgs/String")({"data": "{not json"})]
-        end = time.monotonic() + 10
+        end = time.monotonic() + 60     # bounds for failures only, here and below
         while link.dropped < 3 and time.monotonic() < end:
             for payload in bad:
                 peer.put(key, payload)
@@ -129,7 +129,7 @@ def test_the_station_drops_what_it_cannot_read():
 def _until_status(fleet: Fleet, poke) -> bool:
     import time
 
-    end = time.monotonic() + 10
+    end = time.monotonic() + 60
     while time.monotonic() < end:
         poke()
         if [d.drone_id for d in fleet.status()] == ["evil"]:

@@ -1,7 +1,8 @@
 """The Fleet page in headless Chromium: ``drovisio station`` and two ``drovisio run`` drones
 (the sample video and rendered frames) over Zenoh on loopback; both listed live with their
-targets; ``kill -9`` of one shows it lost within 2 s; its restart brings it back, the station
-untouched."""
+targets; ``kill -9`` of one shows it lost; its restart brings it back, the station untouched.
+The waits are bounds for failures only (a loaded machine, or a first run compiling the
+detectors' kernels, is slow, not wrong)."""
 
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones
     base = f"http://127.0.0.1:{wport}"
     procs = [station]
     try:
-        assert drones.until(lambda: _up(base + "/api/health"), 60), \
+        assert drones.until(lambda: _up(base + "/api/health"), 300), \
             (tmp_path / "station.log").read_text()
         video = drones.rendered_video(tmp_path / "rendered.mp4")
         sample = drones.long_sample(tmp_path / "approach.mp4")
@@ -55,26 +56,26 @@ def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones
                 """([d, layout]) => { const r = document.querySelector(`tr[data-drone="${d}"]`);
                      return r && r.className === "live"
                        && r.querySelector("td.target").textContent.startsWith(layout); }""",
-                arg=[d, layout], timeout=90_000)
+                arg=[d, layout], timeout=600_000)
         assert _row(page, "drone1").locator("a").get_attribute("href") == \
             "http://127.0.0.1:18080/"
-        # kill -9: the page says lost (the station's own bound, 2 s, is checked without a
-        # browser in test_two_drones; here a loaded machine's page and server may add a poll)
+        # kill -9: the page says lost (why — the session's end — is checked without a browser
+        # in test_two_drones)
         os.kill(one.pid, signal.SIGKILL)
-        one.wait(10)
+        one.wait(60)
         page.wait_for_function(
             """() => { const r = document.querySelector('tr[data-drone="drone1"]');
-                       return r && r.className === "lost"; }""", timeout=10_000)
+                       return r && r.className === "lost"; }""", timeout=60_000)
         assert _row(page, "drone2").get_attribute("class") == "live"
         # restart: seen again by the same station
         procs.append(drones.drone(zport, "drone1", sample, "drick-aruco-pyramids.json"))
         page.wait_for_function(
             """() => { const r = document.querySelector('tr[data-drone="drone1"]');
-                       return r && r.className === "live"; }""", timeout=60_000)
+                       return r && r.className === "live"; }""", timeout=600_000)
         assert station.poll() is None
     finally:
         for p in procs:
             if p.poll() is None:
                 p.kill()
-                p.wait(10)
+                p.wait(60)
         log.close()

@@ -1,6 +1,8 @@
 """Two ``drovisio run`` drones and one station over Zenoh on loopback: both seen with their
-targets, a ``kill -9`` seen as lost at once (the drone's liveliness token goes with its
-session), a restart seen again without touching the station."""
+targets, a ``kill -9`` seen as lost (the drone's liveliness token goes with its session: the
+station's silence bound is made too long to be the reason), a restart seen again without
+touching the station. The waits are bounds for failures only: a loaded machine, or a first
+run compiling the detectors' kernels, is slow, not wrong."""
 
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ def _target(fleet: Fleet, drone: str):
 
 def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
     port = drones.free_port()
-    fleet = Fleet()
+    fleet = Fleet(lost_after_s=3600.0)   # lost only when the session ends
     link = StationLink(fleet, listen=[f"tcp/127.0.0.1:{port}"])
     video = drones.rendered_video(tmp_path / "rendered.mp4")
     sample = drones.long_sample(tmp_path / "approach.mp4")
@@ -43,9 +45,9 @@ def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
                     seen.setdefault(d.drone_id, d.target)
             return len(seen) == 2
 
-        assert drones.until(targets, 90) is not None, (fleet.status(), one.poll(), two.poll())
+        assert drones.until(targets, 600) is not None, (fleet.status(), one.poll(), two.poll())
         assert drones.until(lambda: {d.drone_id: d.state for d in fleet.status()}
-                      == {"drone1": "live", "drone2": "live"}, 10) is not None
+                      == {"drone1": "live", "drone2": "live"}, 60) is not None
         t1, t2 = seen["drone1"], seen["drone2"]
         assert t1["layout"] == "drick-aruco-pyramids" and t2["layout"] == "drick-aruco-centre"
         assert 0.3 < float(np.linalg.norm(t2["tvec"])) < 2.0    # metres from the camera
@@ -53,18 +55,18 @@ def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
         assert info == {"drone1": {"web": "http://127.0.0.1:18080/"}, "drone2": {}}
         # kill -9: no goodbye from the drone; its session's end withdraws its token
         os.kill(one.pid, signal.SIGKILL)
-        one.wait(10)
-        lost_after = drones.until(lambda: _state(fleet, "drone1") == "lost", 2.0)
+        one.wait(60)
+        lost_after = drones.until(lambda: _state(fleet, "drone1") == "lost", 60)
         assert lost_after is not None, fleet.status()
         assert _state(fleet, "drone2") == "live"
         # a restart is seen again by the same station
         one = drones.drone(port, "drone1", sample, "drick-aruco-pyramids.json")
         procs.append(one)
-        assert drones.until(lambda: _state(fleet, "drone1") == "live", 60) is not None
+        assert drones.until(lambda: _state(fleet, "drone1") == "live", 600) is not None
         assert link.dropped == 0
     finally:
         for p in procs:
             if p.poll() is None:
                 p.kill()
-                p.wait(10)
+                p.wait(60)
         link.close()

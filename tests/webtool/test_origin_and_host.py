@@ -138,7 +138,7 @@ def test_viser_ports_refuse_browsers(app):
     async def attempt(origin: str | None) -> str:
         try:
             async with connect(f"ws://127.0.0.1:{port}", origin=origin, subprotocols=proto,
-                               open_timeout=5) as ws:
+                               open_timeout=60) as ws:
                 await ws.recv()
                 return "open"
         except InvalidStatus as e:

@@ -53,7 +53,9 @@ class CameraFeed:
         self.status = CameraStatus()
         self.source_label = ""
         self.latest_raw: np.ndarray | None = None
-        self.latest_raw_at = 0.0
+        self.waiting_since: float | None = None
+        """When the worker began waiting for the camera's next frame (monotonic seconds;
+        None while it works on one)."""
         self.latest_jpeg: bytes | None = None
         self.seq = 0
         self.frame_size: tuple[int, int] | None = None
@@ -93,7 +95,6 @@ class CameraFeed:
         same lock, before anyone waiting is woken."""
         with self.cond:
             self.latest_raw = frame
-            self.latest_raw_at = time.monotonic()
             self.latest_jpeg = jpeg
             self.seq += 1
             self.frame_size = (frame.shape[1], frame.shape[0])
@@ -118,9 +119,12 @@ class CameraFeed:
             return self.latest_jpeg, self.seq
 
     def latest(self) -> tuple[np.ndarray | None, float]:
-        """The latest camera frame and when it came (monotonic seconds)."""
+        """The latest camera frame, and how long (seconds) the camera has kept the worker
+        waiting for the next one: 0 while the worker works on a frame, however slowly a busy
+        machine does it (the camera is delivering)."""
+        since = self.waiting_since
         with self.cond:
-            return self.latest_raw, self.latest_raw_at
+            return self.latest_raw, 0.0 if since is None else time.monotonic() - since
 
     # ----------------------------------------------------------------------- worker
     def _set_state(self, state: str, message: str) -> None:
@@ -145,12 +149,15 @@ class CameraFeed:
                 if self._idle():
                     self._set_state("stopped", "Camera paused: nobody is watching this page.")
                     break
+                if self.waiting_since is None:
+                    self.waiting_since = time.monotonic()
                 frame = source.get(timeout=0.25)
                 if frame is None:
                     if source.state is SourceState.LOST and reader.losses != reported:
                         reported = reader.losses
                         self._lost(reader)
                     continue
+                self.waiting_since = None
                 reported = reader.losses
                 if frame.image is None:   # one bad frame: not a lost camera
                     continue

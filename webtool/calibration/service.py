@@ -451,8 +451,10 @@ class CalibrationService:
 
     def capture(self) -> dict[str, Any]:
         """Keep the current camera frame (the manual Capture button)."""
-        frame, at = self._feed.latest()
-        if frame is None or self._feed.status.state != "ok" or time.monotonic() - at > 3.0:
+        # a camera that has given no frame for 3 s is not "right now"; a busy machine that is
+        # slow to process the frames it gives is
+        frame, waited = self._feed.latest()
+        if frame is None or self._feed.status.state != "ok" or waited > 3.0:
             raise Conflict("No picture from the camera right now, so nothing to capture. "
                            + (self._feed.message or ""))
         with self._keep_lock:

@@ -26,6 +26,7 @@ from drovisio.fileio import atomic_write_text
 from drovisio.images import ImageError, decode_image
 from drovisio.layout import list_shipped_layouts, load_layout
 from drovisio.mount import Mount, MountAngles, down_camera_mount, ground_footprint, load_mount
+from drovisio.sources import SourceState
 from webtool.errors import Conflict
 from webtool.mount.scene import MountScene
 
@@ -193,23 +194,33 @@ class MountService:
         measured = measure_from_images(pictures(), self.camera(), self._layouts(), aligned)
         return self._result(measured, aligned)
 
-    def measure_live(self, live, aligned: bool, frames: int = 5, timeout: float = 4.0) -> dict:
-        """Measure from the live camera's next ``frames`` frames."""
+    def measure_live(self, live, aligned: bool, frames: int = 5, timeout: float = 4.0,
+                     bound: float = 60.0) -> dict:
+        """Measure from the live camera's next ``frames`` frames: waited for while the camera
+        starts or gives frames, however slowly a busy machine measures them (up to ``bound``
+        seconds in all); a camera that gives none for ``timeout`` seconds is said."""
         live.ensure_started()
         if live.error:
             raise Conflict(f"the camera could not start: {live.error}")
         got: list[tuple[str, np.ndarray | str]] = []
         seen = -1
-        deadline = time.monotonic() + timeout
-        while len(got) < frames and time.monotonic() < deadline:
+        start = last = time.monotonic()
+        while len(got) < frames:
+            now = time.monotonic()
             latest = live.latest_image()
             if latest is not None and latest[0] != seen:
-                seen = latest[0]
+                seen, last = latest[0], now
                 got.append((f"live frame {seen}", latest[1]))
+                continue
+            p = live.pipeline
+            delivering = p is not None and p.source.state in (SourceState.STARTING,
+                                                              SourceState.LIVE)
+            if now - start > bound or (now - last > timeout and not delivering):
+                break
             time.sleep(0.05)
         if not got:
-            raise Conflict("no frame from the camera in "
-                           f"{timeout:g} s: is it connected?")
+            waited = bound if time.monotonic() - start > bound else timeout
+            raise Conflict(f"no frame from the camera in {waited:g} s: is it connected?")
         camera = live.camera or self.camera()
         layouts = live.layouts or self._layouts()
         measured = measure_from_images(got, camera, layouts, aligned)
