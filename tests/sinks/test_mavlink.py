@@ -133,7 +133,7 @@ def test_ardupilot_landing_target_at_frame_rate_vs_truth(tmp_path):
     sink = next(s for s in p.sinks if s.name.startswith("mavlink:"))
     try:
         assert p.run(max_frames=45) == 45  # 3 s of the 15 fps video
-        until(lambda: len(lst.msgs) >= sink.sent)   # all that was sent has arrived
+        until(lambda: len(lst.msgs) >= sink.delivery.sent)   # all that was sent has arrived
     finally:
         p.close()
         lst.close()

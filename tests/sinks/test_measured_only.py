@@ -113,7 +113,7 @@ def run(script, autopilot="ardupilot", send_held=False, extra_sinks=(), sway=Fal
     p.add_listener(lambda f, o: o is not None and outs.append(o))
     try:
         p.run()
-        msgs = lst.drain(sinks[0].sent)
+        msgs = lst.drain(sinks[0].delivery.sent)
     finally:
         p.close()
         lst.close()
