@@ -49,7 +49,7 @@ def test_the_page_watches_the_pipeline_that_feeds_the_flight_controller(tmp_path
             # target just before it, are the old choice; every later message is the new one
             sink = next(s for s in app.state.live.pipeline.sinks
                         if s.name == f"mavlink:udpout:127.0.0.1:{port}")
-            received(sink.sent + 1 - len(first))
+            received(sink.delivery.sent + 1 - len(first))
             after = received(10)
             assert {m.target_num for m in after} == {1}
             st = c.get("/api/live/status").json()
