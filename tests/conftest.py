@@ -111,7 +111,11 @@ class _ServerThread:
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
-        config = uvicorn.Config(app, log_level="warning", lifespan="on")
+        # connections kept open as long as a test may take between two requests: a loaded
+        # machine's test client idle past uvicorn's 5 s met a server closing the connection
+        # as it sent on it (ECONNRESET; a browser retries, a test's request client does not)
+        config = uvicorn.Config(app, log_level="warning", lifespan="on",
+                                timeout_keep_alive=600)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(
             target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True,
