@@ -20,9 +20,10 @@ Per frame, in the same run and on the same image:
 * **AprilTag 3** (``--apriltag``, needs ``pupil-apriltags``: ``pip install drovisio[peers]``)
   on the same grey frames (decimate 1, one thread, distortion left in: detection only): its
   recall by code size, false bricks and time against the same plain ``detectMarkers``. A
-  brick counts as found when one of its codes' ids is reported. ``--dictionary
-  DICT_APRILTAG_36h11`` gives every layout's codes that dictionary (the same ids), so the
-  two detectors read the same codes.
+  brick counts as found when one of its codes' ids is reported. AprilTag 3 reads the
+  layouts' own dictionaries (an ArUco one given to it as a family built from OpenCV's
+  table: :mod:`drovisio.study.apriltag`); ``--dictionary DICT_APRILTAG_36h11`` gives every
+  layout's codes that dictionary (the same ids).
 * **errors** of every correctly identified brick: *lateral* = norm of the x/y error of tvec
   in the camera frame (mm); *depth* = |Δz| / z (%); *yaw* = rotation about the brick's z axis
   between truth and estimate (swing–twist, degrees); *flip* = total rotation error > 20°.
@@ -80,7 +81,7 @@ from drovisio.layout import (
 )
 from drovisio.pose import rotation_angle_deg, yaw_about_axis_deg
 from drovisio.scenes import SceneSpec, gravity_in_camera, random_scene
-from drovisio.study.methods import APRILTAG_FAMILIES, apriltag_detector
+from drovisio.study.apriltag import apriltag_reader
 from drovisio.synth import BrickTruth, Scene, brick_mesh_for, render
 
 __all__ = ["FLIP_DEG", "MIN_CODE_PX", "SIZE_BINS", "Frame", "Stats", "main"]
@@ -117,7 +118,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="renderer supersampling (default 3)")
     p.add_argument("--dictionary", metavar="DICT",
                    help="give every layout's codes this dictionary (same ids), e.g. "
-                        "DICT_APRILTAG_36h11 to compare with AprilTag 3")
+                        "DICT_APRILTAG_36h11")
     p.add_argument("--apriltag", action="store_true",
                    help="also run AprilTag 3 (pupil-apriltags; pip install drovisio[peers]) "
                         "on the same frames: recall by code size, false bricks, time")
@@ -353,17 +354,13 @@ def _recall(st: Stats, truth: dict[tuple[str, int | None], BrickTruth],
 
 
 def _apriltag_detector(dictionaries: list[str]) -> tuple[Any, str | None]:
-    """AprilTag 3 for the layouts' codes, or a one-line reason why it cannot run."""
-    fams = sorted({APRILTAG_FAMILIES.get(d, "") for d in dictionaries})
-    if "" in fams:
-        return None, ("AprilTag 3 cannot read " + ", ".join(
-            d for d in dictionaries if d not in APRILTAG_FAMILIES)
-            + ": give --dictionary DICT_APRILTAG_36h11")
+    """AprilTag 3 for the layouts' codes (any dictionary: :mod:`drovisio.study.apriltag`),
+    or a one-line reason why it cannot run."""
     try:
         import pupil_apriltags  # noqa: F401 - an optional dependency, only asked whether present
     except ImportError:
         return None, "AprilTag 3 is not installed: pip install drovisio[peers]"
-    return apriltag_detector(" ".join(fams)), None
+    return apriltag_reader(dictionaries), None
 
 
 def _peer_errors(st: Stats, tags: Sequence[Any], fr: Frame,
@@ -372,7 +369,7 @@ def _peer_errors(st: Stats, tags: Sequence[Any], fr: Frame,
     truth = {(b.layout, b.instance): b for b in fr.bricks}
     seen: set[tuple[str, int | None]] = set()
     for tag in tags:
-        key = owners.get(int(tag.tag_id))
+        key = owners.get(tag.marker_id)
         if key is None or key not in truth:
             st.false += 1
         else:

@@ -24,7 +24,6 @@ from drovisio.bench.real_folder import (
     read_gray,
 )
 from drovisio.bench.real_measures import (
-    APRILTAG_PIXEL_OFFSET,
     angle_deg,
     apriltag,
     ippe_pose,
@@ -37,7 +36,7 @@ from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector
 from drovisio.errors import InputError
 from drovisio.layout import MarkerLayout, aruco_dictionary_id, aruco_dictionary_size, parse_layout
-from drovisio.study.methods import APRILTAG_FAMILIES
+from drovisio.study.apriltag import APRILTAG_FAMILIES, AprilTagReader
 
 __all__ = ["bench_charuco", "bench_tags", "charuco_layout", "tag_layout"]
 
@@ -127,13 +126,12 @@ def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
     camera = camera.for_image(w, h)[0]
     det = ArucoBrickDetector(camera, [tag_layout(dictionary, tag_size)])
     cv_det = aruco_detector(dictionary)
-    fam = APRILTAG_FAMILIES.get(dictionary)
-    at, why_not = apriltag(fam) if fam else (None, "AprilTag 3 reads no ArUco dictionary")
+    at, why_not = apriltag(dictionary)
     det.detect(grays[0])      # warm-up: compiled kernels, tables
     rep: dict[str, Any] = {"kind": "tags", "folder": str(folder), "camera": str(cam_path),
                            "dictionary": dictionary, "tag_size_m": tag_size,
-                           "photos": len(images),
-                           "apriltag": why_not or "pupil-apriltags, decimate 1, 1 thread"}
+                           "photos": len(images), "apriltag": why_not or _apriltag_says(
+                               dictionary)}
     fig = _TagFigures()
     for path, g in zip(images, grays):
         if g.shape != grays[0].shape:
@@ -155,10 +153,18 @@ def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
     return rep
 
 
+def _apriltag_says(dictionary: str) -> str:
+    """How AprilTag 3 reads ``dictionary``, for the report."""
+    fam = APRILTAG_FAMILIES.get(dictionary)
+    return (f"pupil-apriltags, decimate 1, 1 thread, {dictionary} as its family"
+            + (f" (bit for bit its own {fam})" if fam else ""))
+
+
 def _read_tags(g: np.ndarray, det: ArucoBrickDetector, cv_det: cv2.aruco.ArucoDetector,
-               at: Any, repeat: int, fig: _TagFigures) -> tuple[list[Any], Quads, Quads]:
+               at: AprilTagReader | None, repeat: int, fig: _TagFigures
+               ) -> tuple[list[Any], Quads, Quads]:
     """One photo read by each method, timed and counted: Drovisio's refined codes, OpenCV's
-    and AprilTag 3's quads (AprilTag's moved to OpenCV's pixel convention)."""
+    and AprilTag 3's quads (AprilTag's in OpenCV's order and pixel convention)."""
     n, times = fig.n, fig.times
     poses, t = timed(partial(det.detect, g), repeat)
     times["drovisio"].append(t)
@@ -176,8 +182,7 @@ def _read_tags(g: np.ndarray, det: ArucoBrickDetector, cv_det: cv2.aruco.ArucoDe
     if at is not None:
         res, t = timed(partial(at.detect, g), repeat)
         times["apriltag"].append(t)
-        ats = [(int(r.tag_id), np.asarray(r.corners, np.float64) - APRILTAG_PIXEL_OFFSET)
-               for r in res]
+        ats = [(r.marker_id, r.corners) for r in res]
         n["apriltag"] += len(ats)
     return codes, cv, ats
 
@@ -302,8 +307,9 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
     w, h = grays[0].shape[1], grays[0].shape[0]
     camera = camera.for_image(w, h)[0]
     det = ArucoBrickDetector(camera, [charuco_layout(board, dictionary)])
-    cv_det = cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters())
-    ch_det = cv2.aruco.CharucoDetector(board)
+    at, why_not = apriltag(dictionary)
+    readers = _CharucoReaders(det, cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters()),
+                              cv2.aruco.CharucoDetector(board), at)
     det.detect(grays[0])
     obj = {int(i): _board_pts_to_brick(o)
            for o, i in zip(board.getObjPoints(), np.ravel(board.getIds()))}
@@ -311,19 +317,36 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
     cols, rows = board.getChessboardSize()
     rep: dict[str, Any] = {"kind": "charuco", "folder": str(folder), "camera": str(cam_path),
                            "dictionary": dictionary, "board_squares": [int(cols), int(rows)],
-                           "square_m": square, "marker_m": marker, "photos": len(images)}
+                           "square_m": square, "marker_m": marker, "photos": len(images),
+                           "apriltag": why_not or _apriltag_says(dictionary)}
     fig = _CharucoFigures()
     for g in grays:
-        _charuco_photo(g, camera, det, cv_det, ch_det, obj, chess, repeat, fig)
+        _charuco_photo(g, camera, readers, obj, chess, repeat, fig)
     rep.update(codes=fig.n,
                corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv),
+                                    "apriltag": stats(fig.e_at),
                                     "drovisio_vs_homography": stats(fig.e_hom),
                                     "drovisio_shift_removed": stats(fig.e_shape)},
+               corners_rms_px={"drovisio_vs_apriltag": stats(fig.c_ours_at),
+                               "opencv_vs_apriltag": stats(fig.c_cv_at)},
+               codes_within_half_px=fig.within,
                code_shift_px=_code_shifts(fig),
                board_pose_rms_px=stats(fig.ref_rms),
                pose_vs_board={"trans_mm": stats(fig.dt_mm), "rot_deg": stats(fig.dr_deg)},
-               ms_per_photo=_ms_per_photo(fig.times))
+               ms_per_photo=_ms_per_photo({k: v for k, v in fig.times.items()
+                                           if at is not None or k != "apriltag"}))
     return rep
+
+
+@dataclass
+class _CharucoReaders:
+    """The readings compared on each ChArUco photo."""
+
+    drovisio: ArucoBrickDetector
+    opencv: cv2.aruco.ArucoDetector
+    charuco: cv2.aruco.CharucoDetector
+    apriltag: AprilTagReader | None
+    """AprilTag 3 with the board's dictionary as its family; None when not installed."""
 
 
 @dataclass
@@ -331,44 +354,77 @@ class _CharucoFigures:
     """What the ChArUco photos give, gathered photo by photo."""
 
     n: dict[str, int] = field(default_factory=lambda: {
-        "drovisio": 0, "opencv": 0, "charuco_corners": 0, "photos_posed": 0, "ambiguous": 0})
+        "drovisio": 0, "opencv": 0, "apriltag": 0, "charuco_corners": 0, "photos_posed": 0,
+        "ambiguous": 0})
     e_ours: list[float] = field(default_factory=list)
     """Distances (px) of Drovisio's code corners from the board pose's prediction."""
     e_cv: list[float] = field(default_factory=list)
+    e_at: list[float] = field(default_factory=list)
     e_hom: list[float] = field(default_factory=list)
     """Distances (px) of Drovisio's code corners from the board plane's homography."""
     e_shape: list[float] = field(default_factory=list)
     """The same as ``e_ours`` once each code's own shift (its corners' mean error) is
     removed: the code's shape and size against the prediction."""
-    shifts: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
-    """Per code both read, the mean error (px, (2,)) of Drovisio's corners and of OpenCV's
-    from the prediction."""
+    c_ours_at: list[float] = field(default_factory=list)
+    """Corner RMS per code (px), Drovisio against AprilTag 3: a reference that assumes
+    nothing of the board (its flatness, its print)."""
+    c_cv_at: list[float] = field(default_factory=list)
+    within: dict[str, int] = field(default_factory=lambda: {
+        "codes": 0, "of_apriltag": 0, "of_board": 0, "of_either": 0})
+    """Drovisio's codes (also read by AprilTag 3) whose corners lie within 0.5 px RMS of
+    AprilTag 3's, of the board pose's prediction, of either."""
+    shifts: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = field(
+        default_factory=list)
+    """Per code Drovisio and OpenCV both read, the mean error (px, (2,)) of Drovisio's
+    corners, of OpenCV's and of AprilTag 3's (None where it did not read it) from the
+    prediction."""
     ref_rms: list[float] = field(default_factory=list)
     """The board pose's own reprojection RMS (px) on the ChArUco corners it was posed from."""
     dt_mm: list[float] = field(default_factory=list)
     """The brick pose's translation from the board pose's, mm."""
     dr_deg: list[float] = field(default_factory=list)
     times: dict[str, list[float]] = field(default_factory=lambda: {
-        "drovisio": [], "opencv": [], "charuco": []})
+        "drovisio": [], "opencv": [], "charuco": [], "apriltag": []})
 
 
-def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
-                   cv_det: cv2.aruco.ArucoDetector, ch_det: cv2.aruco.CharucoDetector,
+def _quads(corners: Any, ids: Any) -> dict[int, np.ndarray]:
+    """OpenCV's ``detectMarkers`` answer as {id: (4, 2) corners px}."""
+    if ids is None:
+        return {}
+    return {int(i): np.asarray(q, np.float64).reshape(4, 2) for q, i in zip(corners,
+                                                                            np.ravel(ids))}
+
+
+def _charuco_photo(g: np.ndarray, camera: Camera, rd: _CharucoReaders,
                    obj: dict[int, np.ndarray], chess: np.ndarray, repeat: int,
                    fig: _CharucoFigures) -> None:
     """One photo: each method timed; with at least 6 ChArUco corners, the board posed from
-    them and both methods' code corners and Drovisio's brick pose against it."""
+    them and every method's code corners and Drovisio's brick pose against it; Drovisio's
+    and OpenCV's code corners against AprilTag 3's."""
     n, times = fig.n, fig.times
-    poses, t = timed(partial(det.detect, g), repeat)
+    poses, t = timed(partial(rd.drovisio.detect, g), repeat)
     times["drovisio"].append(t)
-    (cq, ci, _), t = timed(partial(cv_det.detectMarkers, g), repeat)
+    (cq, ci, _), t = timed(partial(rd.opencv.detectMarkers, g), repeat)
     times["opencv"].append(t)
-    (cc, cid, _, _), t = timed(partial(ch_det.detectBoard, g), repeat)
+    (cc, cid, _, _), t = timed(partial(rd.charuco.detectBoard, g), repeat)
     times["charuco"].append(t)
-    codes: list[Any] = [c for c in det.last_codes
-                       if c.refined is not None and c.refined.ok and not c.guided]
+    at_q: dict[int, np.ndarray] = {}
+    if rd.apriltag is not None:
+        res, t = timed(partial(rd.apriltag.detect, g), repeat)
+        times["apriltag"].append(t)
+        at_q = {r.marker_id: r.corners for r in res if r.marker_id in obj}
+    codes: list[Any] = [c for c in rd.drovisio.last_codes
+                        if c.refined is not None and c.refined.ok and not c.guided]
+    cv_q = _quads(cq, ci)
     n["drovisio"] += len(codes)
-    n["opencv"] += 0 if ci is None else len(ci)
+    n["opencv"] += len(cv_q)
+    n["apriltag"] += len(at_q)
+    rms = {c.marker_id: float(np.sqrt(np.mean(match_corners(c.refined.corners_px,
+                                                            at_q[c.marker_id]) ** 2)))
+           for c in codes if c.marker_id in at_q}
+    fig.c_ours_at.extend(rms.values())
+    fig.c_cv_at.extend(float(np.sqrt(np.mean(match_corners(q, at_q[i]) ** 2)))
+                       for i, q in cv_q.items() if i in at_q)
     if cid is None or len(cid) < 6:
         return
     n["charuco_corners"] += len(cid)
@@ -379,18 +435,31 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
     p, _ = cv2.projectPoints(chess[np.ravel(cid)], rv, tv, camera.K, camera.dist)
     fig.ref_rms.append(float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - cc) ** 2, axis=1)))))
     plane = _board_homography(camera, chess[np.ravel(cid)], cc)
-    cv_q = {} if ci is None else {int(i): np.asarray(q, np.float64).reshape(4, 2)
-                                  for q, i in zip(cq, np.ravel(ci))}
+
+    def predicted(mid: int) -> np.ndarray:
+        p, _ = cv2.projectPoints(obj[mid], rv, tv, camera.K, camera.dist)
+        return p.reshape(4, 2)
+
     for c in codes:
-        p, _ = cv2.projectPoints(obj[c.marker_id], rv, tv, camera.K, camera.dist)
-        e = c.refined.corners_px - p.reshape(4, 2)
+        pred = predicted(c.marker_id)
+        e = c.refined.corners_px - pred
         fig.e_ours.extend(np.linalg.norm(e, axis=1))
         fig.e_shape.extend(np.linalg.norm(e - e.mean(axis=0), axis=1))
         fig.e_hom.extend(np.linalg.norm(plane(obj[c.marker_id]) - c.refined.corners_px, axis=1))
         if c.marker_id in cv_q:
-            fig.shifts.append((e.mean(axis=0), (cv_q[c.marker_id] - p.reshape(4, 2)).mean(0)))
-    if ci is not None:
-        fig.e_cv.extend(_opencv_vs_board(camera, obj, cq, ci, rv, tv))
+            a = at_q.get(c.marker_id)
+            fig.shifts.append((e.mean(axis=0), (cv_q[c.marker_id] - pred).mean(0),
+                               None if a is None else (roll_like(a, pred) - pred).mean(0)))
+        if c.marker_id in rms:
+            near = (rms[c.marker_id] <= 0.5, float(np.sqrt(np.mean((e * e).sum(1)))) <= 0.5)
+            for k, v in zip(("codes", "of_apriltag", "of_board", "of_either"),
+                            (True, near[0], near[1], near[0] or near[1])):
+                fig.within[k] += int(v)
+    fig.e_cv.extend(np.concatenate([np.linalg.norm(q - predicted(i), axis=1)
+                                    for i, q in cv_q.items() if i in obj] or [np.zeros(0)]))
+    fig.e_at.extend(np.concatenate([np.linalg.norm(roll_like(q, predicted(i)) - predicted(i),
+                                                   axis=1)
+                                    for i, q in at_q.items()] or [np.zeros(0)]))
     if poses:
         b = poses[0]
         n["photos_posed"] += 1
@@ -400,20 +469,26 @@ def _charuco_photo(g: np.ndarray, camera: Camera, det: ArucoBrickDetector,
 
 
 def _code_shifts(fig: _CharucoFigures) -> dict[str, Any]:
-    """How far each code as a whole lies from the board pose's prediction, by Drovisio and
-    by OpenCV, and how much the two agree: where both put a code away from the prediction by
-    the same shift (correlation near 1, difference small), the code is there in the photo
-    (the print or the sheet is not the flat board), not a detector's error."""
-    if not fig.shifts:
-        return {"drovisio": stats([]), "opencv": stats([]), "difference": stats([]),
-                "correlation_xy": None}
-    a = np.array([s[0] for s in fig.shifts])
-    b = np.array([s[1] for s in fig.shifts])
-    corr = None
-    if len(a) >= 3 and np.all(a.std(axis=0) > 0) and np.all(b.std(axis=0) > 0):
-        corr = [float(np.corrcoef(a[:, k], b[:, k])[0, 1]) for k in (0, 1)]
+    """How far each code as a whole lies from the board pose's prediction, by Drovisio, by
+    OpenCV and by AprilTag 3, and how much they agree: where detectors that share no code put
+    a code away from the prediction by the same shift (correlation near 1, difference
+    small), the code is there in the photo (the print or the sheet is not the flat board),
+    not a detector's error."""
+    def corr(a: np.ndarray, b: np.ndarray) -> list[float] | None:
+        if len(a) < 3 or not (np.all(a.std(axis=0) > 0) and np.all(b.std(axis=0) > 0)):
+            return None
+        return [float(np.corrcoef(a[:, k], b[:, k])[0, 1]) for k in (0, 1)]
+
+    a = np.array([s[0] for s in fig.shifts]).reshape(-1, 2)
+    b = np.array([s[1] for s in fig.shifts]).reshape(-1, 2)
+    with_at = [s for s in fig.shifts if s[2] is not None]
+    a2 = np.array([s[0] for s in with_at]).reshape(-1, 2)
+    c = np.array([s[2] for s in with_at]).reshape(-1, 2)
     return {"drovisio": stats(np.linalg.norm(a, axis=1)), "opencv": stats(np.linalg.norm(b, axis=1)),
-            "difference": stats(np.linalg.norm(a - b, axis=1)), "correlation_xy": corr}
+            "apriltag": stats(np.linalg.norm(c, axis=1)),
+            "difference": stats(np.linalg.norm(a - b, axis=1)), "correlation_xy": corr(a, b),
+            "difference_apriltag": stats(np.linalg.norm(a2 - c, axis=1)),
+            "correlation_xy_apriltag": corr(a2, c)}
 
 
 def _board_homography(camera: Camera, board_pts: np.ndarray, px: np.ndarray
@@ -435,14 +510,3 @@ def _board_homography(camera: Camera, board_pts: np.ndarray, px: np.ndarray
         xn = cv2.perspectiveTransform(np.asarray(pts, np.float64)[None, :, :2], H)[0]
         return camera.project(np.concatenate([xn, np.ones((len(xn), 1))], axis=1))
     return predict
-
-
-def _opencv_vs_board(camera: Camera, obj: dict[int, np.ndarray], cq: Any, ci: np.ndarray,
-                     rv: np.ndarray, tv: np.ndarray) -> list[float]:
-    """Distances (px) of OpenCV's code corners from the board pose's prediction."""
-    out: list[float] = []
-    for q, i in zip(cq, np.ravel(ci)):
-        if int(i) in obj:
-            p, _ = cv2.projectPoints(obj[int(i)], rv, tv, camera.K, camera.dist)
-            out.extend(np.linalg.norm(p.reshape(4, 2) - np.asarray(q).reshape(4, 2), axis=1))
-    return out

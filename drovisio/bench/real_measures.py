@@ -12,13 +12,10 @@ import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.study.methods import apriltag_detector
+from drovisio.study.apriltag import APRILTAG_PIXEL_OFFSET, AprilTagReader, apriltag_reader
 
 __all__ = ["APRILTAG_PIXEL_OFFSET", "angle_deg", "apriltag", "ippe_pose", "match_corners",
            "roll_like", "stats", "timed"]
-
-APRILTAG_PIXEL_OFFSET = 0.5
-"""AprilTag's corners minus OpenCV's for the same pixels (AprilTag: pixel centres at +0.5)."""
 
 
 def timed(fn: Callable[[], Any], repeat: int) -> tuple[Any, float]:
@@ -72,10 +69,11 @@ def stats(x: Iterable[float]) -> dict[str, Any]:
             "p90": float(np.percentile(a, 90)), "max": float(a.max())}
 
 
-def apriltag(family: str) -> tuple[Any, str | None]:
-    """AprilTag 3 for a family, or (None, why)."""
+def apriltag(dictionary: str) -> tuple[AprilTagReader | None, str | None]:
+    """AprilTag 3 reading ``dictionary`` (any of OpenCV's: :mod:`drovisio.study.apriltag`),
+    or (None, why)."""
     try:
-        return apriltag_detector(family), None
+        return apriltag_reader(dictionary), None
     except ImportError:
         return None, ("AprilTag 3 not installed (pip install drovisio[peers], i.e. "
                       "pupil-apriltags): its columns are left out")

@@ -16,7 +16,6 @@ integers).
 
 from __future__ import annotations
 
-import atexit
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -27,14 +26,15 @@ import numpy as np
 from drovisio.detect.aruco import ArucoBrickDetector
 from drovisio.detect.dots import DotDetector
 from drovisio.layout import aruco_dictionary_id
+from drovisio.study.apriltag import (
+    APRILTAG_FAMILIES,
+    APRILTAG_PIXEL_OFFSET,
+    apriltag_detector,
+    apriltag_reader,
+)
 
-__all__ = ["METHODS", "Method", "apriltag_detector", "method_reason"]
-
-#: AprilTag 3's family of each OpenCV AprilTag dictionary
-APRILTAG_FAMILIES = {"DICT_APRILTAG_36h11": "tag36h11", "DICT_APRILTAG_25h9": "tag25h9",
-                     "DICT_APRILTAG_16h5": "tag16h5", "DICT_APRILTAG_36h10": "tag36h10"}
-#: AprilTag 3's corners minus OpenCV's for the same pixels (measured on renders in the tests)
-APRILTAG_PIXEL_OFFSET = 0.5
+__all__ = ["APRILTAG_FAMILIES", "APRILTAG_PIXEL_OFFSET", "METHODS", "Method",
+           "apriltag_detector", "method_reason"]
 
 Estimator = Callable[[np.ndarray, np.ndarray | None],
                      list[tuple[str, int | None, np.ndarray, bool]]]
@@ -134,9 +134,6 @@ def _opencv(camera, layouts) -> Estimator:
 def _apriltag_applies(layout) -> str | None:
     if not layout.has_codes:
         return "the layout has no codes"
-    other = sorted(set(layout.dictionaries()) - set(APRILTAG_FAMILIES))
-    if other:
-        return f"AprilTag 3 reads AprilTag families only, this layout has {', '.join(other)}"
     try:
         import pupil_apriltags  # noqa: F401  (optional: the peers extra)
     except ImportError:
@@ -144,43 +141,8 @@ def _apriltag_applies(layout) -> str | None:
     return None
 
 
-_APRILTAG_DETECTORS: dict[tuple[str, bool], Any] = {}
-
-
-def apriltag_detector(families: str, defaults: bool = False) -> Any:
-    """AprilTag 3 for ``families`` ("tag36h11 ..."), one per family set and settings for the
-    process: decimate 1 and one thread (the study's settings), or pupil-apriltags' own
-    defaults (``defaults=True``, as a user would run it).
-
-    The detectors live until the process ends and are never freed by pupil-apriltags itself
-    (:func:`_forget_apriltag_detectors`)."""
-    from pupil_apriltags import Detector  # deferred: an optional dependency
-
-    key = (families, defaults)
-    det = _APRILTAG_DETECTORS.get(key)
-    if det is None:
-        det = Detector(families=families) if defaults else Detector(
-            families=families, nthreads=1, quad_decimate=1.0, quad_sigma=0.0, refine_edges=1,
-            decode_sharpening=0.25)
-        _APRILTAG_DETECTORS[key] = det
-    return det
-
-
-@atexit.register
-def _forget_apriltag_detectors() -> None:
-    """pupil-apriltags' ``Detector.__del__`` destroys the tag families before the detector
-    that still reads them (a use-after-free): freed at interpreter exit, a detector corrupts
-    the heap and the process aborts ("malloc(): mismatching next->prev_size") after its work
-    is done. The process is ending: leave their memory to the system instead."""
-    for det in _APRILTAG_DETECTORS.values():
-        det.tag_detector_ptr = None
-    _APRILTAG_DETECTORS.clear()
-
-
 def _apriltag(camera, layouts) -> Estimator:
-    fams = " ".join(sorted({APRILTAG_FAMILIES[d] for lay in layouts
-                            for d in lay.dictionaries()}))
-    det = apriltag_detector(fams)
+    det = apriltag_reader(sorted({d for lay in layouts for d in lay.dictionaries()}))
     K = camera.K
     maps = None
     if camera.model == "fisheye":
@@ -193,12 +155,7 @@ def _apriltag(camera, layouts) -> Estimator:
     def estimate(img, g=None):
         gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
         und = cv2.remap(gray, maps[0], maps[1], cv2.INTER_LINEAR)
-        found = {}
-        for tag in det.detect(und):
-            # AprilTag's corners wind the other way round from OpenCV's (top-right, top-left,
-            # bottom-left, bottom-right of the upright code: measured on renders)
-            c = np.asarray(tag.corners, np.float64)[[1, 0, 3, 2]] - APRILTAG_PIXEL_OFFSET
-            found[int(tag.tag_id)] = c
+        found = {code.marker_id: code.corners for code in det.detect(und)}
         return _pnp_bricks(K, np.zeros(5), layouts, found)
     return estimate
 

@@ -91,7 +91,7 @@ class LayoutRef(_Model):
                         description="A shipped layout's name or a layout file's path.")
     dictionary: str | None = Field(default=None, max_length=40, description=(
         "Give every code of the layout this dictionary (same ids), e.g. DICT_APRILTAG_36h11 "
-        "so that AprilTag 3 can read it."))
+        "(AprilTag 3's own tag36h11)."))
 
     _path = field_validator("layout")(_plain_path)
 
@@ -182,7 +182,8 @@ def load_protocol(path: str | Path) -> Protocol:
 
 def default_protocol(quick: bool = False, frames: int | None = None) -> Protocol:
     """The thesis's protocol on renders: 2×3 dots 10 cm apart, one 6.5 cm 4×4 code, the
-    two-code brick and the one-code brick with a tag36h11 code (for AprilTag 3)."""
+    two-code brick and the one-code brick with a tag36h11 code (AprilTag 3's own family; it
+    reads the 4×4 codes too, given to it as a family)."""
     # quick: a first look in a few minutes (two frames, the ends and one middle per axis)
     n = frames or (2 if quick else 8)
     layouts = [LayoutRef(name="dots", layout="drick-dots-2x3"),

@@ -57,11 +57,24 @@ def test_charuco_and_chessboard_folders(tmp_path, capsys):
     assert s["drovisio"]["n"] == 17 and min(s["correlation_xy"]) > 0.7
     assert s["difference"]["median"] < 0.7 * s["drovisio"]["median"]
     assert ch["corners_vs_board_px"]["drovisio_shift_removed"]["median"] < 0.3
+    # AprilTag 3, given the board's DICT_6X6_250 as a family, reads the 17 codes too: a third
+    # reading, sharing no code with the other two, that assumes nothing of the board. It
+    # puts each code off the prediction by the same shift as Drovisio (correlation 0.97 in
+    # x, 0.98 in y; 0.10 px apart, median), and every Drovisio code is within 0.5 px RMS of
+    # AprilTag's corners (0.33 median, 0.46 at most; OpenCV's 0.78)
+    assert ch["codes"]["apriltag"] == 17 and "DICT_6X6_250 as its family" in ch["apriltag"]
+    assert min(s["correlation_xy_apriltag"]) > 0.9
+    assert s["difference_apriltag"]["median"] < 0.5 * s["drovisio"]["median"]
+    a = ch["corners_rms_px"]
+    assert a["drovisio_vs_apriltag"]["n"] == 17 and a["drovisio_vs_apriltag"]["max"] < 0.5
+    assert a["opencv_vs_apriltag"]["median"] > 2 * a["drovisio_vs_apriltag"]["median"]
+    assert ch["codes_within_half_px"] == {"codes": 17, "of_apriltag": 17, "of_board": 11,
+                                          "of_either": 17}
     # OpenCV's 2.4-era chessboards with its expected corners: 7 of 7, within 0.05 px
     assert cb["board"] in ([7, 5], [5, 7]) and cb["found"] == {"drovisio": 7, "opencv": 7}
     c = cb["corners_vs_expected_px"]["drovisio"]
     assert c["n"] == 7 * 35 and c["median"] < 0.05
-    assert "codes found: Drovisio 17, OpenCV 17" in text
+    assert "codes found: Drovisio 17, OpenCV 17, AprilTag 3 17" in text
 
 
 def test_tag_folder_with_apriltag(tmp_path, capsys):
