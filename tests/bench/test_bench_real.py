@@ -101,6 +101,25 @@ def test_tag_folder_with_apriltag(tmp_path, capsys):
     assert e["drovisio_vs_edges"]["median"] < 0.3
 
 
+def test_tag_folder_of_aruco_codes_with_apriltag(tmp_path):
+    """OpenCV's ArUco and ChArUco tutorial photos (in the repository, with their source):
+    AprilTag 3 reads their DICT_6X6_250 codes given to it as a family, and every code OpenCV
+    reads (19, one board partly under a hand) is kept, within 0.5 px RMS of AprilTag 3's
+    corners (measured 0.20 median, 0.44 at most; OpenCV's own 0.72 / 1.02), no false code."""
+    pytest.importorskip("pupil_apriltags")
+    d = Path(__file__).resolve().parents[1] / "data" / "real" / "opencv-tutorial"
+    out = tmp_path / "tags.json"
+    assert main(["bench", "real", str(d), "--json", str(out)]) == 0
+    r = json.loads(out.read_text())["folders"][0]
+    assert r["kind"] == "tags" and r["dictionary"] == "DICT_6X6_250"
+    n = r["codes"]
+    assert n["opencv"] == n["apriltag"] == n["opencv_kept"] == n["drovisio"] == 19
+    assert r["missed_opencv_codes"] == [] and n["false"] == 0
+    c = r["corners_rms_px"]
+    assert c["drovisio_vs_apriltag"]["n"] == 19 and c["drovisio_vs_apriltag"]["max"] < 0.5
+    assert c["opencv_vs_apriltag"]["median"] > 2 * c["drovisio_vs_apriltag"]["median"]
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--repeat", "0"], "--repeat 0: give 1 to 20"),
     (["--calibrate", "brown"], "'brown' is no model"),
