@@ -205,7 +205,7 @@ def _chess_photo(path: Path, g: np.ndarray, board: BoardSpec, size: tuple[int, i
                  fig: _ChessFigures) -> None:
     """One photo: both finders timed, OpenCV's corners kept for its calibration, both
     against the photo's expected corners when the set has them."""
-    d, t = timed(partial(board_detect, g, board), repeat)
+    d, t = timed(partial(board_detect, g, board, still=True), repeat)
     fig.times["drovisio"].append(t)
     (ok, c), t = timed(partial(_plain_chessboard, g, size), repeat)
     fig.times["opencv"].append(t)

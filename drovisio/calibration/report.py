@@ -21,6 +21,8 @@ import math
 import cv2
 import numpy as np
 
+from drovisio.calibration.uncertainty import model_key, param_names
+
 __all__ = ["build_report", "format_summary", "uncertainty_image", "SCHEMA"]
 
 SCHEMA = "drovisio/calibration-report@1"
@@ -77,6 +79,15 @@ def build_report(session, include_map: bool = True) -> dict:
     return _clean(rep)
 
 
+def _distortion_line(cam: dict) -> str:
+    """The lens's coefficients named as its model names them (a fisheye's k1..k4 are not
+    Brown's k1 k2 p1 p2)."""
+    d = [float(x) for x in cam["dist"]]
+    names = param_names(model_key(cam.get("model") or "plumb_bob", len(d)))[4:4 + len(d)]
+    return (f"distortion ({cam.get('model') or 'plumb_bob'}) {' '.join(names)}: "
+            + " ".join(f"{x:.5g}" for x in d))
+
+
 def format_summary(report: dict) -> str:
     """A few human lines summarising a report (for stderr)."""
     lines = []
@@ -86,7 +97,7 @@ def format_summary(report: dict) -> str:
         lines.append(f"fx {cam['fx']:.2f} ± {std.get('fx', 0):.2f}  fy {cam['fy']:.2f} ± "
                      f"{std.get('fy', 0):.2f}  cx {cam['cx']:.2f} ± {std.get('cx', 0):.2f}  "
                      f"cy {cam['cy']:.2f} ± {std.get('cy', 0):.2f} px")
-        lines.append("distortion k1 k2 p1 p2 k3: " + " ".join(f"{d:.5g}" for d in cam["dist"]))
+        lines.append(_distortion_line(cam))
         lines.append(f"RMS reprojection error {report['rms_px']:.3f} px over "
                      f"{report['views_kept']} views")
         u = report["uncertainty_px"]

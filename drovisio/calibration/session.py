@@ -205,8 +205,11 @@ class CalibrationSession:
         return self._result_error
 
     # ------------------------------------------------------------------------ adding views
-    def evaluate(self, image: np.ndarray, name: str = "") -> FrameCheck:
-        """Detect the board and apply the per-image gates (size, sharpness). Changes nothing."""
+    def evaluate(self, image: np.ndarray, name: str = "", still: bool = False) -> FrameCheck:
+        """Detect the board and apply the per-image gates (size, sharpness). Changes nothing.
+
+        ``still``: a still image said to hold the board, searched further than a live frame
+        (:func:`drovisio.calibration.board.detect`)."""
         gray = to_gray(image)
         h, w = gray.shape
         fr = FrameCheck(name, None, [], image_size=(w, h))
@@ -215,7 +218,7 @@ class CalibrationSession:
                               f"{self._size[0]}x{self._size[1]} (intrinsics belong to one "
                               "resolution)")
             return fr
-        det = detect(gray, self.board)
+        det = detect(gray, self.board, still=still)
         if det is None:
             fr.reasons.append(f"no {self.board.spec()} board found")
             return fr
@@ -230,7 +233,7 @@ class CalibrationSession:
     def add_image(self, image: np.ndarray, name: str | None = None) -> FrameCheck:
         """Add a still image (a file, a manual capture): kept when detected, big enough and
         sharp. No stillness or novelty check."""
-        fr = self.evaluate(image, name or f"capture-{self._next_id:03d}")
+        fr = self.evaluate(image, name or f"capture-{self._next_id:03d}", still=True)
         return self.keep(fr) if fr.usable else self._reject(fr)
 
     def offer_frame(self, image: np.ndarray, name: str | None = None) -> FrameCheck:

@@ -50,7 +50,7 @@ import numpy as np
 
 from drovisio.camera import Camera, LensModel
 
-__all__ = ["PARAM_NAMES", "camera_model", "lens_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
+__all__ = ["PARAM_NAMES", "camera_model", "lens_key", "model_key", "param_names", "param_values", "view_jacobian", "schur_information", "covariance_from_information",
            "UncertaintyMap", "image_grid", "grid_jacobians", "sigma_max",
            "projection_uncertainty", "model_difference_px"]
 
@@ -68,9 +68,14 @@ def lens_key(camera: Camera) -> str:
     """The calibration's name of a camera's lens model: its file model, and for OpenCV's
     model with 12 or 14 coefficients ``thin_prism`` or ``tilted`` (the file says
     ``rational_polynomial`` for all three, as OpenCV writes them)."""
-    if camera.is_fisheye:
+    return model_key(camera.model, camera.dist.size)
+
+
+def model_key(model: str, n_coefficients: int) -> str:
+    """:func:`lens_key` of a camera file's model name and its number of coefficients."""
+    if model == "fisheye":
         return "fisheye"
-    n = camera.dist.size
+    n = n_coefficients
     return ("tilted" if n >= 14 else "thin_prism" if n >= 12 else
             "rational_polynomial" if n >= 8 else "plumb_bob")
 

@@ -172,7 +172,7 @@ def _evaluate_images(session, images: list[Path]) -> tuple[list, int]:
             print(f"{tag}: rejected: {e}", file=sys.stderr, flush=True)
             continue
         n_read += 1
-        fr = session.evaluate(img, name)
+        fr = session.evaluate(img, name, still=True)
         del img
         frames.append(fr)
         if fr.usable and fr.detection is not None:

@@ -347,8 +347,8 @@ def test_uploads_of_one_name_at_once_each_keep_their_own_image(make_client):
     sess = svc.session
     real, held, go = sess.evaluate, threading.Event(), threading.Event()
 
-    def evaluate(img, name=""):
-        fr = real(img, name)
+    def evaluate(img, name="", still=False):
+        fr = real(img, name, still=still)
         if not held.is_set():
             held.set()
             assert go.wait(60)

@@ -460,7 +460,7 @@ class CalibrationService:
         with self._keep_lock:
             sess = self.session
             name = f"capture-{self._capture_counter:04d}.png"
-            fr = sess.evaluate(frame, name)
+            fr = sess.evaluate(frame, name, still=True)   # the user chose this picture
             dup = sess.duplicate_of(fr.detection) \
                 if fr.usable and fr.detection is not None else None
             if dup is not None:
@@ -520,7 +520,7 @@ class CalibrationService:
         img = decode(data, label)[0] if data is not None else None
         if data is None or img is None:  # the first pass read and decoded this very file
             raise RuntimeError(f"{label} changed during the upload")
-        fr = sess.evaluate(img, self._upload_name(label))
+        fr = sess.evaluate(img, self._upload_name(label), still=True)
         msg = None
         if fr.usable and fr.detection is not None:
             with self._keep_lock:
