@@ -457,9 +457,9 @@ def _charuco_photo(g: np.ndarray, camera: Camera, rd: _CharucoReaders,
                 fig.within[k] += int(v)
     fig.e_cv.extend(np.concatenate([np.linalg.norm(q - predicted(i), axis=1)
                                     for i, q in cv_q.items() if i in obj] or [np.zeros(0)]))
-    fig.e_at.extend(np.concatenate([np.linalg.norm(roll_like(q, predicted(i)) - predicted(i),
-                                                   axis=1)
-                                    for i, q in at_q.items()] or [np.zeros(0)]))
+    for i, q in at_q.items():
+        pred = predicted(i)
+        fig.e_at.extend(np.linalg.norm(roll_like(q, pred) - pred, axis=1))
     if poses:
         b = poses[0]
         n["photos_posed"] += 1

@@ -37,7 +37,12 @@ grown and places the outer corners outward, 0.4 px on OpenCV's ChArUco photo). S
 code is refitted with its surround as one more level (:mod:`.outer`), and the refit is kept
 only where the data say the surround is uniform paper: each side's residuals beyond the edge
 no larger than inside it, and the surround as bright as the white cells. A thin margin on a
-darker brick (every rendered drick) fails those tests and keeps the interior fit.
+darker brick (every rendered drick) fails those tests and keeps the interior fit. The refit's
+covariance holds the two fits' disagreement too: the pixel noise alone said 0.055 px where
+the corners lie 0.23 px from AprilTag 3's on OpenCV's ChArUco photo (one lone code's pose then
+came out as its mirror, unflagged); half the distance between the corners with and without
+the outer edges, added on every coordinate, gives 0.24 px there and keeps a drawn code's
+corners within their covariance under a tone curve (chi-square 3.9, 40 without).
 
 Measured on rendered drick scenes (``drovisio bench aruco``, blur σ ≤ 1 px, 2852 corners):
 mean signed radial error +0.004 px, RMS 0.20 px; OpenCV's corners at the detector's settings

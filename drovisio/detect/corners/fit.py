@@ -10,7 +10,7 @@
 8. the checks that keep or refuse each code (fit, contrast, blur, how far a corner moved,
    the cells read back: :mod:`.cells`),
 9. the kept codes refitted with their outer edges where uniform paper surrounds them
-   (:mod:`.outer`).
+   (:mod:`.outer`), their covariance holding the two fits' disagreement.
 """
 
 from __future__ import annotations
@@ -540,7 +540,9 @@ def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch
 
     A refit is held to the interior fit's limit on how far a corner may move from its start
     (``move_limit``, (C,) px): one that went farther slid onto something else, and the
-    interior fit, which passed every check, stays.
+    interior fit, which passed every check, stays. A refit's covariance is its own plus,
+    on every coordinate, a quarter of the mean squared distance between its corners and the
+    interior fit's (see the comment where it is added).
 
     Returns:
         (C,) bool, the codes whose corners now come from the refit.
@@ -556,5 +558,11 @@ def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch
         with np.errstate(invalid="ignore"):
             moved = np.sqrt(((px_o - b.q) ** 2).sum(axis=2))
             used &= np.isfinite(px_o).all(axis=(1, 2)) & (moved <= move_limit[:, None]).all(1)
-        px_c[used], xn_c[used], cov_px[used] = px_o[used], xn_o[used], cov_o[used]
+        # the two fits read different evidence (the cells, extrapolated; the outer edges
+        # against the paper): their disagreement is the model's error on this code, which
+        # the pixel noise alone does not show; the refit, between them, is known to half of
+        # it (two estimates of equal error, combined) on every coordinate
+        d2 = ((px_o[used] - px_c[used]) ** 2).reshape(-1, 8).mean(axis=1) / 4.0
+        px_c[used], xn_c[used] = px_o[used], xn_o[used]
+        cov_px[used] = cov_o[used] + d2[:, None, None] * np.eye(8)
     return used
