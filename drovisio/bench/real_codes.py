@@ -398,9 +398,9 @@ def _quads(corners: Any, ids: Any) -> dict[int, np.ndarray]:
 def _charuco_photo(g: np.ndarray, camera: Camera, rd: _CharucoReaders,
                    obj: dict[int, np.ndarray], chess: np.ndarray, repeat: int,
                    fig: _CharucoFigures) -> None:
-    """One photo: each method timed; with at least 6 ChArUco corners, the board posed from
-    them and every method's code corners and Drovisio's brick pose against it; Drovisio's
-    and OpenCV's code corners against AprilTag 3's."""
+    """One photo: each method timed; Drovisio's and OpenCV's code corners against AprilTag
+    3's; with at least 6 ChArUco corners, the board posed from them and every method's code
+    corners and Drovisio's brick pose against it."""
     n, times = fig.n, fig.times
     poses, t = timed(partial(rd.drovisio.detect, g), repeat)
     times["drovisio"].append(t)
@@ -441,22 +441,11 @@ def _charuco_photo(g: np.ndarray, camera: Camera, rd: _CharucoReaders,
         return p.reshape(4, 2)
 
     for c in codes:
-        pred = predicted(c.marker_id)
-        e = c.refined.corners_px - pred
-        fig.e_ours.extend(np.linalg.norm(e, axis=1))
-        fig.e_shape.extend(np.linalg.norm(e - e.mean(axis=0), axis=1))
-        fig.e_hom.extend(np.linalg.norm(plane(obj[c.marker_id]) - c.refined.corners_px, axis=1))
-        if c.marker_id in cv_q:
-            a = at_q.get(c.marker_id)
-            fig.shifts.append((e.mean(axis=0), (cv_q[c.marker_id] - pred).mean(0),
-                               None if a is None else (roll_like(a, pred) - pred).mean(0)))
-        if c.marker_id in rms:
-            near = (rms[c.marker_id] <= 0.5, float(np.sqrt(np.mean((e * e).sum(1)))) <= 0.5)
-            for k, v in zip(("codes", "of_apriltag", "of_board", "of_either"),
-                            (True, near[0], near[1], near[0] or near[1])):
-                fig.within[k] += int(v)
-    fig.e_cv.extend(np.concatenate([np.linalg.norm(q - predicted(i), axis=1)
-                                    for i, q in cv_q.items() if i in obj] or [np.zeros(0)]))
+        _code_vs_board(c, predicted(c.marker_id), plane(obj[c.marker_id]), cv_q, at_q,
+                       rms.get(c.marker_id), fig)
+    for i, q in cv_q.items():
+        if i in obj:
+            fig.e_cv.extend(np.linalg.norm(q - predicted(i), axis=1))
     for i, q in at_q.items():
         pred = predicted(i)
         fig.e_at.extend(np.linalg.norm(roll_like(q, pred) - pred, axis=1))
@@ -466,6 +455,28 @@ def _charuco_photo(g: np.ndarray, camera: Camera, rd: _CharucoReaders,
         n["ambiguous"] += bool(b.ambiguous)
         fig.dt_mm.append(1000.0 * float(np.linalg.norm(np.ravel(b.tvec) - tv.ravel())))
         fig.dr_deg.append(angle_deg(cv2.Rodrigues(np.ravel(b.rvec))[0], cv2.Rodrigues(rv)[0]))
+
+
+def _code_vs_board(c: Any, pred: np.ndarray, homography: np.ndarray,
+                   cv_q: dict[int, np.ndarray], at_q: dict[int, np.ndarray],
+                   rms_at: float | None, fig: _CharucoFigures) -> None:
+    """One Drovisio code against the board pose's prediction ``pred`` and the board plane's
+    homography (each (4, 2) px): its corners' distances, its shift beside OpenCV's and
+    AprilTag's, and whether it lies within 0.5 px RMS of AprilTag's (``rms_at``) or of the
+    prediction."""
+    e = c.refined.corners_px - pred
+    fig.e_ours.extend(np.linalg.norm(e, axis=1))
+    fig.e_shape.extend(np.linalg.norm(e - e.mean(axis=0), axis=1))
+    fig.e_hom.extend(np.linalg.norm(homography - c.refined.corners_px, axis=1))
+    if c.marker_id in cv_q:
+        a = at_q.get(c.marker_id)
+        fig.shifts.append((e.mean(axis=0), (cv_q[c.marker_id] - pred).mean(0),
+                           None if a is None else (roll_like(a, pred) - pred).mean(0)))
+    if rms_at is not None:
+        near = (rms_at <= 0.5, float(np.sqrt(np.mean((e * e).sum(1)))) <= 0.5)
+        for k, v in zip(("codes", "of_apriltag", "of_board", "of_either"),
+                        (True, near[0], near[1], near[0] or near[1])):
+            fig.within[k] += int(v)
 
 
 def _code_shifts(fig: _CharucoFigures) -> dict[str, Any]:
