@@ -20,11 +20,24 @@ def _text(page, el_id: str) -> str:
     return page.locator("#" + el_id).inner_text().strip()
 
 
+def _until(read, done, bound: float = 120.0):
+    """read() again until done(its answer); the bound is for failures only."""
+    deadline = time.monotonic() + bound
+    while not done(got := read()):
+        assert time.monotonic() < deadline, got
+        time.sleep(0.1)
+    return got
+
+
 def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_factory, tmp_path):
     scn = load_scenario(shipped_scenario()).subset(["b1"])
     write_recording(simulate(scn, params=SimParams(seed=2)), tmp_path / "one-brick", every=2)
     base = live_server_factory(Settings(replay_dir=tmp_path))
     page.set_default_timeout(120_000)
+
+    def scene() -> dict:
+        return page.request.get(base + "/api/replay/scene").json()
+
     page.goto(base + "/live")
     page.wait_for_function(
         "[...document.querySelectorAll('#replay-run option')].some(o => o.value === 'one-brick')")
@@ -33,7 +46,11 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     page.wait_for_function("document.getElementById('replay-state').textContent === 'TAKE_OFF'")
     assert _text(page, "replay-time") == "0.0 s"
     assert _text(page, "replay-placed") == "0 of 1"
+    seen = {_text(page, "replay-state")}
     p0 = page.request.get(base + "/api/replay/state").json()["drone"]["position"]
+    # the replay's 3D view: viser's client in the iframe, connected before the run plays
+    page.frame_locator("#replay-frame").locator("canvas").first.wait_for(state="attached")
+    _until(scene, lambda s: s.get("clients", 0) >= 1)
 
     page.select_option("#replay-speed", "4")
     page.wait_for_function("document.getElementById('replay-msg').textContent === ''")
@@ -42,44 +59,30 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     page.wait_for_function("parseFloat(document.getElementById('replay-time').textContent) > 5")
     page.wait_for_function("!['TAKE_OFF', '–'].includes("
                            "document.getElementById('replay-state').textContent)")
-    seen = {_text(page, "replay-state")}
+    seen.add(_text(page, "replay-state"))
     assert page.locator("#replay-events li").count() >= 2
     assert any("→" in x for x in page.locator("#replay-events li").all_inner_texts())
     st = page.request.get(base + "/api/replay/state").json()
     assert st["t"] > 5 and st["drone"]["position"] != p0
-    # the drone keeps moving while playing (a slow machine may have played it to its end);
-    # the server's own state says which, the bound is for failures only
-    deadline = time.monotonic() + 120
-    while True:
-        st2 = page.request.get(base + "/api/replay/state").json()
-        if st2["state"] == "DONE" or st2["t"] > st["t"]:
-            break
-        assert time.monotonic() < deadline, (st, st2)
-        time.sleep(0.1)
+    # the drone keeps moving while playing (a slow machine may have played it to its end):
+    # the server's own state says which
+    st2 = _until(lambda: page.request.get(base + "/api/replay/state").json(),
+                 lambda s: s["state"] == "DONE" or (
+                     s["t"] > st["t"] and s["drone"]["position"] != st["drone"]["position"]))
     assert st2["t"] >= st["t"]
-    if st2["state"] != "DONE":
-        assert st2["drone"]["position"] != st["drone"]["position"]
     # to the end: the brick is placed and the run is DONE
     page.wait_for_function("document.getElementById('replay-state').textContent === 'DONE'",
                            timeout=120_000)
     seen.add(_text(page, "replay-state"))
     assert _text(page, "replay-placed") == "1 of 1"
     assert len(seen) >= 2
-    # the replay's 3D view: viser's client in the iframe, connected, updated by the playback
-    page.frame_locator("#replay-frame").locator("canvas").first.wait_for(state="attached")
-    deadline = time.monotonic() + 120   # a bound for failures only
-    sc = {}
-    while time.monotonic() < deadline:
-        sc = page.request.get(base + "/api/replay/scene").json()
-        if sc.get("clients", 0) >= 1 and sc.get("updates", 0) >= 5:
-            break
-        time.sleep(0.3)
-    assert sc.get("clients", 0) >= 1 and sc.get("updates", 0) >= 5, sc
+    # the 3D view was updated by the playback
+    sc = _until(scene, lambda s: s.get("clients", 0) >= 1 and s.get("updates", 0) >= 5)
     # seeking back with the slider's API and pausing
     st = page.request.post(base + "/api/replay/seek", data={"t": 1.0}).json()
     assert st["state"] == "TAKE_OFF"
     page.wait_for_function("document.getElementById('replay-state').textContent === 'TAKE_OFF'")
-    page.wait_for_timeout(1000)  # let the 3D view draw the seek, for the screenshot
+    _until(scene, lambda s: s["updates"] > sc["updates"])   # the seek drawn, for the screenshot
     page.screenshot(path=str(tmp_path / "replay.png"), full_page=True)
 
 

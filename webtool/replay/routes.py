@@ -52,6 +52,13 @@ async def _call(fn, *args) -> JSONResponse:
     return JSONResponse(await asyncio.to_thread(fn, *args), headers=NO_STORE)
 
 
+def _now(fn, *args) -> JSONResponse:
+    """The state and the clock's controls, answered on the event loop: they never wait
+    (:class:`webtool.replay.service.Playback`), while the shared worker threads may all be
+    waiting on another area (the live pipeline starting)."""
+    return JSONResponse(fn(*args), headers=NO_STORE)
+
+
 @router.get("/runs", response_model=ReplayRuns)
 async def runs(svc: ReplayDep) -> JSONResponse:
     items = await asyncio.to_thread(svc.runs)
@@ -65,27 +72,27 @@ async def load(svc: ReplayDep, body: LoadBody) -> JSONResponse:
 
 @router.post("/play", response_model=ReplayState)
 async def play(svc: ReplayDep) -> JSONResponse:
-    return await _call(svc.play)
+    return _now(svc.play)
 
 
 @router.post("/pause", response_model=ReplayState)
 async def pause(svc: ReplayDep) -> JSONResponse:
-    return await _call(svc.pause)
+    return _now(svc.pause)
 
 
 @router.post("/seek", response_model=ReplayState)
 async def seek(svc: ReplayDep, body: SeekBody) -> JSONResponse:
-    return await _call(svc.seek, body.t)
+    return _now(svc.seek, body.t)
 
 
 @router.post("/speed", response_model=ReplayState)
 async def speed(svc: ReplayDep, body: SpeedBody) -> JSONResponse:
-    return await _call(svc.set_speed, body.x)
+    return _now(svc.set_speed, body.x)
 
 
 @router.get("/state", response_model=ReplayState)
 async def state(svc: ReplayDep) -> JSONResponse:
-    return await _call(svc.state)
+    return _now(svc.state)
 
 
 @router.get("/scene", response_model=ReplayScene)

@@ -1,19 +1,22 @@
 """Replay of a simulated mission recording (:mod:`drovisio.mission.record`) in the live page.
 
 :class:`ReplayService` lists the recordings in ``Settings.replay_dir`` (each a folder with a
-``manifest.json``), loads one and plays it on a server-side thread: the playback clock ``t``
-advances ``speed`` times real time, at ~15 Hz, and every step updates the replay's own viser
-scene (:class:`webtool.replay.scene.ReplayScene`, served through the app at ``/replay/3d/``).
-Only recordings inside the recordings folder can be loaded.
+``manifest.json``), loads one and plays it: the playback time ``t`` is read off the clock
+(``speed`` times real time, :class:`Playback`), and a server-side thread draws its latest
+instant, at ~15 Hz, in the replay's own viser scene (:class:`webtool.replay.scene.ReplayScene`,
+served through the app at ``/replay/3d/``). Only recordings inside the recordings folder can
+be loaded.
 """
 
 from __future__ import annotations
 
 import bisect
+import itertools
 import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -95,9 +98,16 @@ def layouts_note(manifest: dict, where: str) -> str | None:
 
 
 class Playback:
-    """One loaded recording and its clock (thread-safe; times in recording seconds)."""
+    """One loaded recording and its clock (thread-safe; times in recording seconds).
 
-    def __init__(self, path: Path, manifest: dict, ticks: list[dict]):
+    While playing, the time is read off ``clock`` (monotonic seconds): ``t = t0 + speed ×
+    (clock() − w0)``, where ``t0`` and ``w0`` are the time and the clock's reading when it was
+    last set (play, seek, speed). Nothing has to step it, so a slow or blocked draw of the
+    scene never holds the time back.
+    """
+
+    def __init__(self, path: Path, manifest: dict, ticks: list[dict],
+                 clock: Callable[[], float] = time.monotonic):
         if not ticks:
             raise BadInput(f"{path}: the recording has no ticks")
         self.path = path
@@ -105,10 +115,62 @@ class Playback:
         self.ticks = ticks
         self.times = [float(tk["t"]) for tk in ticks]
         self.duration = max(float(manifest.get("duration_s") or self.times[-1]), self.times[0])
-        self.t = self.times[0]
+        self.events = [e for tk in ticks for e in tk.get("events", [])]
+        self._ends = list(itertools.accumulate(len(tk.get("events", [])) for tk in ticks))
+        self.note = layouts_note(manifest, str(path / "manifest.json"))
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._t0 = self.times[0]
+        self._w0 = clock()
         self.playing = False
         self.speed = 1.0
-        self.note = layouts_note(manifest, str(path / "manifest.json"))
+
+    def _at(self, w: float) -> float:
+        """The time at the clock's reading ``w``; reaching the end stops there (under the
+        lock)."""
+        if not self.playing:
+            return self._t0
+        t = self._t0 + self.speed * (w - self._w0)
+        if t >= self.duration:
+            self._t0, self._w0, self.playing = self.duration, w, False
+            return self.duration
+        return t
+
+    def now(self) -> tuple[float, bool, float]:
+        """(t, playing, speed), read together."""
+        with self._lock:
+            t = self._at(self._clock())
+            return t, self.playing, self.speed
+
+    @property
+    def t(self) -> float:
+        return self.now()[0]
+
+    def play(self) -> None:
+        """Play on (from the start when at the end)."""
+        with self._lock:
+            w = self._clock()
+            t = self._at(w)
+            self._t0 = self.times[0] if t >= self.duration else t
+            self._w0, self.playing = w, True
+
+    def pause(self) -> None:
+        with self._lock:
+            w = self._clock()
+            self._t0, self._w0 = self._at(w), w
+            self.playing = False
+
+    def seek(self, t: float) -> None:
+        with self._lock:
+            w = self._clock()
+            self._at(w)
+            self._t0, self._w0 = min(max(float(t), 0.0), self.duration), w
+
+    def set_speed(self, x: float) -> None:
+        with self._lock:
+            w = self._clock()
+            self._t0, self._w0 = self._at(w), w
+            self.speed = float(x)
 
     def index(self, t: float | None = None) -> int:
         t = self.t if t is None else t
@@ -117,35 +179,34 @@ class Playback:
     def tick(self) -> dict:
         return self.ticks[self.index()]
 
-    def events_so_far(self, limit: int | None = None) -> list[dict]:
-        i = self.index()
-        out = [e for tk in self.ticks[: i + 1] for e in tk.get("events", [])]
+    def events_so_far(self, limit: int | None = None, i: int | None = None) -> list[dict]:
+        """The events up to tick ``i`` (default: now), the last ``limit`` of them."""
+        out = self.events[: self._ends[self.index() if i is None else i]]
         return out if limit is None else out[-limit:]
 
-    def placed(self) -> list[str]:
-        return sorted({str(e.get("brick")) for e in self.events_so_far()
+    def placed(self, i: int | None = None) -> list[str]:
+        return sorted({str(e.get("brick")) for e in self.events_so_far(i=i)
                        if e.get("kind") == "placed"})
-
-    def advance(self, dt: float) -> None:
-        if self.playing:
-            self.t = min(self.duration, self.t + dt * self.speed)
-            if self.t >= self.duration:
-                self.playing = False
 
 
 class ReplayService:
     """The app's replay: a folder of recordings, the loaded one, its playback thread."""
 
-    def __init__(self, settings, hz: float = 15.0):
+    def __init__(self, settings, hz: float = 15.0,
+                 clock: Callable[[], float] = time.monotonic):
         self.settings = settings
         self.period = 1.0 / hz
+        self.clock = clock
         self.pb: Playback | None = None
         self.scene: ReplayScene | None = None
+        # the loaded recording and the scene, swapped under it; never held across a draw, so
+        # the state and the controls never wait on the 3D view
         self._lock = threading.RLock()
+        # one load or scene start at a time (these draw)
+        self._setup = threading.Lock()
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
-        self._shown = -1
 
     # --------------------------------------------------------------- recordings
     def folder(self) -> Path:
@@ -208,91 +269,95 @@ class ReplayService:
             manifest, ticks = load_recording(p)
         except (ValueError, KeyError, OSError) as e:
             raise BadInput(f"bad recording {p}: {one_line(e, 300)}") from None
-        pb = Playback(p, manifest, ticks)
-        with self._lock:
-            if self.scene is not None and self.scene.server is not None:
+        pb = Playback(p, manifest, ticks, self.clock)
+        with self._setup:
+            scene = self.scene
+            if scene is not None and scene.server is not None:
                 try:
-                    self.scene.load(manifest)
+                    scene.load(manifest)
                 except (ValueError, KeyError, TypeError, IndexError, AttributeError) as e:
                     # the playing recording stays loaded: a bad one never replaces it
                     raise BadInput(f"bad recording {p}: manifest.json: {one_line(e, 200)}") from None
-            self.pb = pb
-            self._shown = -1
+            with self._lock:
+                self.pb = pb
         self._ensure_thread()
         self._wake.set()
         return self.state()
 
     def _need(self) -> Playback:
-        if self.pb is None:
+        pb = self.pb
+        if pb is None:
             raise Conflict("no recording loaded")
-        return self.pb
+        return pb
 
     # --------------------------------------------------------------- controls
     def play(self) -> dict:
-        with self._lock:
-            pb = self._need()
-            if pb.t >= pb.duration:
-                pb.t = pb.times[0]
-            pb.playing = True
+        self._need().play()
         self._wake.set()
         return self.state()
 
     def pause(self) -> dict:
-        with self._lock:
-            self._need().playing = False
+        self._need().pause()
+        self._wake.set()
         return self.state()
 
     def seek(self, t: float) -> dict:
-        with self._lock:
-            pb = self._need()
-            if not math.isfinite(t):
-                raise BadInput("t must be a number of seconds")
-            pb.t = min(max(float(t), 0.0), pb.duration)
+        pb = self._need()
+        if not math.isfinite(t):
+            raise BadInput("t must be a number of seconds")
+        pb.seek(t)
         self._wake.set()
         return self.state()
 
     def set_speed(self, x: float) -> dict:
         if not (math.isfinite(x) and 0.05 <= x <= 64):
             raise BadInput("speed must be between 0.05 and 64")
-        with self._lock:
-            self._need().speed = float(x)
+        self._need().set_speed(x)
         return self.state()
 
     def state(self) -> dict:
         with self._lock:
-            pb = self.pb
-            if pb is None:
-                return {"loaded": False}
-            tk = pb.tick()
-            ev = pb.events_so_far()
-            return {
-                "loaded": True, "name": pb.path.name, "path": str(pb.path),
-                "scenario": pb.manifest.get("scenario"), "outcome": pb.manifest.get("outcome"),
-                "t": round(pb.t, 3), "duration": pb.duration, "playing": pb.playing,
-                "speed": pb.speed, "state": tk["state"], "tick_t": tk["t"],
-                "drone": tk["drone"], "setpoint": tk.get("setpoint"),
-                "holding": tk.get("holding"), "picker": tk.get("picker"),
-                "events": len(ev),
-                "last_events": [{"t": e.get("t"), "kind": e.get("kind"), "text": _describe(e)}
-                                for e in ev[-8:]],
-                "placed": pb.placed(), "bricks_total": _count(pb.manifest.get("bricks")),
-                "scene_updates": self.scene.updates if self.scene is not None else 0,
-                "note": pb.note,
-            }
+            pb, scene = self.pb, self.scene
+        if pb is None:
+            return {"loaded": False}
+        t, playing, speed = pb.now()
+        i = pb.index(t)
+        tk = pb.ticks[i]
+        ev = pb.events_so_far(i=i)
+        return {
+            "loaded": True, "name": pb.path.name, "path": str(pb.path),
+            "scenario": pb.manifest.get("scenario"), "outcome": pb.manifest.get("outcome"),
+            "t": round(t, 3), "duration": pb.duration, "playing": playing,
+            "speed": speed, "state": tk["state"], "tick_t": tk["t"],
+            "drone": tk["drone"], "setpoint": tk.get("setpoint"),
+            "holding": tk.get("holding"), "picker": tk.get("picker"),
+            "events": len(ev),
+            "last_events": [{"t": e.get("t"), "kind": e.get("kind"), "text": _describe(e)}
+                            for e in ev[-8:]],
+            "placed": pb.placed(i), "bricks_total": _count(pb.manifest.get("bricks")),
+            "scene_updates": scene.updates if scene is not None else 0,
+            "note": pb.note,
+        }
 
     # --------------------------------------------------------------- scene + thread
     def start_scene(self) -> ReplayScene | None:
-        with self._lock:
-            if self.scene is None:
-                scene = ReplayScene()
-                try:
-                    scene.start()
-                except Exception:  # noqa: BLE001 - the panel works without the 3D view
-                    return None
-                self.scene = scene
-                if self.pb is not None:
-                    scene.load(self.pb.manifest)
-                    self._shown = -1
+        if self.scene is None:
+            with self._setup:
+                if self.scene is None:
+                    scene = ReplayScene()
+                    try:
+                        scene.start()
+                    except Exception:  # noqa: BLE001 - the panel works without the 3D view
+                        return None
+                    pb = self.pb
+                    if pb is not None:
+                        try:
+                            scene.load(pb.manifest)
+                        except (ValueError, KeyError, TypeError, IndexError, AttributeError):
+                            log.debug("replay scene load failed", exc_info=True)
+                    # given to the playback only once drawn: a draw before would be lost
+                    with self._lock:
+                        self.scene = scene
         self._ensure_thread()
         self._wake.set()
         return self.scene
@@ -306,33 +371,26 @@ class ReplayService:
                 self._thread.start()
 
     def _run(self) -> None:
-        last = time.monotonic()
+        """Draw the latest instant, again whenever it changes; the frames a slow draw spans
+        are dropped (the time never waits for a draw: :class:`Playback`)."""
+        shown: tuple | None = None
         while not self._stop.is_set():
-            playing = self.pb is not None and self.pb.playing
-            if not playing:
-                self._wake.wait(self.period if self._shown < 0 else 0.5)
-                self._wake.clear()
-            else:
-                self._stop.wait(self.period)
-            now = time.monotonic()
-            dt, last = now - last, now
-            if self._stop.is_set():
-                break
+            self._wake.clear()
             with self._lock:
-                pb = self.pb
-                if pb is None:
-                    continue
-                pb.advance(dt)
-                i = pb.index()
-                scene = self.scene
-                tick = pb.ticks[i]
-                placed = set(pb.placed())
-            if scene is not None and i != self._shown:
-                try:
-                    scene.show(tick, placed)
-                    self._shown = i
-                except Exception:
-                    log.debug("replay scene update failed", exc_info=True)
+                pb, scene = self.pb, self.scene
+            playing = False
+            if pb is not None and scene is not None:
+                t, playing, _ = pb.now()
+                i = pb.index(t)
+                # the scene, recording and tick drawn: a new scene or recording is drawn anew
+                key = (scene, pb, i)
+                if key != shown:
+                    try:
+                        scene.show(pb.ticks[i], set(pb.placed(i)))
+                        shown = key
+                    except Exception:
+                        log.debug("replay scene update failed", exc_info=True)
+            self._wake.wait(self.period if playing else 0.5)
 
     def close(self) -> None:
         self._stop.set()
