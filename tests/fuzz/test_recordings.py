@@ -147,9 +147,10 @@ def test_the_crash_report_does_not_follow_a_planted_symlink(tmp_path, monkeypatc
 
 @pytest.mark.parametrize("meta", ["", "{", "[]", '{"gravity": [0, 0, 1]}',
                                   '{"gravity": "x", "bricks": [{"nope": 1}]}'])
-def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger):
+def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger, capsys):
     """bench dots' cache: an entry half written by an older version or a killed run (its
-    JSON broken) is rendered again; a sound entry is read back as written."""
+    JSON broken) is rendered again, said once in one line naming it; a sound entry is read
+    back as written."""
     import cv2
 
     from drovisio.bench.dots import FrameSource
@@ -163,6 +164,10 @@ def test_a_broken_bench_cache_entry_is_a_miss_not_a_crash(tmp_path, meta, ledger
     js.write_text(meta)
     hit, p, j = src._cached("k", 1, "t")
     assert hit is None and (p, j) == (png, js)
+    said = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(said) == 1 and said[0].startswith("bench dots --cache: ")
+    assert str(js) in said[0] and "rendering the frame again" in said[0]
+    assert src._cached("k", 1, "t")[0] is None and not capsys.readouterr().err   # once
     js.write_text(json.dumps({"gravity": [0.0, 0.0, 1.0], "bricks": []}))
     hit, _, _ = src._cached("k", 1, "t")
     assert hit is not None and hit.image.shape == (8, 8, 3) and int(hit.image[0, 0, 0]) == 7

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -143,6 +144,8 @@ class FrameSource:
         self.layout = layout
         self.camera = Camera.drone_webcam()
         self.cache = cache
+        self.stale_said = False
+        """A stale entry was said (the first only: the others are rendered again quietly)."""
         if cache is not None:
             cache.mkdir(parents=True, exist_ok=True)
 
@@ -169,8 +172,13 @@ class FrameSource:
                 img, meta = got
                 return (Frame(image=img, gravity=np.array(meta["gravity"]),
                               bricks=[DotTruth(**b) for b in meta["bricks"]]), png, js)
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # a broken or stale cache entry: render it again
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            # a broken or stale entry is rendered again; said once, as bench aruco does
+            if not self.stale_said:
+                self.stale_said = True
+                why = str(e) if isinstance(e, ValueError) else f"{js}: not an entry of this version"
+                print(f"bench dots --cache: {why}; rendering the frame again (and any other "
+                      "stale entry)", file=sys.stderr)
         return None, png, js
 
     def get_scene(self, key: str, seed: int, build) -> Frame:
