@@ -45,6 +45,7 @@ from drovisio.sources import Frame, FrameSource, SourceState
 from drovisio.tracking import BrickTracker, TrackedBrick, TrackerConfig
 
 __all__ = [
+    "STOP_WAIT_S",
     "Detector",
     "FrameOutput",
     "FrameRecorder",
@@ -55,6 +56,10 @@ __all__ = [
 ]
 
 log = logging.getLogger("drovisio.pipeline")
+
+STOP_WAIT_S = 600.0
+"""How long stopping waits for work in progress: a first run's frame compiles the detectors'
+kernels (minutes on a small board). The bound only turns a hang into a message."""
 
 
 def detectors_for(camera: Camera, layouts: Sequence[MarkerLayout], stream: bool = True
@@ -180,6 +185,13 @@ class Pipeline:
             if callable(on_frame):
                 self._listeners.append(on_frame)
         self._stop = threading.Event()
+        # set while no thread is inside run(): close() waits for it (see close)
+        self._idle = threading.Event()
+        self._idle.set()
+        self._runner: int | None = None
+        self._close_lock = threading.Lock()
+        self._closing = False
+        self._closed = threading.Event()
         self._pool = (ThreadPoolExecutor(max_workers=len(self.detectors),
                                          thread_name_prefix="detect")
                       if parallel and len(self.detectors) > 1 else None)
@@ -345,8 +357,22 @@ class Pipeline:
         """Loop until the source ends, :meth:`stop` is called or ``max_frames`` were done.
 
         ``on_status(snapshot)`` is called every ``status_period`` seconds.
-        Returns the number of frames processed.
+        Returns the number of frames processed (0 once :meth:`close` was called).
         """
+        with self._close_lock:
+            if self._closing:   # a run started after close would restart the closed source
+                return 0
+            self._runner = threading.get_ident()
+            self._idle.clear()
+        try:
+            return self._loop(max_frames, on_status, status_period)
+        finally:
+            self._runner = None
+            self._idle.set()
+
+    def _loop(self, max_frames: int | None,
+              on_status: Callable[[PipelineStatus], None] | None,
+              status_period: float) -> int:
         self.source.start()
         n = 0
         next_status = time.monotonic() + status_period
@@ -366,6 +392,8 @@ class Pipeline:
         return n
 
     def stop(self) -> None:
+        """Ask :meth:`run` to end after the frame in progress; returns at once (a signal
+        handler calls it). :meth:`close` waits for the end."""
         self._stop.set()
 
     def snapshot(self) -> PipelineStatus:
@@ -387,10 +415,25 @@ class Pipeline:
         return self.snapshot().to_json()
 
     def close(self) -> None:
-        """Stop the source, close the sinks and the recorder."""
+        """Stop the run and wait for its end, then stop the source, close the sinks and the
+        recorder; when it returns, no thread of the pipeline's runs any more.
+
+        Called from another thread than :meth:`run`'s (the web tool's live page), it waits
+        for the frame in progress: the detectors' threads may be compiling their kernels (a
+        first run) or inside OpenCV, and a thread left in native code while the interpreter
+        exits aborts the process ("terminate called without an active exception"). Later
+        calls wait for the first one to finish.
+        """
+        with self._close_lock:
+            first, self._closing = not self._closing, True
+        if not first:
+            if threading.get_ident() != self._runner:
+                self._closed.wait(STOP_WAIT_S)
+            return
         self._stop.set()
+        ended = self._wait_for_run()
         try:
-            self.source.stop()
+            self.source.stop(STOP_WAIT_S)
         finally:
             for s in self.sinks:
                 try:
@@ -400,7 +443,17 @@ class Pipeline:
             if self.recorder is not None:
                 self.recorder.close()
             if self._pool is not None:
-                self._pool.shutdown(wait=False)
+                self._pool.shutdown(wait=ended)
+            self._closed.set()
+
+    def _wait_for_run(self) -> bool:
+        """Wait until no thread is inside :meth:`run` (the caller's own run excepted); False
+        (and said) when it did not end within :data:`STOP_WAIT_S`."""
+        if threading.get_ident() == self._runner or self._idle.wait(STOP_WAIT_S):
+            return True
+        log.warning("the pipeline's frame in progress did not end within %.0f s; closing "
+                    "without it", STOP_WAIT_S)
+        return False
 
     @property
     def source_state(self) -> SourceState:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from drovisio.errors import InputError
+from drovisio.pipeline import STOP_WAIT_S
 from drovisio.resources import sample_sessions_dir, user_data_dir
 from drovisio.startup import check_pipeline_options
 from webtool.access import access_lines, install_log_redaction
@@ -60,7 +61,7 @@ def open_lines(settings: Settings) -> list[str]:
     return lines
 
 
-def _warm_up_in_background() -> None:
+def _warm_up_in_background() -> threading.Thread:
     """Load (or, the first time on a machine, compile) the detectors' kernels while the
     server starts, so that the live view's first frame does not wait for them."""
 
@@ -74,7 +75,22 @@ def _warm_up_in_background() -> None:
             print(f"  (detector warm-up failed: {e}; they will compile on first use)",
                   flush=True)
 
-    threading.Thread(target=work, name="detector-warm-up", daemon=True).start()
+    th = threading.Thread(target=work, name="detector-warm-up", daemon=True)
+    th.start()
+    return th
+
+
+def _finish_warm_up(th: threading.Thread) -> None:
+    """Wait for a warm-up still compiling when the server stops: a thread left in native
+    code while the interpreter exits aborts the process."""
+    if not th.is_alive():
+        return
+    print("  waiting for the detectors' kernels to finish compiling (the first time on this "
+          "machine)...", flush=True)
+    th.join(STOP_WAIT_S)
+    if th.is_alive():
+        print(f"  (the detectors' kernels did not finish compiling within {STOP_WAIT_S:.0f} s; "
+              "exiting without them)", flush=True)
 
 
 def _check_inputs(args: argparse.Namespace) -> None:
@@ -128,8 +144,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"  source: {src}" + ("" if settings.source else "  (no --source given)"), flush=True)
     print(f"  data folder: {settings.data_dir or user_data_dir()}", flush=True)
     print("  stop with Ctrl+C", flush=True)
-    _warm_up_in_background()
-    return _serve(app, settings)
+    warm_up = _warm_up_in_background()
+    try:
+        return _serve(app, settings)
+    finally:
+        _finish_warm_up(warm_up)
 
 
 def _serve(app: FastAPI, settings: Settings) -> int:

@@ -3,7 +3,8 @@
 numba compiles a kernel on its first call (all of them: 160 s on a busy 2-core machine, once
 per machine; later processes load the machine code from ``__pycache__`` in well under a second). Without a
 warm-up the first frame of the first run waits for it: ``make install`` runs this module, and
-``drovisio serve`` calls :func:`warm_up` in a background thread at start. The frame used is
+``drovisio serve`` calls :func:`warm_up` in a background thread at start (and waits for it at
+exit: a thread left compiling as the interpreter exits aborts the process). The frame used is
 drawn, not rendered (a few milliseconds): the shipped colour-dot drick and an ArUco drick seen
 from 0.8 m, so that every kernel runs with the argument types of real frames.
 

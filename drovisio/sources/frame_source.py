@@ -3,6 +3,7 @@ the reconnect and back-off loop."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -16,6 +17,8 @@ from drovisio.raw_frame import EndOfStream, RawFrame
 from drovisio.sources.reader import Pace, Reader
 
 __all__ = ["Frame", "FrameSource", "SourceState", "SourceStatus"]
+
+log = logging.getLogger("drovisio.sources")
 
 
 class SourceState(str, Enum):
@@ -153,6 +156,8 @@ class FrameSource:
             self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout)
+            if self._thread.is_alive():
+                log.warning("%s: the reader did not stop within %g s", self.label, timeout)
         if self._state not in (SourceState.ENDED, SourceState.FAILED):
             self._set_state(SourceState.STOPPED)
 

@@ -211,7 +211,7 @@ class LiveService:
         with self._lock:
             p, th = self.pipeline, self._thread
             if p is not None:
-                p.stop()
+                p.close()   # waits for the frame in progress (a first run compiles kernels)
             if th is not None:
                 th.join(5)
             self._thread = None
