@@ -3,13 +3,15 @@ speed and memory runs, the figures and the report.
 
 Used by ``drovisio study run`` (and the web tool's Study page). Progress goes to a callback
 (the CLI prints a bar on stderr); a step that cannot be read (a missing video, too few
-frames) is skipped with its reason and the study goes on.
+frames) is skipped with its reason and the study goes on. A study can be cancelled from
+another thread (the web tool stopping): it ends at its next frame or step, with no result.
 """
 
 from __future__ import annotations
 
 import gc
 import os
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -34,9 +36,24 @@ from drovisio.study.methods import METHODS
 from drovisio.study.protocol import FIGURES, Protocol, Step
 from drovisio.synth import check_render_work, render
 
-__all__ = ["StudyResult", "resolve_layouts", "run_study"]
+__all__ = ["StudyCancelled", "StudyResult", "resolve_layouts", "run_study"]
 
 Progress = Callable[[float, str], None]
+Check = Callable[[], None]
+
+
+class StudyCancelled(Exception):
+    """Raised by :func:`run_study` when its ``cancel`` was set before the end: a part of a
+    study is no result (a report of it would pass for the whole)."""
+
+
+def _checkpoint(cancel: threading.Event | None) -> Check:
+    """A check the work calls between frames and steps: raises :class:`StudyCancelled` once
+    ``cancel`` is set."""
+    def check() -> None:
+        if cancel is not None and cancel.is_set():
+            raise StudyCancelled("the study was cancelled before its end")
+    return check
 
 
 @dataclass
@@ -100,7 +117,8 @@ def _pick(found, layout) -> tuple[np.ndarray | None, bool]:
 def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
               memory_seconds: float = 20.0, speed_bricks=(1, 2, 5, 10, 20),
               speed_frames: int = 3, progress: Progress | None = None,
-              landing_runs: int = 10, where: str | None = None) -> StudyResult:
+              landing_runs: int = 10, where: str | None = None,
+              cancel: threading.Event | None = None) -> StudyResult:
     """Run ``protocol`` (paths relative to ``base``).
 
     Args:
@@ -109,13 +127,16 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
         speed_bricks: Brick counts of the frame-rate run (Fig. 6.10; empty: none).
         landing_runs: Simulated precision landings per layout and mount (0: none).
         where: The protocol file's name, for messages (None: "the protocol").
+        cancel: Set (from another thread) to stop the study at its next frame or step.
 
     Raises:
         InputError: an unknown method, or a protocol whose render memory or total work
             (steps × frames × image size, estimated first) is over its cap.
+        StudyCancelled: ``cancel`` was set before the study's end.
     """
     t_start = time.perf_counter()
     say = progress or (lambda f, m: None)
+    check = _checkpoint(cancel)
     res = StudyResult(protocol)
     names = methods or list(METHODS)
     unknown = [m for m in names if m not in METHODS]
@@ -134,16 +155,17 @@ def run_study(protocol: Protocol, base: Path, methods: list[str] | None = None,
         res.left_out["apriltag3"] = ("AprilTag 3 is not installed: pip install "
                                      "drovisio[peers] (or pip install pupil-apriltags)")
     estimators = _estimators(layouts, names, camera, res)
-    _accuracy_runs(protocol, base, layouts, names, estimators, camera, res, say)
+    _accuracy_runs(protocol, base, layouts, names, estimators, camera, res, say, check)
     if speed_bricks:
         say(0.8, "frame rate against the number of bricks")
         res.speed = _speed(layouts, names, estimators, camera, speed_bricks, speed_frames,
-                           protocol.seed)
+                           protocol.seed, check)
     if memory_seconds > 0:
-        res.memory = _memory(layouts, names, estimators, camera, memory_seconds, say)
+        res.memory = _memory(layouts, names, estimators, camera, memory_seconds, say, check)
     if landing_runs > 0 and camera.size_known:
         say(0.95, "precision landing (ArduPilot model)")
-        res.landing = _landing(layouts, camera, res.speed, landing_runs, protocol.seed)
+        res.landing = _landing(layouts, camera, res.speed, landing_runs, protocol.seed,
+                               check)
     res.seconds = time.perf_counter() - t_start
     say(1.0, "done")
     return res
@@ -174,7 +196,7 @@ def _estimators(layouts: dict, names: list[str], camera: Camera, res: StudyResul
 
 def _accuracy_runs(protocol: Protocol, base: Path, layouts: dict, names: list[str],
                    estimators: dict[tuple[str, str], Callable], camera: Camera,
-                   res: StudyResult, say: Progress) -> None:
+                   res: StudyResult, say: Progress, check: Check) -> None:
     """Every step's frames through every method that reads its layout, into ``res.records``;
     a step that cannot be read goes to ``res.skipped`` with its reason."""
     total = sum(s.frames for s in protocol.steps)
@@ -185,6 +207,7 @@ def _accuracy_runs(protocol: Protocol, base: Path, layouts: dict, names: list[st
         try:
             for k, fr in enumerate(step_frames(step, lay, camera, protocol.seed * 100_003 + i,
                                                base)):
+                check()
                 g_imu = _imu_gravity(fr.camera_from_brick, protocol.seed, i, k)
                 res.records += _frame_records(i, step, lay, fr, g_imu, names, estimators)
                 done += 1
@@ -221,26 +244,30 @@ def _frame_records(i: int, step: Step, lay: Any, fr: StepFrame, g_imu: np.ndarra
     return out
 
 
-def _scene_frames(lay, camera, n: int, count: int, seed: int) -> list[np.ndarray]:
+def _scene_frames(lay, camera, n: int, count: int, seed: int, check: Check
+                  ) -> list[np.ndarray]:
     spec = SceneSpec(layouts=[lay], n_bricks=n, distance=(1.2, 1.8),
                      instances=max(n, min(lay.instances or n, 20)))
     out = []
     for k in range(count):
+        check()
         scene, fx = random_scene(seed + 1000 * n + k, spec, camera)
         out.append(render(scene, fx, ss=2).image)
     return out
 
 
-def _speed(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
+def _speed(layouts, names, estimators, camera, bricks, count, seed, check: Check
+           ) -> list[dict]:
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)        # one core, as on the drone's board; the process's own after
     try:
-        return _speed_runs(layouts, names, estimators, camera, bricks, count, seed)
+        return _speed_runs(layouts, names, estimators, camera, bricks, count, seed, check)
     finally:
         cv2.setNumThreads(threads)
 
 
-def _speed_runs(layouts, names, estimators, camera, bricks, count, seed) -> list[dict]:
+def _speed_runs(layouts, names, estimators, camera, bricks, count, seed, check: Check
+                ) -> list[dict]:
     out = []
     for lname, lay in layouts.items():
         ms = [m for m in names if (lname, m) in estimators and not METHODS[m].accuracy_only]
@@ -248,8 +275,9 @@ def _speed_runs(layouts, names, estimators, camera, bricks, count, seed) -> list
             continue
         for n in bricks:
             n_eff = min(n, lay.instances or n)
-            frames = _scene_frames(lay, camera, n_eff, count, seed)
+            frames = _scene_frames(lay, camera, n_eff, count, seed, check)
             for m in ms:
+                check()
                 est = estimators[(lname, m)]
                 est(frames[0], None)                # warm (compiled kernels, caches)
                 times = []
@@ -270,7 +298,8 @@ LANDING_TILTS_DEG = (0.0, 20.0)
 """Mounts of the landing runs: straight down and the sample mount's 20° forward."""
 
 
-def _landing(layouts, camera, speed: list[dict], runs: int, seed: int) -> list[dict]:
+def _landing(layouts, camera, speed: list[dict], runs: int, seed: int, check: Check
+             ) -> list[dict]:
     """Per layout and mount (camera 8 cm ahead, 5 cm below the body origin): touchdown
     errors of ArduPilot's precision landing (:mod:`drovisio.autopilot.precland`) at the
     frame rate Drovisio reached on this machine for one brick (the camera's 30 at most;
@@ -281,6 +310,7 @@ def _landing(layouts, camera, speed: list[dict], runs: int, seed: int) -> list[d
                and x["method"].startswith("drovisio") and not x["method"].endswith("-image")]
         rate = min(30.0, max(fps)) if fps else 15.0
         for tilt in LANDING_TILTS_DEG:
+            check()
             mount = Mount.from_angles(tilt, offset_m=(0.08, 0.0, 0.05))
             sm = landing_summary(camera, mount, lay, LandingParams(rate_hz=rate, seed=seed),
                                  runs)
@@ -292,13 +322,13 @@ def _landing(layouts, camera, speed: list[dict], runs: int, seed: int) -> list[d
     return out
 
 
-def _memory(layouts, names, estimators, camera, seconds, say) -> dict:
+def _memory(layouts, names, estimators, camera, seconds, say, check: Check) -> dict:
     out: dict[str, list[tuple[float, float]]] = {}
     for m in names:
         lname = next((ln for ln in layouts if (ln, m) in estimators), None)
         if lname is None or METHODS[m].accuracy_only:
             continue
-        frames = _scene_frames(layouts[lname], camera, 5, 4, 77)
+        frames = _scene_frames(layouts[lname], camera, 5, 4, 77, check)
         est = estimators[(lname, m)]
         for img in frames:
             est(img, None)                          # warm-up before the baseline
@@ -307,6 +337,7 @@ def _memory(layouts, names, estimators, camera, seconds, say) -> dict:
         t0 = last = time.perf_counter()
         k = 0
         while time.perf_counter() - t0 < seconds:
+            check()
             est(frames[k % len(frames)], None)
             k += 1
             now = time.perf_counter()

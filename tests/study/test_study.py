@@ -5,6 +5,7 @@ errors the benchmarks' own, and bad input named without stopping the study."""
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import cv2
@@ -15,6 +16,7 @@ import yaml
 from drovisio import cli
 from drovisio.camera import Camera
 from drovisio.layout import load_layout, shipped_layouts_dir, with_dictionary
+from drovisio.study import run as study_run
 from drovisio.study.analysis import frame_errors
 from drovisio.study.example import write_recorded_example
 from drovisio.study.frames import step_frames, truth_camera_from_brick
@@ -28,7 +30,7 @@ from drovisio.study.protocol import (
     load_protocol,
 )
 from drovisio.study.report import write_report
-from drovisio.study.run import run_study
+from drovisio.study.run import StudyCancelled, run_study
 
 CODE = load_layout(shipped_layouts_dir() / "drick-aruco-centre.json")
 
@@ -294,6 +296,25 @@ def test_without_apriltag_the_study_says_what_was_left_out(tmp_path, no_apriltag
     assert "pip install drovisio[peers]" in res.left_out["apriltag3"]
     assert {r["method"] for r in res.records} == {"drovisio-codes", "drovisio-codes-image",
                                                   "opencv"}
+
+
+def test_a_cancelled_study_stops_at_its_next_frame_and_gives_no_result(tmp_path,
+                                                                       monkeypatch):
+    proto = load_protocol(_write(tmp_path / "p.yaml", _small_protocol(frames=2)))
+    cancel = threading.Event()
+    steps: list[str] = []
+    real = study_run.step_frames
+
+    def first_step_cancels(step, *args, **kwargs):
+        steps.append(step.label)
+        cancel.set()          # as the web tool does when it stops, from another thread
+        return real(step, *args, **kwargs)
+
+    monkeypatch.setattr(study_run, "step_frames", first_step_cancels)
+    with pytest.raises(StudyCancelled):
+        run_study(proto, tmp_path, methods=["drovisio-codes"], memory_seconds=1.0,
+                  speed_bricks=(1,), speed_frames=1, landing_runs=1, cancel=cancel)
+    assert len(steps) == 1 < len(proto.steps)
 
 
 def test_cli_refuses_a_bad_protocol_in_one_line(tmp_path, capsys):

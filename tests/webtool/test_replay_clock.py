@@ -1,6 +1,7 @@
 """The replay's time is read off the clock while playing: a draw of the 3D view that blocks,
 whatever holds it, holds back neither the time nor the state nor the controls, and once it
-returns the latest instant is drawn, the frames between dropped.
+returns the latest instant is drawn, the frames between dropped. Closing the service waits
+for a blocked draw to end (nothing of the replay's left running as the interpreter exits).
 
 The clock is the test's own (no wall-clock timing); each wait is a bound that turns a hang
 into a failure."""
@@ -18,6 +19,7 @@ from webtool.replay.service import Playback, ReplayService
 from webtool.settings import Settings
 
 HANG = 60.0   # seconds: a bound for failures only
+HOLD = 5.0    # seconds a draw stays blocked under close (a close that waits passes with any)
 
 
 class Clock:
@@ -38,6 +40,7 @@ class BlockedScene:
     def __init__(self) -> None:
         self.updates = 0
         self.shown: list[float] = []
+        self.drawers: list[threading.Thread] = []
         self.drawing = threading.Event()
         self.release = threading.Event()
         self.drawn = threading.Condition()
@@ -47,6 +50,7 @@ class BlockedScene:
 
     def show(self, tick: dict, placed: set[str]) -> None:
         self.shown.append(tick["t"])
+        self.drawers.append(threading.current_thread())
         self.drawing.set()
         if not self.release.wait(HANG):
             raise TimeoutError("the test never released the draw")
@@ -120,6 +124,32 @@ def test_the_clock_runs_while_a_draw_is_blocked(recordings):
     finally:
         scene.release.set()
         svc.close()
+
+
+def test_close_waits_for_the_blocked_draw_to_end(recordings):
+    svc = ReplayService(Settings(replay_dir=recordings), clock=Clock())
+    scene = BlockedScene()
+    svc.scene = scene  # type: ignore[assignment]
+    drawer_alive_after_close: list[bool] = []
+
+    def close() -> None:
+        svc.close()
+        drawer_alive_after_close.append(scene.drawers[0].is_alive())
+
+    closer = threading.Thread(target=close, daemon=True, name="closer")
+    try:
+        svc.load("one-brick")
+        assert scene.drawing.wait(HANG), "the playback never drew"
+        closer.start()
+        # the draw stays blocked a while after close began (longer than a close that gives
+        # up after a few seconds waits), then returns
+        closer.join(HOLD)
+        scene.release.set()
+        closer.join(HANG)
+        assert not closer.is_alive(), "close never returned"
+        assert drawer_alive_after_close == [False], "close returned before the draw ended"
+    finally:
+        scene.release.set()
 
 
 def test_the_time_is_read_off_the_clock(recordings):

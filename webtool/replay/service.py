@@ -23,6 +23,7 @@ from typing import Any
 from drovisio.errors import InputError, one_line
 from drovisio.layout import shipped_layout_file
 from drovisio.mission.record import load_manifest, load_recording
+from drovisio.pipeline import STOP_WAIT_S
 from drovisio.textfile import path_text_problem
 from webtool.errors import BadInput, Conflict, Forbidden, NotFound
 from webtool.replay.scene import ReplayScene
@@ -393,10 +394,17 @@ class ReplayService:
             self._wake.wait(self.period if playing else 0.5)
 
     def close(self) -> None:
+        """Stop the playback and wait for its thread to end (a draw in progress finishes),
+        then stop the scene: no thread of the replay's is left running as the interpreter
+        exits. The bound only turns a hang into a message."""
         self._stop.set()
         self._wake.set()
-        if self._thread is not None:
-            self._thread.join(3)
+        th = self._thread
+        if th is not None:
+            th.join(STOP_WAIT_S)
+            if th.is_alive():
+                log.warning("the replay's playback did not stop within %.0f s; closing "
+                            "without it", STOP_WAIT_S)
         if self.scene is not None:
             self.scene.stop()
             self.scene = None

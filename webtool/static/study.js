@@ -47,7 +47,8 @@
     msg.className = "msg" + (p.error ? " error" : "");
     msg.textContent = p.error ? "The study stopped: " + p.error
       : p.running ? Math.round(100 * (p.fraction || 0)) + " % — " + (p.message || "")
-      : p.report ? "Done: report " + p.report + " (below)." : "";
+      : p.report ? "Done: report " + p.report + " (below)."
+      : p.cancelled ? "The study was cancelled before its end: no report." : "";
   }
 
   async function poll() {

@@ -5,7 +5,8 @@ shipped protocol.
 GET      /api/study/reports                the reports (name, protocol, frames, seconds)
 POST     /api/study/start                  run the shipped recorded-style protocol (409 while
                                            one runs)
-GET      /api/study/progress               running, fraction, message, error, report
+GET      /api/study/progress               running, fraction, message, error, report,
+                                           cancelled
 GET      /study/reports/{name}/{file}      report.html or one of its figures
 =======  ================================  ====================================================
 """

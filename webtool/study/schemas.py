@@ -17,10 +17,12 @@ class StudyReports(Answer):
 
 
 class StudyProgress(Answer):
-    """The study started from the page: running, fraction done, message, error, report."""
+    """The study started from the page: running, fraction done, message, error, report, and
+    whether it was cancelled (the web tool stopped during it: no report)."""
 
     running: bool
     fraction: float
     message: str
     error: str | None
     report: str | None
+    cancelled: bool = False

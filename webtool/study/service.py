@@ -2,25 +2,30 @@
 recorded-style protocol started from the page, in the background, with its progress.
 
 Reports live in ``study_dir/<name>/`` (``report.html``, ``summary.json``, ``frames.jsonl``,
-the figures), as ``drovisio study run --out`` writes them.
+the figures), as ``drovisio study run --out`` writes them. Closing the service cancels the
+study in progress and waits for it to end (no report is written for it).
 """
 
 from __future__ import annotations
 
+import logging
 import re
 import threading
 import time
 from pathlib import Path
 
 from drovisio.errors import InputError, one_line
+from drovisio.pipeline import STOP_WAIT_S
 from drovisio.resources import sample_sessions_dir
 from drovisio.study.protocol import load_protocol
 from drovisio.study.report import write_report
-from drovisio.study.run import run_study
+from drovisio.study.run import StudyCancelled, run_study
 from drovisio.textfile import parse_json, read_text
 from webtool.errors import Conflict, NotFound
 
 __all__ = ["StudyService"]
+
+log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,120}$")
 MAX_ENTRIES = 2000
@@ -66,8 +71,9 @@ class StudyService:
         self.folder = settings.user_folder("study")
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
+        self._cancel = threading.Event()
         self.progress = {"running": False, "fraction": 0.0, "message": "", "error": None,
-                         "report": None}
+                         "report": None, "cancelled": False}
 
     def reports(self) -> list[dict]:
         """The reports in the folder, newest first."""
@@ -109,13 +115,14 @@ class StudyService:
                 raise Conflict("a study is already running: wait for it to finish")
             name = time.strftime("%Y%m%d-%H%M%S") + "-sample"
             self.progress = {"running": True, "fraction": 0.0, "message": "starting",
-                             "error": None, "report": None, "name": name}
-            self._thread = threading.Thread(target=self._run, args=(name,), daemon=True,
-                                            name="study")
+                             "error": None, "report": None, "cancelled": False, "name": name}
+            self._cancel = threading.Event()
+            self._thread = threading.Thread(target=self._run, args=(name, self._cancel),
+                                            daemon=True, name="study")
             self._thread.start()
             return dict(self.progress)
 
-    def _run(self, name: str) -> None:
+    def _run(self, name: str, cancel: threading.Event) -> None:
         def say(frac: float, msg: str) -> None:
             self.progress.update(fraction=round(0.95 * frac, 3), message=msg)
 
@@ -123,17 +130,29 @@ class StudyService:
             path = sample_sessions_dir() / "study" / "protocol.yaml"
             protocol = load_protocol(path)
             res = run_study(protocol, path.parent, memory_seconds=2.0, speed_bricks=(1, 5),
-                            speed_frames=1, progress=say, landing_runs=3)
+                            speed_frames=1, progress=say, landing_runs=3, cancel=cancel)
             out = self.folder / name
             write_report(res, out, f"drovisio study run --protocol {path} --out {out}",
                          path.read_text(encoding="utf-8"))
             self.progress.update(fraction=1.0, message="done", report=name)
+        except StudyCancelled:
+            self.progress.update(cancelled=True, message="cancelled: no report")
         except Exception as e:  # noqa: BLE001 - shown on the page, in one line
             self.progress.update(error=f"{type(e).__name__}: {e}")
         finally:
             self.progress["running"] = False
 
     def close(self) -> None:
-        th = self._thread
-        if th is not None:
-            th.join(0.1)
+        """Cancel the study in progress and wait for its thread to end: it renders and
+        detects in native code (numba, OpenCV), and a thread left there while the
+        interpreter exits aborts the process ("terminate called without an active
+        exception"). The bound only turns a hang into a message."""
+        with self._lock:
+            th, cancel = self._thread, self._cancel
+        if th is None:
+            return
+        cancel.set()
+        th.join(STOP_WAIT_S)
+        if th.is_alive():
+            log.warning("the study did not stop within %.0f s; closing without it",
+                        STOP_WAIT_S)
