@@ -22,7 +22,8 @@ edge, so the fitted homography, and the outer corners ``G⁻¹((0,0), (n,0), (n,
 carry no blur bias; working in undistorted coordinates makes lens distortion exact as well.
 
 The fit also yields, per code, the corners' 8×8 covariance (from the Jacobian and the fit's
-residual noise), the contrast, the blur, and two checks used to reject decoys and partly
+residuals, widened where neighbouring pixels share their errors: :mod:`.covariance`), the
+contrast, the blur, and two checks used to reject decoys and partly
 hidden codes: the goodness of fit, and a deblurred read-back of every inner cell at the fitted
 geometry and blur (its correlation included), judged by the code's own two brightness classes
 (:func:`cell_verdicts`: real JPEGs read cells at 0.7 / 0.3 that still lie 15+ spreads apart);
@@ -52,8 +53,9 @@ The package, one subject per module: :mod:`.fit` (:func:`refine_codes`, its stag
 :mod:`.model` (the photometric model and its Jacobian), :mod:`.samples` (which pixels enter
 the fit; compiled in :mod:`.samples_kernels`, numba, where numba is installed, the same
 samples as the numpy reference; the fit stays numpy: its dense float32 arithmetic is faster
-vectorised), :mod:`.cells` (the read-back of the cells), :mod:`.outer` (the refit with the
-outer edges).
+vectorised), :mod:`.covariance` (the parameters' covariance from the residuals; its kernel
+compiled in :mod:`.covariance_kernels`), :mod:`.cells` (the read-back of the cells),
+:mod:`.outer` (the refit with the outer edges).
 
 Conventions: pixel (0, 0) is the centre of the top-left pixel; corners in OpenCV order TL, TR,
 BR, BL of the printed code (the order of ``cv2.aruco`` and of the layout file).

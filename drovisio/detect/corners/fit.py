@@ -5,7 +5,7 @@
 3. the samples (:mod:`.samples`),
 4. the start levels,
 5. the Levenberg–Marquardt fit of (G, B, W, s_u, s_v, rho) (:mod:`.model`),
-6. the parameters' covariance,
+6. the parameters' covariance, from the fit's own residuals (:mod:`.covariance`),
 7. the outer corners and their covariance in pixels,
 8. the checks that keep or refuse each code (fit, contrast, blur, how far a corner moved,
    the cells read back: :mod:`.cells`),
@@ -21,6 +21,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect.corners.cells import cell_margins, cell_verdicts
+from drovisio.detect.corners.covariance import parameter_covariance
 from drovisio.detect.corners.model import (
     g_to_matrix,
     homographies,
@@ -183,6 +184,10 @@ class _Fit:
     """(C,) sum of squared residuals."""
     A: np.ndarray
     """(C, 13, 13) the last Gauss–Newton matrix JᵀJ."""
+    Jw: np.ndarray
+    """(C, 13, M) its transposed Jacobian (zero where no sample is)."""
+    r: np.ndarray
+    """(C, M) the residuals at the solution (zero where no sample is)."""
 
 
 def _batch(grid: np.ndarray, corners: list[np.ndarray] | np.ndarray, bits: list[np.ndarray]
@@ -346,26 +351,7 @@ def _levenberg_marquardt(b: _Batch, smp: _Samples, lev: np.ndarray, iterations: 
         r[better], cost[better] = r_n[better], cost_n[better]
         lam = np.where(better, np.maximum(lam / 3.0, 1e-6), lam * 5.0)
     assert step is not None, "refine_codes needs at least one iteration"
-    return _Fit(lev, s, rho, step.cost, step.A)
-
-
-def _parameter_covariance(A: np.ndarray, sig2: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Stage 6: (C, k, k) covariance of the parameters from the last Gauss–Newton matrix
-    (C, k, k) and the final residuals' variance ``sig2`` (C,)."""
-    C, k = A.shape[:2]
-    eye = np.eye(k)
-    A = A + 1e-9 * eye
-    A[~valid] = eye
-    try:
-        return np.linalg.inv(A) * sig2[:, None, None]
-    except np.linalg.LinAlgError:
-        cov_p = np.zeros((C, k, k))
-        for c in range(C):
-            try:
-                cov_p[c] = np.linalg.inv(A[c]) * sig2[c]
-            except np.linalg.LinAlgError:
-                cov_p[c] = eye * 1e6
-        return cov_p
+    return _Fit(lev, s, rho, step.cost, step.A, step.Jw, step.r)
 
 
 def _corners(b: _Batch, camera: Camera, cov_p: np.ndarray
@@ -505,9 +491,11 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
                                              b.bits_pad, b.ns, fit.rho)
     tol_cells = np.broadcast_to(np.asarray(tolerable_cells, np.int64), (C,))
     cells = cell_verdicts(cell_a, cell_bits, tol_cells)
-    px_c, xn_c, cov_px = _corners(b, camera, _parameter_covariance(fit.A, sig2, valid))
+    blur_px = np.sqrt(s[:, 0] * s[:, 1]) * cell_px
+    px_c, xn_c, cov_px = _corners(b, camera, parameter_covariance(
+        fit.A, fit.Jw, fit.r, smp.xs, smp.ys, smp.wts, cell_px, blur_px, valid))
     moved = np.sqrt(((px_c - b.q) ** 2).sum(axis=2))  # (C, 4) how far each corner moved, px
-    checks = _Checks(lev[:, 1] - lev[:, 0], np.sqrt(sig2), np.sqrt(s[:, 0] * s[:, 1]) * cell_px,
+    checks = _Checks(lev[:, 1] - lev[:, 0], np.sqrt(sig2), blur_px,
                      moved, _move_limits(moved, valid & np.isfinite(moved).all(axis=1),
                                          start_sigma_px, cell_px), *cells)
     whys = ["" if not valid[c] else _refusal(c, px_c, cell_px, checks) for c in range(C)]
@@ -550,11 +538,11 @@ def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch
     interior = Interior(b.g, fit.lev, fit.s, fit.rho, smp.xs, smp.ys, smp.vals, smp.wts, sig2,
                         white_spread)
     of = fit_outer(grid, gray, b.q, b.centre, b.scale, b.ns, b.bits_pad, region.band, kept,
-                   interior, M)
+                   interior, M, b.cell_px)
     used = of.used
     if used.any():
         b_o = replace(b, g=of.g)
-        px_o, xn_o, cov_o = _corners(b_o, camera, _parameter_covariance(of.A, of.sig2, used))
+        px_o, xn_o, cov_o = _corners(b_o, camera, of.cov_p)
         with np.errstate(invalid="ignore"):
             moved = np.sqrt(((px_o - b.q) ** 2).sum(axis=2))
             used &= np.isfinite(px_o).all(axis=(1, 2)) & (moved <= move_limit[:, None]).all(1)

@@ -39,6 +39,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from drovisio.detect.corners.covariance import parameter_covariance
 from drovisio.detect.corners.model import code_coords, model, phi_and_density, solve_batched
 from drovisio.detect.corners.samples import pixel_boxes, select_samples
 
@@ -144,10 +145,9 @@ class OuterFit:
     """(C,) bool: the refit is kept (the surround is uniform paper)."""
     g: np.ndarray
     """(C, 8) the refit homographies (the interior's where not used)."""
-    A: np.ndarray
-    """(C, 13, 13) the last Gauss–Newton matrix."""
-    sig2: np.ndarray
-    """(C,) the refit's residual variance, grey levels²."""
+    cov_p: np.ndarray
+    """(C, 13, 13) the refit parameters' covariance, from its residuals
+    (:func:`.covariance.parameter_covariance`; the identity where not refitted)."""
 
 
 def _ring_bits(ns: np.ndarray) -> np.ndarray:
@@ -299,17 +299,19 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, rho: np
                          ys: np.ndarray, vals: np.ndarray, wts: np.ndarray,
                          bits_in: np.ndarray, bits_t: np.ndarray, n_max: int, nf: np.ndarray,
                          iterations: int, lm_lambda: float
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                         ) -> tuple[np.ndarray, ...]:
     """The refit of (G, B, W, s_u, s_v, O) of the codes given (copies).
 
     Returns:
-        (g (C, 8), levels (C, 3), the last Gauss–Newton matrix (C, 13, 13), the weighted
-        residuals at the solution (C, M)).
+        (g (C, 8), levels (C, 3), blur (C, 2) cells, the last Gauss–Newton matrix
+        (C, 13, 13) and its transposed Jacobian (C, 13, M), the weighted residuals at the
+        solution (C, M)).
     """
     g, lev3, s = g.copy(), lev3.copy(), s.copy()
     lam = np.full(len(g), lm_lambda)
     eye = np.eye(13)
     A = np.tile(eye, (len(g), 1, 1))
+    Jw = np.zeros((len(g), 13, vals.shape[1]))
     r = np.zeros_like(vals)
     for _ in range(iterations):
         I, J = model_outer(g, lev3, s, xs, ys, bits_in, bits_t, n_max, nf, rho=rho)
@@ -330,7 +332,7 @@ def _levenberg_marquardt(g: np.ndarray, lev3: np.ndarray, s: np.ndarray, rho: np
         g[better], lev3[better], s[better] = g_n[better], lev_n[better], s_n[better]
         r[better] = r_n[better]
         lam = np.where(better, np.maximum(lam / 3.0, 1e-6), lam * 5.0)
-    return g, lev3, A, r
+    return g, lev3, s, A, Jw, r
 
 
 @dataclass
@@ -359,8 +361,9 @@ class Interior:
 
 def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndarray,
               scale: np.ndarray, ns: np.ndarray, bits_pad: np.ndarray, band: np.ndarray,
-              fit: np.ndarray, interior: Interior, max_samples: int, iterations: int = 3,
-              lm_lambda: float = 0.01, false_rate: float = 0.001) -> OuterFit:
+              fit: np.ndarray, interior: Interior, max_samples: int, cell_px: np.ndarray,
+              iterations: int = 3, lm_lambda: float = 0.01, false_rate: float = 0.001
+              ) -> OuterFit:
     """Refit codes with their surround (see the module), from the interior fit.
 
     Args:
@@ -373,6 +376,7 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
         interior: The interior fit: the start, its samples (the refit adds those along the
             outer side) and its noise.
         max_samples: Most samples per code along the outer side.
+        cell_px: (C,) a cell's width, px.
         iterations: Levenberg–Marquardt iterations.
         lm_lambda: Initial damping, relative to the diagonal.
         false_rate: Chance that a uniform paper surround is refused, per test.
@@ -397,23 +401,25 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
     live &= _paper(lev3, np.zeros(C), it.white_spread, 2.0 * z)
     g = it.g.copy()
     used = np.zeros(C, bool)
-    A = np.tile(np.eye(13), (C, 1, 1))
-    sig2 = np.ones(C)
+    cov_p = np.tile(np.eye(13), (C, 1, 1))
     k = np.nonzero(live)[0]
     if k.size == 0:
-        return OuterFit(used, g, A, sig2)
+        return OuterFit(used, g, cov_p)
     xo, yo, vo, wo = _outer_samples(grid, gray, q, it.g, centre, scale, ns, band, live,
                                     max_samples)
     xs = np.concatenate([it.xs[k], xo[k]], axis=1)
     ys = np.concatenate([it.ys[k], yo[k]], axis=1)
     vals = np.concatenate([it.vals[k], vo[k]], axis=1)
     wts = np.concatenate([it.wts[k], wo[k]], axis=1)
-    g_k, lev_k, A_k, r_k = _levenberg_marquardt(
+    g_k, lev_k, s_k, A_k, Jw_k, r_k = _levenberg_marquardt(
         g[k], lev3[k], it.s[k], it.rho[k], xs, ys, vals, wts, bits_in[k], bits_t[k], n_max,
         nf[k], iterations, lm_lambda)
     sig2_k = (r_k * r_k).sum(axis=1) / np.maximum(wts.sum(axis=1) - 13.0, 1.0)
     ok = _sides_uniform(g_k, xs, ys, r_k, wts, nf[k], band[k],
                         it.white_spread[k] * (lev_k[:, 1] - lev_k[:, 0]), false_rate)
     ok &= _paper(lev_k, _var_o_minus_w(A_k, sig2_k, ok), it.white_spread[k], z)
-    g[k], A[k], sig2[k], used[k] = g_k, A_k, sig2_k, ok
-    return OuterFit(used, g, A, sig2)
+    g[k], used[k] = g_k, ok
+    if ok.any():
+        cov_p[k] = parameter_covariance(A_k, Jw_k, r_k, xs, ys, wts, cell_px[k],
+                                        np.sqrt(s_k[:, 0] * s_k[:, 1]) * cell_px[k], ok)
+    return OuterFit(used, g, cov_p)
