@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 
 import pytest
 from fastapi.testclient import TestClient
@@ -155,7 +156,8 @@ def test_serve_ends_with_one_line_when_its_lifespan_fails(monkeypatch, cli, host
     port = s.getsockname()[1]
     s.close()
     monkeypatch.setattr(serve, "_check_inputs", lambda args: None)  # as if the link died since
-    monkeypatch.setattr(serve, "_warm_up_in_background", lambda: None)
+    monkeypatch.setattr(serve, "_warm_up_in_background",        # a warm-up already done
+                        lambda: threading.Thread(target=lambda: None))
     rc, out, err = cli("serve", "--port", port, "--source", hostile_files["video"],
                        "--camera", hostile_files["camera"], "--layout",
                        hostile_files["layout"], "--sink", "bogus",
