@@ -42,7 +42,7 @@ darker brick (every rendered drick) fails those tests and keeps the interior fit
 covariance holds the two fits' disagreement too: the pixel noise alone said 0.055 px where
 the corners lie 0.23 px from AprilTag 3's on OpenCV's ChArUco photo (one lone code's pose then
 came out as its mirror, unflagged); half the distance between the corners with and without
-the outer edges, added on every coordinate, gives 0.24 px there and keeps a drawn code's
+the outer edges, added on every coordinate, gives 0.27 px there and keeps a drawn code's
 corners within their covariance under a tone curve (chi-square 3.9, 40 without).
 
 Measured on rendered drick scenes (``drovisio bench aruco``, blur σ ≤ 1 px, 2852 corners):

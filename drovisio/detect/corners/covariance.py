@@ -70,8 +70,8 @@ def parameter_covariance(A: np.ndarray, Jw: np.ndarray, r: np.ndarray, xs: np.nd
         valid: (C,) the codes fitted.
 
     Returns:
-        (C, k, k) covariance; the larger (by the homography's part) of the sandwich and the
-        Gauss–Newton one.
+        (C, k, k) covariance: the Gauss–Newton one, widened by the ratio of the sandwich's
+        size to its own over the homography's parameters where that ratio is above 1.
     """
     C, k, M = Jw.shape
     n = wts.sum(axis=1)
