@@ -54,13 +54,15 @@ def gauss_newton_covariance(A: np.ndarray, sig2: np.ndarray, valid: np.ndarray) 
         return cov_p
 
 
-def parameter_covariance(A: np.ndarray, Jw: np.ndarray, r: np.ndarray, xs: np.ndarray,
-                         ys: np.ndarray, wts: np.ndarray, cell_px: np.ndarray,
+def parameter_covariance(A: np.ndarray, sig2: np.ndarray, Jw: np.ndarray, r: np.ndarray,
+                         xs: np.ndarray, ys: np.ndarray, wts: np.ndarray, cell_px: np.ndarray,
                          blur_px: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """The parameters' covariance from the fit's residuals (see the module).
 
     Args:
         A: (C, k, k) the last Gauss–Newton matrix ``JᵀJ``.
+        sig2: (C,) the residuals' variance, grey levels² (their sum of squares over the
+            samples less the parameters).
         Jw: (C, k, M) the transposed Jacobian (zero where no sample is).
         r: (C, M) the residuals at the solution, grey levels (zero where no sample is).
         xs, ys: (C, M) the samples' local coordinates (a unit is a cell).
@@ -75,9 +77,8 @@ def parameter_covariance(A: np.ndarray, Jw: np.ndarray, r: np.ndarray, xs: np.nd
     """
     C, k, M = Jw.shape
     n = wts.sum(axis=1)
-    sig2 = (r * r).sum(axis=1) / np.maximum(n - k, 1.0)
-    gn = gauss_newton_covariance(A, sig2, valid)
     A_inv = gauss_newton_covariance(A, np.ones(C), valid)
+    gn = A_inv * sig2[:, None, None]
     # the samples in pixels (a local unit is a cell), scaled so that the kernel is
     # exp(-|p - q|² / 2) in units of the residuals' reach
     reach = np.maximum(0.5 + np.asarray(blur_px, np.float64), 1.0)

@@ -493,7 +493,7 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     cells = cell_verdicts(cell_a, cell_bits, tol_cells)
     blur_px = np.sqrt(s[:, 0] * s[:, 1]) * cell_px
     px_c, xn_c, cov_px = _corners(b, camera, parameter_covariance(
-        fit.A, fit.Jw, fit.r, smp.xs, smp.ys, smp.wts, cell_px, blur_px, valid))
+        fit.A, sig2, fit.Jw, fit.r, smp.xs, smp.ys, smp.wts, cell_px, blur_px, valid))
     moved = np.sqrt(((px_c - b.q) ** 2).sum(axis=2))  # (C, 4) how far each corner moved, px
     checks = _Checks(lev[:, 1] - lev[:, 0], np.sqrt(sig2), blur_px,
                      moved, _move_limits(moved, valid & np.isfinite(moved).all(axis=1),

@@ -420,6 +420,6 @@ def fit_outer(grid: np.ndarray, gray: np.ndarray, q: np.ndarray, centre: np.ndar
     ok &= _paper(lev_k, _var_o_minus_w(A_k, sig2_k, ok), it.white_spread[k], z)
     g[k], used[k] = g_k, ok
     if ok.any():
-        cov_p[k] = parameter_covariance(A_k, Jw_k, r_k, xs, ys, wts, cell_px[k],
+        cov_p[k] = parameter_covariance(A_k, sig2_k, Jw_k, r_k, xs, ys, wts, cell_px[k],
                                         np.sqrt(s_k[:, 0] * s_k[:, 1]) * cell_px[k], ok)
     return OuterFit(used, g, cov_p)
