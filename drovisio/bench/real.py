@@ -13,7 +13,7 @@ holds:
   pixel convention: AprilTag's corners − 0.5 px), poses (the same IPPE on each method's
   corners; Drovisio's own pose), codes read more than once in a photo, time per photo. The
   reference is itself checked against a reading independent of both: the code's outer edges
-  located on the gradient and fitted as lines (:mod:`~drovisio.bench.real_edges`), where
+  located on the gradient and fitted as lines (:mod:`~drovisio.detect.corners.edges`), where
   they are clean; AprilTag's mean offset from their intersections checks the half-pixel
   convention, and where the two methods differ the edges say which one is nearer.
 * **charuco** — a ChArUco photo with its camera file: the board is guessed from the codes
@@ -42,7 +42,7 @@ holds:
 
 Modules: :mod:`~drovisio.bench.real_folder` (what a folder holds, its kind),
 :mod:`~drovisio.bench.real_measures` (timing, corner distances, IPPE, summary figures),
-:mod:`~drovisio.bench.real_codes` (tag and ChArUco photos), :mod:`~drovisio.bench.real_edges`
+:mod:`~drovisio.bench.real_codes` (tag and ChArUco photos), :mod:`~drovisio.detect.corners.edges`
 (the outer-edge reading that checks the tag reference); chessboards, the printing and the
 command are here.
 

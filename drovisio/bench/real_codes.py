@@ -14,7 +14,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drovisio.bench.real_edges import EDGE_LINE_MAX_RMS_PX, outer_edge_corners
 from drovisio.bench.real_folder import (
     aruco_detector,
     best_dictionary,
@@ -34,6 +33,7 @@ from drovisio.bench.real_measures import (
 )
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector
+from drovisio.detect.corners.edges import EDGE_LINE_MAX_RMS_PX, outer_edge_corners
 from drovisio.errors import InputError
 from drovisio.layout import MarkerLayout, aruco_dictionary_id, aruco_dictionary_size, parse_layout
 from drovisio.study.apriltag import APRILTAG_FAMILIES, AprilTagReader
@@ -96,7 +96,7 @@ class _TagFigures:
     """Corner RMS per code (px), Drovisio against AprilTag 3."""
     edges: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     """Per code whose outer edges are clean: (AprilTag's, Drovisio's) (4, 2) corners minus
-    the edge lines' intersections, px (:mod:`.real_edges`)."""
+    the edge lines' intersections, px (:mod:`drovisio.detect.corners.edges`)."""
     edges_unclean: int = 0
     """Codes read by both whose outer edges are not clean enough to judge by."""
     c_cv_at: list[float] = field(default_factory=list)
@@ -212,8 +212,11 @@ def _opencv_kept(path: Path, codes: list[Any], cv: Quads, fig: _TagFigures) -> N
 
 def _against_edges(g: np.ndarray, codes: list[Any], ats: Quads, fig: _TagFigures) -> None:
     """Drovisio's and AprilTag's corners against the code's outer edge lines, where the
-    code is at least 15 px and its four edges are clean."""
+    code is at least 15 px and its four edges are clean (a code Drovisio kept at those very
+    lines is not judged by them)."""
     for c in codes:
+        if c.refined.edge_lines:
+            continue
         q = c.refined.corners_px
         other = _near(q, [(i, p) for i, p in ats if i == c.marker_id])
         if other is None or np.linalg.norm(q[1] - q[0]) < 15.0:

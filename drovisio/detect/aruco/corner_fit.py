@@ -4,7 +4,9 @@ All codes of the frame are refined in one batch by :func:`drovisio.detect.corner
 (a photometric fit of the code's interior, unbiased by the outer edge's surroundings),
 starting from OpenCV's corners moved outward by their measured bias. A code the model does
 not fit, or whose cells do not read back as its bits (a decoy, a partly hidden code), is
-marked not ``ok`` there. The corners' information matrices (inverse covariances) go to the
+marked not ``ok`` there; one whose interior is no flat square of its border but whose cells
+read right at its outer edge lines is kept there (``RefinedCode.edge_lines``). The corners'
+information matrices (inverse covariances) go to the
 pose.
 """
 
@@ -79,7 +81,7 @@ def fit_corners(gray: np.ndarray, codes: list[CodeDetection], camera: Camera,
                        lm_lambda=p.refine_lambda,
                        max_samples=p.max_samples,
                        band_px=p.band_px,
-                       outer_edge=p.outer_edge,
+                       outer_edge=p.outer_edge, edge_fallback=True,
                        tolerable_cells=np.array([family_of[c.marker_id].rescue_errors
                                                  for c in codes]))
     # the corners' information matrices (inverse covariances) for the pose

@@ -10,7 +10,9 @@
 8. the checks that keep or refuse each code (fit, contrast, blur, how far a corner moved,
    the cells read back: :mod:`.cells`),
 9. the kept codes refitted with their outer edges where uniform paper surrounds them
-   (:mod:`.outer`), their covariance holding the two fits' disagreement.
+   (:mod:`.outer`), their covariance holding the two fits' disagreement,
+10. codes refused only because a corner moved far kept at their outer edge lines
+   (:mod:`.edges`) where their cells read right there (optional).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from drovisio.camera import Camera
 from drovisio.detect.corners.cells import cell_margins, cell_verdicts
 from drovisio.detect.corners.covariance import parameter_covariance
+from drovisio.detect.corners.edges import edge_line_fallback
 from drovisio.detect.corners.model import (
     g_to_matrix,
     homographies,
@@ -80,6 +83,10 @@ class RefinedCode:
     surround: bool = False
     """The corners come from the refit with the code's outer edges against a uniform paper
     surround (:mod:`.outer`), not from the interior alone."""
+    edge_lines: bool = False
+    """The corners are where the code's outer edge lines meet (:mod:`.edges`): its interior,
+    extrapolated, placed a corner far from its border, and its cells read right at the
+    edges' corners. Their covariance holds the two readings' disagreement."""
 
 
 def _move_limits(moved: np.ndarray, use: np.ndarray, floor_px: float, cell_px: np.ndarray
@@ -404,6 +411,11 @@ class _Checks:
     """(C,) the cells' common spread of whiteness (fraction of the contrast)."""
 
 
+_MOVED = "a corner moved"
+"""How the refusal of a corner that moved too far begins (the one refusal the edge lines
+may overturn)."""
+
+
 def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
     """Why code ``c``'s fit is refused, or ``""`` when it is kept."""
     contrast, resid = k.contrast[c], k.resid[c]
@@ -414,7 +426,7 @@ def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
     if resid > 0.2 * contrast:
         return f"poor fit (residual {resid:.1f} for contrast {contrast:.0f})"
     if k.moved[c].max() > k.move_limit[c]:
-        return (f"a corner moved {k.moved[c].max():.1f} px from its start (limit "
+        return (f"{_MOVED} {k.moved[c].max():.1f} px from its start (limit "
                 f"{k.move_limit[c]:.1f} px at the start noise of this frame)")
     if k.blur[c] > 2.5 * cell_px[c]:
         return "too blurred"
@@ -431,7 +443,8 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
                  band_px: float = 3.0, coarse_min_cell_px: float = 0.0,
                  lm_lambda: float = 0.1, tolerable_cells: int | np.ndarray = 0,
                  blur_iterations: int = 99, start_sigma_px: float = 0.85,
-                 outer_edge: bool = True) -> list[RefinedCode]:
+                 outer_edge: bool = True, edge_fallback: bool = False
+                 ) -> list[RefinedCode]:
     """Refine the outer corners of decoded codes by a photometric fit of their interior
     (and of their outer edges, where paper surrounds them).
 
@@ -467,6 +480,10 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
             1.21 px RMS (both axes) on the rendered bench.
         outer_edge: Refit the kept codes with their outer edges where a uniform paper
             surround shows (:mod:`.outer`; ``RefinedCode.surround``).
+        edge_fallback: Keep a code refused only because a corner moved too far at its
+            outer edge lines, where its cells read right there (``RefinedCode.edge_lines``;
+            :func:`_at_edge_lines`). For starts that are decoded quads: around a guessed
+            start, a corner that moved far is the expected refusal.
 
     Returns:
         One :class:`RefinedCode` per input code, in order.
@@ -505,6 +522,14 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
         surround = _with_surround(grid, gray, camera, b, region, fit, smp, sig2, M, kept,
                                   np.nan_to_num(checks.cells_spread, nan=1.0),
                                   checks.move_limit, px_c, xn_c, cov_px)
+    at_edges = np.zeros(C, bool)
+    if edge_fallback:
+        for c in range(C):
+            if valid[c] and whys[c].startswith(_MOVED):
+                got = _at_edge_lines(gray, camera, b, c, px_c[c], tol_cells[c])
+                if got is not None:
+                    px_c[c], xn_c[c], cov_px[c], margin[c] = got
+                    whys[c], at_edges[c] = "", True
     out: list[RefinedCode] = []
     for c in range(C):
         if not valid[c]:
@@ -515,8 +540,41 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
         sig = float(np.sqrt(max(np.trace(cov_px[c]), 0.0) / 8))
         out.append(RefinedCode(px_c[c], xn_c[c], cov_px[c], sig, float(checks.resid[c]),
                                float(checks.contrast[c]), float(checks.blur[c]), not why, why,
-                               float(margin[c]), bool(surround[c])))
+                               float(margin[c]), bool(surround[c]), bool(at_edges[c])))
     return out
+
+
+def _at_edge_lines(gray: np.ndarray, camera: Camera, b: _Batch, c: int,
+                   interior_px: np.ndarray, tolerable: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """Stage 10: code ``c``, whose interior fit moved a corner far from its start, read at
+    its outer edge lines (:func:`.edges.edge_line_fallback`) when its cells read right there
+    (:func:`.cells.cell_verdicts`, with the code's own two classes).
+
+    The interior and the border then disagree: the picture is not a flat view of a square
+    there (the rim of a photo undistorted with a lens model that does not fit it, a bent
+    print). Neither reading is the corner; the edges are the one the decoder saw, and their
+    covariance gets a quarter of the mean squared distance to the interior's corners on every
+    coordinate, as the surround refit's does (two readings, the truth between them).
+
+    Returns:
+        (corners (4, 2) px, the same normalised, covariance (8, 8) px², the cells' least
+        margin), or None when the edges are not found, leave the calibrated field, or the
+        cells do not read as the code.
+    """
+    n = int(b.ns[c])
+    got = edge_line_fallback(gray, b.q[c], b.bits_pad[c, :n, :n])
+    if got is None:
+        return None
+    e, a = got
+    expected = b.bits_pad[c, 1:n - 1, 1:n - 1].ravel()
+    ok = cell_verdicts(a[None], expected[None], np.array([tolerable]))[0]
+    xn = camera.normalize(e.corners_px)
+    if not ok[0] or not np.isfinite(xn).all():
+        return None
+    d2 = float(((e.corners_px - interior_px) ** 2).mean()) / 4.0
+    margin = float(np.min(np.where(expected > 0.5, a - 0.5, 0.5 - a)))
+    return e.corners_px, xn, e.cov_px + d2 * np.eye(8), margin
 
 
 def _with_surround(grid: np.ndarray, gray: np.ndarray, camera: Camera, b: _Batch,

@@ -1,0 +1,101 @@
+"""A code's corners from its outer edge lines, and the corner fit keeping, there, a code
+whose interior is no flat square of its border (drovisio.detect.corners.edges)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from drovisio.camera import Camera
+from drovisio.detect.corners import cell_verdict, refine_codes
+from drovisio.detect.corners.edges import edge_line_fallback, outer_edge_corners_full
+from drovisio.layout import aruco_code_bits
+
+CAM = Camera(K=np.array([[500.0, 0, 80], [0, 500.0, 70], [0, 0, 1]]), width=160, height=140)
+BITS = aruco_code_bits("DICT_6X6_250", 7).astype(np.float64)
+OTHER = aruco_code_bits("DICT_6X6_250", 23).astype(np.float64)
+TRUE = np.array([[42.3, 31.6], [111.8, 35.2], [108.1, 104.9], [38.7, 101.4]])
+
+
+def _render(bend_cells: float, seed: int, noise: float = 1.5, ss: int = 6) -> np.ndarray:
+    """A 6×6 code (8 cells with its border) whose outer border is the square with corners
+    ``TRUE`` (px) on white paper, but whose cells are pushed toward its top-left corner by up
+    to ``bend_cells`` (a bilinear bend, nothing at the far corner): the border is that much
+    thinner there than the cells say, as on a bent print or at the rim of a photo undistorted
+    with a lens model that does not fit it. Blurred 0.8 px, grey 20 on 230, with noise."""
+    n = BITS.shape[0]
+    H = cv2.getPerspectiveTransform(np.float32(TRUE), np.float32([[0, 0], [n, 0], [n, n], [0, n]]))
+    ys, xs = np.mgrid[0:CAM.height * ss, 0:CAM.width * ss]
+    p = np.stack([(xs.ravel() + 0.5) / ss - 0.5, (ys.ravel() + 0.5) / ss - 0.5, np.ones(xs.size)])
+    q = H @ p
+    u, v = q[0] / q[2], q[1] / q[2]
+    w = np.clip((n - u) / n, 0, 1) * np.clip((n - v) / n, 0, 1)
+    uc, vc = u + bend_cells * w, v + bend_cells * w
+    inside = (u >= 0) & (u < n) & (v >= 0) & (v < n)
+    ui = np.clip(np.floor(uc).astype(int), 0, n - 1)
+    vi = np.clip(np.floor(vc).astype(int), 0, n - 1)
+    white = np.where(inside, BITS[vi, ui] > 0, True)
+    img = cv2.resize(np.where(white, 230.0, 20.0).reshape(CAM.height * ss, CAM.width * ss),
+                     (CAM.width, CAM.height), interpolation=cv2.INTER_AREA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.8)
+    img = img + np.random.default_rng(seed).normal(0.0, noise, img.shape)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def _start(seed: int) -> np.ndarray:
+    return TRUE + np.random.default_rng(50 + seed).normal(0.0, 0.7, (4, 2))
+
+
+def test_edge_line_corners_and_their_covariance_on_a_noisy_square():
+    """Over 30 noise draws the corners scatter as their covariance says (chi-square of 8
+    coordinates: mean 8 for a right covariance) and sit on the truth."""
+    chi2, err = [], []
+    for seed in range(30):
+        e = outer_edge_corners_full(_render(0.0, seed, noise=4.0), _start(seed))
+        assert e is not None and e.corners_px.shape == (4, 2) and e.cov_px.shape == (8, 8)
+        d = (e.corners_px - TRUE).ravel()
+        chi2.append(float(d @ np.linalg.solve(e.cov_px, d)))
+        err.append(np.abs(d).max())
+    # measured: mean chi-square 5.4, every coordinate within 0.23 px
+    assert 4.0 < np.mean(chi2) < 16.0
+    assert max(err) < 0.3
+
+
+def test_the_cells_read_at_the_edge_corners_tell_the_code_from_another():
+    img = _render(0.0, 1)
+    got = edge_line_fallback(img, _start(1), BITS)
+    assert got is not None
+    e, a = got
+    assert cell_verdict(a, BITS[1:-1, 1:-1].ravel(), 0)[0]
+    # the same cells against another code's bits: some read wrong
+    ok, wrong, _, _ = cell_verdict(a, OTHER[1:-1, 1:-1].ravel(), 3)
+    assert not ok and wrong > 0
+
+
+def test_a_code_whose_interior_is_no_square_of_its_border_is_kept_at_its_edges():
+    """Cells pushed 0.4 cell toward one corner: the interior fit places that corner 5 px
+    off, beyond the start noise, and is refused; its outer edge lines meet on the true
+    corners and the cells read right there, so the code is kept, its covariance holding the
+    two readings' disagreement."""
+    img = _render(0.4, 2)
+    start = _start(2)
+    plain = refine_codes(img, CAM, start[None], [BITS])[0]
+    assert not plain.ok and plain.reason.startswith("a corner moved")
+    assert np.linalg.norm(plain.corners_px - TRUE, axis=1).max() > 3.0
+    r = refine_codes(img, CAM, start[None], [BITS], edge_fallback=True)[0]
+    assert r.ok and r.edge_lines and not r.surround and r.reason == ""
+    # measured: 0.05 px from the true corners at worst, sigma 1.0 px
+    assert np.linalg.norm(r.corners_px - TRUE, axis=1).max() < 0.3
+    assert r.sigma_px > 0.5
+    assert np.allclose(CAM.project(np.c_[r.corners_norm, np.ones(4)]), r.corners_px, atol=1e-6)
+    # a straight code is not touched: the interior fit keeps it
+    flat = refine_codes(_render(0.0, 3), CAM, _start(3)[None], [BITS], edge_fallback=True)[0]
+    assert flat.ok and not flat.edge_lines
+
+
+def test_a_decoy_is_not_kept_at_its_edges():
+    """The bent code given another code's bits: whatever the interior fit says, the cells
+    read at the edges are not that code."""
+    img = _render(0.4, 4)
+    r = refine_codes(img, CAM, _start(4)[None], [OTHER], edge_fallback=True)[0]
+    assert not r.ok and not r.edge_lines
