@@ -1,4 +1,5 @@
-"""One BLAS thread for a frame's small dense products.
+"""The project's threads: one BLAS thread for a frame's small dense products, and the one
+way a stop waits for a thread it asked to end.
 
 numpy's matrix products go to OpenBLAS, which splits a product over its own threads once it
 is a few hundred thousand multiply-adds (a code reader's batch, the corner fit's normal
@@ -10,15 +11,28 @@ products on the calling thread (:func:`one_blas_thread`), the way OpenCV runs wi
 
 ``threadpoolctl`` (a dependency) switches the BLAS library found in the process; without it,
 or with no BLAS it knows, this does nothing.
+
+A thread still inside native code (OpenCV, numba, numpy) while the interpreter exits aborts
+the process ("terminate called without an active exception", exit 134), and one still running
+when the next session starts works beside it. So every stop waits for the threads it asked to
+end through :func:`join_thread`, up to :data:`STOP_WAIT_S`: a bound that only turns a hang
+into a log line, never a time the work is expected to take.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import threading
 from collections.abc import Iterator
 
-__all__ = ["one_blas_thread"]
+__all__ = ["STOP_WAIT_S", "join_thread", "one_blas_thread"]
+
+log = logging.getLogger("drovisio.threads")
+
+STOP_WAIT_S = 600.0
+"""How long a stop waits for work in progress: a first run's frame compiles the detectors'
+kernels (minutes on a small board). The bound only turns a hang into a message."""
 
 _LOCK = threading.Lock()
 _STATE: dict = {"controller": None, "depth": 0, "limiter": None}
@@ -60,3 +74,24 @@ def one_blas_thread() -> Iterator[None]:
             if _STATE["depth"] == 0 and _STATE["limiter"] is not None:
                 _STATE["limiter"].restore_original_limits()
                 _STATE["limiter"] = None
+
+
+def join_thread(thread: threading.Thread | None, doing: str,
+                limit: float = STOP_WAIT_S) -> bool:
+    """Wait up to ``limit`` seconds for ``thread`` to end; whether it ended.
+
+    The thread must already have been told to stop: nothing is signalled here. When it is
+    still alive at the limit, one warning names it and what it was ``doing`` (words such as
+    "drawing the live 3D scene"). None counts as ended; the calling thread itself cannot be
+    waited for (False, no warning).
+    """
+    if thread is None:
+        return True
+    if thread is threading.current_thread():
+        return False
+    thread.join(limit)
+    if thread.is_alive():
+        log.warning("thread %r (%s) did not end within %.0f s; going on without it",
+                    thread.name, doing, limit)
+        return False
+    return True

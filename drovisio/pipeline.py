@@ -32,6 +32,7 @@ from typing import Protocol
 
 import numpy as np
 
+from drovisio._threads import STOP_WAIT_S
 from drovisio.camera import Camera
 from drovisio.detect.base import Detector
 from drovisio.detect.result import BrickPose
@@ -56,10 +57,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("drovisio.pipeline")
-
-STOP_WAIT_S = 600.0
-"""How long stopping waits for work in progress: a first run's frame compiles the detectors'
-kernels (minutes on a small board). The bound only turns a hang into a message."""
 
 
 def detectors_for(camera: Camera, layouts: Sequence[MarkerLayout], stream: bool = True

@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import cv2
 
+from drovisio._threads import STOP_WAIT_S, join_thread
 from drovisio.bounds import check_number, check_whole
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_bytes, atomic_write_text
@@ -67,18 +68,21 @@ def _next_frame_number(frames: Path) -> int:
     return top + 1
 
 
-def stop_writer(q: queue.Queue, thread: threading.Thread, timeout: float) -> None:
+def stop_writer(q: queue.Queue, thread: threading.Thread, timeout: float = STOP_WAIT_S
+                ) -> None:
     """End a recorder's writer thread: queue the end mark (``None``) behind what is waiting,
-    then wait for the thread, both within ``timeout`` seconds in all."""
+    then wait for the thread to write it all (it encodes in OpenCV), both within ``timeout``
+    seconds in all, a bound that only turns a hang into a warning."""
     deadline = time.monotonic() + timeout
-    while True:
+    while thread.is_alive():
         try:
             q.put(None, timeout=0.1)
             break
         except queue.Full:
             if time.monotonic() > deadline:
                 break
-    thread.join(max(0.0, deadline - time.monotonic()))
+    join_thread(thread, "writing the recording's queued frames",
+                max(0.0, deadline - time.monotonic()))
 
 
 def _drop_cut_line(index: Path) -> None:
@@ -182,7 +186,7 @@ class Recorder:
                 self.errors += 1
                 self.last_error = str(e)
 
-    def close(self, timeout: float = 10.0) -> None:
+    def close(self, timeout: float = STOP_WAIT_S) -> None:
         stop_writer(self._q, self._thread, timeout)
         self._index.close()
 

@@ -41,6 +41,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import os
@@ -57,6 +58,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.bounds import ArgumentParser, number
 from drovisio.fileio import atomic_write_text
 from drovisio.geometry import from_rvec_tvec
@@ -161,11 +163,11 @@ def bench_latency(fps: float, seconds: float) -> dict:
         th_run.start()
         time.sleep(seconds)
         p.stop()
-        th_run.join(5)
+        join_thread(th_run, "running the benchmark's pipeline")
         st = p.snapshot()
         p.close()
     stop.set()
-    th.join(1)
+    join_thread(th, "listening for LANDING_TARGET")   # each read waits 0.1 s at most
     rx.close()
     lat_a = np.array(lat[int(fps):])  # first second: warm-up
     rx_a = np.array(got[int(fps):]) * 1e3
@@ -195,6 +197,7 @@ class MjpegCamera:
         self.fps = fps
         self.sent: list[tuple[int, float]] = []        # (frame index in jpegs, UNIX time)
         self.stop = threading.Event()
+        self._conn: socket.socket | None = None
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind(("127.0.0.1", 0))
@@ -215,6 +218,7 @@ class MjpegCamera:
             except (TimeoutError, OSError):
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._conn = conn
             try:
                 conn.recv(4096)
                 conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; "
@@ -238,7 +242,11 @@ class MjpegCamera:
     def close(self) -> None:
         self.stop.set()
         self.sock.close()
-        self.thread.join(2)
+        conn = self._conn
+        if conn is not None:   # a send to a client that stopped reading would wait for ever
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+        join_thread(self.thread, "serving the MJPEG test camera")
 
 
 def _body_truth() -> list[np.ndarray]:
@@ -362,7 +370,7 @@ def bench_wire(fps: float, seconds: float, send_held: bool = False,
             proc.kill()
         cam.close()
         stop.set()
-        th.join(1)
+        join_thread(th, "listening for LANDING_TARGET")   # each read waits 0.1 s at most
         rx.close()
     sent = cam.sent
     w = _match_messages(got, sent, truth, fps)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import cv2
 
+from drovisio._threads import STOP_WAIT_S
 from drovisio.recording import stop_writer
 from drovisio.ros.messages import RosMessages
 from drovisio.ros.msgdefs import encoder, schema_text
@@ -146,7 +147,7 @@ class McapRecorder:
                 self.errors += 1
                 self.last_error = str(e)
 
-    def close(self, timeout: float = 10.0) -> None:
+    def close(self, timeout: float = STOP_WAIT_S) -> None:
         """Write what is queued, then the summary (the file is then complete)."""
         stop_writer(self._q, self._thread, timeout)
         try:

@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.autopilot.check import Facts, evaluate, param_names
 from drovisio.autopilot.connection import (
     AddressError,
@@ -382,7 +383,7 @@ class MavlinkSink:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(1.0)
+        join_thread(self._thread, f"reading {self.name}")   # each read waits 0.05 s at most
         try:
             self.conn.close()
         except Exception:  # noqa: BLE001

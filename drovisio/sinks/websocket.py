@@ -21,6 +21,7 @@ import threading
 from typing import Any
 from urllib.parse import urlsplit
 
+from drovisio._threads import join_thread
 from drovisio.sinks.base import SinkError
 from drovisio.sinks.target import TargetSelector
 
@@ -141,11 +142,12 @@ class WebSocketSink:
         if self._loop.is_running():
             fut = asyncio.run_coroutine_threadsafe(_close(), self._loop)
             try:
-                fut.result(3)
+                fut.result(3)   # a client that never answers the close is not waited for
             except Exception:  # noqa: BLE001
                 pass
+        if self._thread.is_alive():   # also when the loop is only about to run
             self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(3)
+        join_thread(self._thread, f"serving {self.name}")
 
     def status(self) -> dict:
         return {"sink": self.name, "clients": self.clients, "sent": self.sent,

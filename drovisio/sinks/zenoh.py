@@ -48,6 +48,7 @@ import time
 import weakref
 from typing import Any
 
+from drovisio._threads import join_thread
 from drovisio.ros.messages import TOPIC_TYPES, RosMessages
 from drovisio.ros.msgdefs import encoder
 from drovisio.ros.type_hash import dds_type_name, full_name, rihs01
@@ -310,7 +311,12 @@ class ZenohSink:
             self._q.put_nowait(None)
         except queue.Full:
             pass
-        self._thread.join(3)
+        if self._session is None:
+            # still opening: zenoh.open retries a missing station for ever and nothing can cut
+            # it short, so only a short wait (the thread closes the session if it ever opens)
+            self._thread.join(3)
+        else:
+            join_thread(self._thread, f"publishing to {self.name}")
         self._close_session()
         _OPEN_SINKS.discard(self)
 

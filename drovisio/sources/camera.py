@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.raw_frame import RawFrame
 
 __all__ = ["CameraReader", "SharedCamera", "open_v4l2"]
@@ -90,8 +91,8 @@ class SharedCamera:
             thread, self._thread = self._thread, None
         with self._cond:
             self._cond.notify_all()
-        if thread is not None:
-            thread.join(3.0)
+        # a read in progress is in OpenCV, and the device is free only once it is closed
+        join_thread(thread, f"reading camera {self.index}")
 
     @property
     def users(self) -> int:

@@ -3,7 +3,6 @@ the reconnect and back-off loop."""
 
 from __future__ import annotations
 
-import logging
 import threading
 import time
 from collections.abc import Callable
@@ -12,13 +11,12 @@ from enum import Enum
 
 import numpy as np
 
+from drovisio._threads import STOP_WAIT_S, join_thread
 from drovisio.errors import InputError, one_line
 from drovisio.raw_frame import EndOfStream, RawFrame
 from drovisio.sources.reader import Pace, Reader
 
 __all__ = ["Frame", "FrameSource", "SourceState", "SourceStatus"]
-
-log = logging.getLogger("drovisio.sources")
 
 
 class SourceState(str, Enum):
@@ -150,14 +148,13 @@ class FrameSource:
             self._thread.start()
         return self
 
-    def stop(self, timeout: float = 3.0) -> None:
+    def stop(self, timeout: float = STOP_WAIT_S) -> None:
+        """Stop the reader thread and wait for it (a read in progress may be in OpenCV);
+        ``timeout`` only turns a hang into a warning."""
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            if self._thread.is_alive():
-                log.warning("%s: the reader did not stop within %g s", self.label, timeout)
+        join_thread(self._thread, f"reading {self.label}", timeout)
         if self._state not in (SourceState.ENDED, SourceState.FAILED):
             self._set_state(SourceState.STOPPED)
 

@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.sources import FrameSource, Reader, SourceState
 from webtool.calibration.camera import BACKOFF_S, CameraStatus, FreshReader
 from webtool.calibration.feedback import saved_views
@@ -80,12 +81,11 @@ class CameraFeed:
                 self._thread.start()
 
     def close(self) -> None:
-        """Stop the worker (app shutdown)."""
+        """Stop the worker and wait for it (app shutdown): it may be inside OpenCV with a
+        frame."""
         self.closed = True
         self._stop.set()
-        t = self._thread
-        if t is not None and t is not threading.current_thread():
-            t.join(timeout=5)
+        join_thread(self._thread, "reading the calibration camera")
         with self.cond:
             self.cond.notify_all()
 

@@ -41,6 +41,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.calibration.board import BoardSpec, BoardSpecError, parse_board, to_gray
 from drovisio.calibration.report import _clean
 from drovisio.calibration.session import CalibrationSession, FrameResult, SessionConfig
@@ -116,6 +117,8 @@ class CalibrationService:
         self._png_cache: KeyedCache[bytes] = KeyedCache()
         self._thumbs: dict[tuple[str, int], bytes] = {}
         self._capture_counter = 1
+        self._closed = False
+        self._closers: list[threading.Thread] = []   # previous sessions closing (see close)
         # session fields (set by _open_session)
         self.session: CalibrationSession
         self.session_id = ""
@@ -222,7 +225,20 @@ class CalibrationService:
             self.images_dir.mkdir(parents=True, exist_ok=True)
             self._save()
         if old is not None:
-            threading.Thread(target=old.close, daemon=True).start()
+            self._retire(old)
+
+    def _retire(self, old: CalibrationSession) -> None:
+        """Close a previous session aside (it waits for its solve in progress, which a new
+        session's page need not); :meth:`close` waits for it."""
+        with self._lock:
+            self._closers = [t for t in self._closers if t.is_alive()]
+            if not self._closed:
+                t = threading.Thread(target=old.close, daemon=True,
+                                     name="calibration-session-close")
+                self._closers.append(t)
+                t.start()
+                return
+        old.close()
 
     def _after_session_change(self) -> None:
         self._gen += 1
@@ -253,9 +269,15 @@ class CalibrationService:
         self._feed.touch()
 
     def close(self) -> None:
-        """Stop the camera and the session's solver (app shutdown)."""
+        """Stop the camera and the session's solver, and wait for previous sessions to
+        close (app shutdown): no solve is left in OpenCV as the interpreter exits."""
+        with self._lock:
+            self._closed = True
+            closers, self._closers = self._closers, []
         self._feed.close()
         self.session.close()
+        for t in closers:
+            join_thread(t, "closing a previous calibration session (its solve)")
 
     @property
     def camera_message(self) -> str:

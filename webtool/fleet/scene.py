@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.geometry import from_rvec_tvec, quat_wxyz
 from drovisio.station import Fleet
 from webtool.viewer.scene import ViserScene
@@ -54,9 +55,9 @@ class FleetScene(ViserScene):
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop the drawing thread, wait for a draw in progress, then the server."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(3)
+        join_thread(self._thread, "drawing the fleet's 3D scene")
         super().stop()
 
     def _loop(self) -> None:

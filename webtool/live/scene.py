@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.geometry import quat_wxyz
 from drovisio.mesh_file import load_layout_mesh
 from drovisio.mount import Mount, down_camera_mount
@@ -71,10 +72,10 @@ class LiveScene(ViserScene):
 
     # ------------------------------------------------------------------ lifecycle
     def stop(self) -> None:
+        """Stop the drawing thread, wait for a draw in progress, then the server."""
         self._stop.set()
         self._event.set()
-        if self._thread is not None:
-            self._thread.join(3)
+        join_thread(self._thread, "drawing the live 3D scene")
         super().stop()
 
     # ------------------------------------------------------------------ content

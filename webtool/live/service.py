@@ -40,6 +40,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from drovisio._threads import join_thread
 from drovisio.fusion import so3_log
 from drovisio.mount import down_camera_mount
 from drovisio.pose.covariance import parent_covariance, uncertainty_words
@@ -212,13 +213,14 @@ class LiveService:
             p, th = self.pipeline, self._thread
             if p is not None:
                 p.close()   # waits for the frame in progress (a first run compiles kernels)
-            if th is not None:
-                th.join(5)
+            join_thread(th, "running the live pipeline")
             self._thread = None
 
     def close(self) -> None:
+        """Stop the pipeline, the idle watch and the scene, waiting for each (app shutdown)."""
         self._closed.set()
         self.stop_pipeline()
+        join_thread(self._watchdog, "watching the live view for idleness")
         if self.scene is not None:
             self.scene.stop()
             self.scene = None

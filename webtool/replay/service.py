@@ -20,10 +20,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from drovisio._threads import join_thread
 from drovisio.errors import InputError, one_line
 from drovisio.layout import shipped_layout_file
 from drovisio.mission.record import load_manifest, load_recording
-from drovisio.pipeline import STOP_WAIT_S
 from drovisio.textfile import path_text_problem
 from webtool.errors import BadInput, Conflict, Forbidden, NotFound
 from webtool.replay.scene import ReplayScene
@@ -399,12 +399,7 @@ class ReplayService:
         exits. The bound only turns a hang into a message."""
         self._stop.set()
         self._wake.set()
-        th = self._thread
-        if th is not None:
-            th.join(STOP_WAIT_S)
-            if th.is_alive():
-                log.warning("the replay's playback did not stop within %.0f s; closing "
-                            "without it", STOP_WAIT_S)
+        join_thread(self._thread, "playing a recording back")
         if self.scene is not None:
             self.scene.stop()
             self.scene = None

@@ -8,14 +8,13 @@ study in progress and waits for it to end (no report is written for it).
 
 from __future__ import annotations
 
-import logging
 import re
 import threading
 import time
 from pathlib import Path
 
+from drovisio._threads import join_thread
 from drovisio.errors import InputError, one_line
-from drovisio.pipeline import STOP_WAIT_S
 from drovisio.resources import sample_sessions_dir
 from drovisio.study.protocol import load_protocol
 from drovisio.study.report import write_report
@@ -24,8 +23,6 @@ from drovisio.textfile import parse_json, read_text
 from webtool.errors import Conflict, NotFound
 
 __all__ = ["StudyService"]
-
-log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,120}$")
 MAX_ENTRIES = 2000
@@ -152,7 +149,4 @@ class StudyService:
         if th is None:
             return
         cancel.set()
-        th.join(STOP_WAIT_S)
-        if th.is_alive():
-            log.warning("the study did not stop within %.0f s; closing without it",
-                        STOP_WAIT_S)
+        join_thread(th, "running a study")

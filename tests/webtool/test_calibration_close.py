@@ -1,0 +1,74 @@
+"""Closing the calibration page's service (the app's shutdown) waits for the previous session a
+"New session" set aside: that session closes in its own thread, waiting for its solve in
+progress (OpenCV), and a solve left running while the interpreter exits can abort the process
+("terminate called without an active exception").
+
+The previous session's solve is held on an Event while another thread closes the service.
+Each wait is a bound that turns a hang into a failure, not a timing."""
+
+from __future__ import annotations
+
+import threading
+
+from webtool.calibration.service import CalibrationService
+from webtool.settings import Settings
+
+HANG = 60.0   # seconds: a bound for failures only
+HOLD = 5.0    # seconds the solve stays blocked under close (a close that waits passes with any)
+
+
+class NoCamera:
+    """A camera that never gives a frame (the test needs none)."""
+
+    label = "no camera"
+    finite = False
+
+    def open(self) -> None:
+        pass
+
+    def read(self) -> None:
+        return None
+
+    def close(self) -> None:
+        pass
+
+
+def test_close_waits_for_the_previous_session_and_its_solve(tmp_path):
+    svc = CalibrationService(Settings(calibration_dir=tmp_path / "cal"),
+                             source_factory=NoCamera)
+    solving, release = threading.Event(), threading.Event()
+    solvers: list[threading.Thread] = []
+
+    def held_solve() -> None:
+        solvers.append(threading.current_thread())
+        solving.set()
+        if not release.wait(HANG):
+            raise TimeoutError("the test never released the solve")
+
+    solver_alive_after_close: list[bool] = []
+
+    def close() -> None:
+        svc.close()
+        solver_alive_after_close.append(solvers[0].is_alive())
+
+    closer = threading.Thread(target=close, daemon=True, name="closer")
+    try:
+        old = svc.session
+        old.solve = held_solve  # type: ignore[method-assign]
+        old.solve_async()
+        assert solving.wait(HANG), "the solve never began"
+        svc.new_session()
+        assert svc.session is not old
+        closer.start()
+        # the previous session's solve stays blocked a while after close began, then returns
+        closer.join(HOLD)
+        assert closer.is_alive(), "close returned while the previous session was still solving"
+        release.set()
+        closer.join(HANG)
+        assert not closer.is_alive(), "close never returned"
+        assert solver_alive_after_close == [False], "close returned before the solve ended"
+        assert not any(t.name == "calibration-session-close" for t in threading.enumerate())
+    finally:
+        release.set()
+        if not closer.is_alive():
+            svc.close()
