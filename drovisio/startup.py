@@ -157,14 +157,27 @@ class _Checked(NamedTuple):
 def _checked_detectors(camera: Camera | None, layouts: Sequence[MarkerLayout]
                        ) -> list[Detector]:
     """The detectors the layouts need, built to check what only they read of a layout (a
-    mesh named beside ``dimensions``): before any sink or recording is opened, whatever the
-    camera file says of the image size (without one they are built again for the first
-    frame's size; without a camera, serve's sample, for the drone's webcam).
+    mesh named beside ``dimensions``, dots they cannot use): before any sink or recording is
+    opened, whatever the camera file says of the image size (without one they are built
+    again for the first frame's size; without a camera, serve's sample, for the drone's
+    webcam).
 
     Raises:
-        InputError: ``LAYOUT: mesh: ...``, in one line.
+        InputError: ``LAYOUT: mesh: ...`` or ``LAYOUT: markers: ...``, in one line.
     """
-    return detectors_for(camera or Camera.drone_webcam(), layouts)
+    from drovisio.detect.dots import LayoutNotSupported  # deferred with the detectors
+
+    try:
+        return detectors_for(camera or Camera.drone_webcam(), layouts)
+    except LayoutNotSupported as e:
+        why = str(e)
+        for lay in layouts:
+            said = f"layout {lay.name!r}: "
+            if why.startswith(said):
+                raise InputError(f"{lay.source or lay.name}: markers: "
+                                 f"{why.removeprefix(said)}; put at least 4 dots on one flat "
+                                 "face, or remove them") from None
+        raise InputError(f"--layout: {why}") from None
 
 
 def _check(config: PipelineConfig, open_sinks: bool) -> _Checked:
