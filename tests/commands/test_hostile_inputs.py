@@ -454,6 +454,25 @@ def test_serve_refuses_a_bad_camera_file_before_starting(capsys, tmp_path):
     assert rc == 2 and str(bad) in err and err.count("\n") == 1
 
 
+def test_serve_that_cannot_start_leaves_no_empty_sink_file(capsys, tmp_path):
+    """Serve's start-up check opens and closes every sink: a jsonl:PATH file it made, and
+    never wrote to, is removed again (here the port is taken, so serve ends at once)."""
+    import socket
+
+    kept = tmp_path / "kept.jsonl"
+    kept.write_bytes(b'{"file":"earlier.png","frame":0,"bricks":[]}\n')
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        rc, _, err = run_cli(capsys, "serve", "--port", taken.getsockname()[1], "--camera",
+                             CAMERA, "--layout", CENTRE, "--sink", f"jsonl:{kept}", "--sink",
+                             f"jsonl:{tmp_path / 'out' / 'new.jsonl'}", "--data",
+                             tmp_path / "data")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.jsonl"]
+    assert kept.read_bytes() == b'{"file":"earlier.png","frame":0,"bricks":[]}\n'
+    assert rc == 2 and "cannot listen" in err and err.count("\n") == 1
+
+
 def test_serial_mavlink_has_its_module():
     """mavlink:/dev/ttyAMA0,921600 needs pyserial (a dependency): the error names the port,
     not a missing module."""
