@@ -5,10 +5,13 @@ also used by the web tool's live page and the benchmarks).
 
 Bad set-up is said in one line, exit 2, before anything runs — never as a traceback from the
 server's lifespan, never only on a page later. The check takes, in this order: the camera
-file, the layouts, the mount file, the source (opened as ``run`` opens it), the target, the
-recording folder, and every sink — each opened and closed again (a file sink's folder, a UDP
-or WebSocket address, a MAVLink link: a ``tcp:`` peer must answer within
-:attr:`~drovisio.errors.Limits.connect_timeout_s`).
+file, the layouts, the detectors the layouts need (built once: what only they read of a
+layout, its mesh, is refused here even when the camera file gives no image size and the real
+detectors wait for the first frame), the mount file, the source (opened as ``run`` opens it),
+the target, the recording folder, and every sink — each opened and closed again (a file
+sink's folder, a UDP or WebSocket address, a MAVLink link: a ``tcp:`` peer must answer within
+:attr:`~drovisio.errors.Limits.connect_timeout_s`). Nothing is written until all of the
+inputs were read: bad input leaves no output file and no recording behind.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import os
 import stat
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -137,6 +141,65 @@ def _config(options: PipelineConfig | argparse.Namespace) -> PipelineConfig:
     return PipelineConfig.from_args(options)
 
 
+class _Checked(NamedTuple):
+    """What the start-up check read, for :func:`build_pipeline` to use as read."""
+
+    camera: Camera | None
+    layouts: list[MarkerLayout] | None
+    detectors: list[Detector]
+    """Built for ``camera`` (for its guessed size when the file gives none), or for a
+    stand-in camera without one: built to check the layouts."""
+    mount: Mount | None
+    reader: Reader | None
+    target: TargetSelector
+
+
+def _checked_detectors(camera: Camera | None, layouts: Sequence[MarkerLayout]
+                       ) -> list[Detector]:
+    """The detectors the layouts need, built to check what only they read of a layout (a
+    mesh named beside ``dimensions``, dots they cannot use): before any sink or recording is
+    opened, whatever the camera file says of the image size (without one they are built
+    again for the first frame's size; without a camera, serve's sample, for the drone's
+    webcam).
+
+    Raises:
+        InputError: ``LAYOUT: mesh: ...`` or ``LAYOUT: markers: ...``, in one line.
+    """
+    from drovisio.detect.dots import LayoutNotSupported  # deferred with the detectors
+
+    try:
+        return detectors_for(camera or Camera.drone_webcam(), layouts)
+    except LayoutNotSupported as e:
+        why = str(e)
+        for lay in layouts:
+            said = f"layout {lay.name!r}: "
+            if why.startswith(said):
+                raise InputError(f"{lay.source or lay.name}: markers: "
+                                 f"{why.removeprefix(said)}; put at least 4 dots on one flat "
+                                 "face, or remove them") from None
+        raise InputError(f"--layout: {why}") from None
+
+
+def _check(config: PipelineConfig, open_sinks: bool) -> _Checked:
+    """The start-up check (see the module doc): every input is read before any output is
+    opened."""
+    camera = load_camera(config.camera) if config.camera else None
+    layouts = load_layouts(config.layouts) if config.layouts else None
+    detectors = _checked_detectors(camera, layouts) if layouts else []
+    mount = load_mount(config.mount) if config.mount else None
+    reader = check_source(config.source) if config.source else None
+    target = _target(config.target, layouts)
+    if config.record:
+        check_record_folder(config.record)
+    if open_sinks:
+        for sink in open_sinks_of(config, target, mount, layouts, camera=camera):
+            try:
+                sink.close()
+            except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
+                pass
+    return _Checked(camera, layouts, detectors, mount, reader, target)
+
+
 def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
                            open_sinks: bool = True) -> Reader | None:
     """Check every pipeline option before anything runs (see the module doc).
@@ -152,21 +215,7 @@ def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
     Raises:
         InputError: one line naming the option (or file) and what to do.
     """
-    config = _config(options)
-    camera = load_camera(config.camera) if config.camera else None
-    layouts = load_layouts(config.layouts) if config.layouts else None
-    mount = load_mount(config.mount) if config.mount else None
-    reader = check_source(config.source) if config.source else None
-    target = _target(config.target, layouts)
-    if config.record:
-        check_record_folder(config.record)
-    if open_sinks:
-        for sink in open_sinks_of(config, target, mount, layouts, camera=camera):
-            try:
-                sink.close()
-            except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
-                pass
-    return reader
+    return _check(_config(options), open_sinks).reader
 
 
 def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount | None = None,
@@ -256,33 +305,42 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
         InputError: a bad option, in one line (the check of :func:`check_pipeline_options`,
             sinks aside: they are opened here).
     """
-    checked = check_pipeline_options(config, open_sinks=False)   # the same check as `serve`'s
-    if config.source is None or config.camera is None:
+    checked = _check(config, open_sinks=False)   # the same check as `serve`'s
+    camera, layouts, mount = checked.camera, checked.layouts or [], checked.mount
+    if config.source is None or camera is None:
         raise InputError("the pipeline needs a --source and a --camera")
-    camera = load_camera(config.camera)
-    layouts = load_layouts(config.layouts)
     if not any(lay.has_codes or lay.has_dots for lay in layouts):
         raise InputError("the layouts have neither codes nor dots: nothing to detect")
-    mount = load_mount(config.mount) if config.mount else None
     # the checked reader, unless the source plays in a loop (checked as played once)
-    reader = checked if checked is not None and not loop else reader_for(config.source,
-                                                                          loop=loop)
-    target = TargetSelector(config.target or "nearest", layouts=layouts)  # checked above
+    reader = (checked.reader if checked.reader is not None and not loop
+              else reader_for(config.source, loop=loop))
 
     def make_detectors(cam: Camera) -> list[Detector]:
         return detectors_for(cam, layouts)
 
-    # before any sink is opened: a layout the detectors refuse (its mesh) leaves no file
-    detectors = make_detectors(camera) if camera.size_known else []
-    sinks = open_sinks_of(config, target, mount, layouts, default_sinks, camera=camera)
-    mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
-    _blind_height(mav, camera, mount, layouts)
-    source = FrameSource(reader, pace=config.pace)
-    recorder = _recorder(config, config.source, camera, mount, layouts)
-    pipeline = Pipeline(source, detectors,
-                        sinks=sinks, mount=mount, target=target, gravity=_gravity(mav, mount),
-                        recorder=recorder, max_age=config.max_age,
-                        layouts=layouts, camera=camera, detector_factory=make_detectors)
+    # a camera file without an image size: the detectors are made for the first frame's
+    detectors = checked.detectors if camera.size_known else []
+    sinks = open_sinks_of(config, checked.target, mount, layouts, default_sinks,
+                          camera=camera)
+    recorder = None
+    try:
+        mav = next((s for s in sinks if isinstance(s, MavlinkSink)), None)
+        _blind_height(mav, camera, mount, layouts)
+        source = FrameSource(reader, pace=config.pace)
+        recorder = _recorder(config, config.source, camera, mount, layouts)
+        pipeline = Pipeline(source, detectors, sinks=sinks, mount=mount,
+                            target=checked.target, gravity=_gravity(mav, mount),
+                            recorder=recorder, max_age=config.max_age,
+                            layouts=layouts, camera=camera, detector_factory=make_detectors)
+    except BaseException:   # nothing runs: the sinks opened (a link's thread) are closed
+        for s in sinks:
+            try:
+                s.close()
+            except Exception:  # noqa: BLE001,S110 - closing after a failure, best effort
+                pass
+        if recorder is not None:
+            recorder.close()
+        raise
     if camera.size_known:
         pipeline.warm_up(camera.width, camera.height)
     return pipeline

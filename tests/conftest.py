@@ -8,6 +8,9 @@
   served by uvicorn in a background thread on a free port.
 * ``live_server_factory``: ``start(settings_or_app) -> base URL`` for tests needing other settings;
   each server is stopped at the end of the test.
+* ``until`` (session): ``until(ask, bound=60, *, done=bool, step=None, pause=0.02, say=None)``,
+  the one wait for a condition: ``ask()`` again until its answer is done, that answer; a bound
+  for failures only (:func:`_until`).
 """
 
 from __future__ import annotations
@@ -19,8 +22,9 @@ import socket
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings as _hypothesis_settings
@@ -44,6 +48,40 @@ def _own_data_folder(tmp_path_factory, monkeypatch):
     from drovisio.resources import DATA_ENV
 
     monkeypatch.setenv(DATA_ENV, str(tmp_path_factory.mktemp("data")))
+
+
+def _until(ask: Callable[[], Any], bound: float = 60.0, *,
+           done: Callable[[Any], object] = bool, step: Callable[[], object] | None = None,
+           pause: float = 0.02, say: Callable[[Any], object] | None = None) -> Any:
+    """Ask ``ask()`` again until ``done(answer)`` holds (by default: until the answer is
+    true), and return that answer. Between two asks ``step()`` runs (a message sent again, a
+    peer polled), then a pause of ``pause`` seconds.
+
+    The bound only turns a hang into a failure, and is generous: a loaded machine is slow,
+    not wrong; nothing is measured by it.
+
+    Raises:
+        AssertionError: not done within ``bound`` seconds; says the last answer, or
+            ``say(last answer)``.
+    """
+    end = time.monotonic() + bound
+    while True:
+        got = ask()
+        if done(got):
+            return got
+        if time.monotonic() > end:
+            said = say(got) if say is not None else repr(got)
+            raise AssertionError(f"not done within {bound:g} s; last: {str(said)[:2000]}")
+        if step is not None:
+            step()
+        time.sleep(pause)
+
+
+@pytest.fixture(scope="session")
+def until() -> Callable[..., Any]:
+    """The one wait for a condition (:func:`_until`), for every test and fixture."""
+    return _until
+
 
 # DROVISIO_CHROMIUM overrides the path (other distributions); the default is Debian's.
 CHROMIUM = Path(os.environ.get("DROVISIO_CHROMIUM", "/usr/bin/chromium"))

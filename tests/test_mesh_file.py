@@ -220,6 +220,62 @@ def test_run_and_bench_refuse_a_mesh_outside_the_layouts_folder(tmp_path, capsys
     assert (rc, err) == (2, f"drovisio bench: {path}: mesh: {why}\n")
 
 
+def _without_image_size(camera):
+    """``camera`` with its image size taken out (OpenCV's tutorial files omit it): the run
+    then takes the first frame's size, and makes its detectors for it."""
+    from drovisio.camera_file import load_camera
+
+    lines = camera.read_text().splitlines(keepends=True)
+    camera.write_text("".join(x for x in lines if not x.startswith(("image_width:",
+                                                                     "image_height:"))))
+    assert not load_camera(camera).size_known
+    return camera
+
+
+@pytest.mark.parametrize("record", ["rec", "rec.mcap"])
+@pytest.mark.parametrize("case", ["missing", "not-a-mesh"])
+def test_run_without_an_image_size_refuses_a_bad_mesh_before_writing_anything(
+        tmp_path, capsys, case, record):
+    """The detectors wait for the first frame's size, but the mesh is read before any sink or
+    recording is opened: a sink's existing file is kept byte for byte, nothing is made."""
+    from drovisio.cli import main
+
+    field, why = _hostile_mesh(tmp_path, case)
+    path = _dots_layout(tmp_path / "lay", field, dimensions=True)
+    camera, frame = _picture(tmp_path)
+    _without_image_size(camera)
+    kept = tmp_path / "poses.jsonl"
+    kept.write_bytes(b'{"file":"earlier.png","frame":0,"bricks":[]}\n')
+    before = {p: p.read_bytes() if p.is_file() else None for p in tmp_path.rglob("*")}
+    rc = main(["run", "--source", str(frame), "--camera", str(camera), "--layout", str(path),
+               "--sink", f"jsonl:{kept}", "--sink", f"jsonl:{tmp_path / 'out' / 'new.jsonl'}",
+               "--record", str(tmp_path / record), "--quiet"])
+    out, err = capsys.readouterr()
+    assert {p: p.read_bytes() if p.is_file() else None for p in tmp_path.rglob("*")} == before
+    assert (rc, out, err) == (2, "", f"drovisio run: {path}: mesh: {why}\n")
+
+
+def test_serve_refuses_a_bad_mesh_before_opening_its_sinks(tmp_path, capsys):
+    import socket
+
+    from drovisio.cli import main
+
+    field, why = _hostile_mesh(tmp_path, "missing")
+    path = _dots_layout(tmp_path / "lay", field, dimensions=True)
+    camera, _ = _picture(tmp_path)
+    _without_image_size(camera)
+    before = sorted(tmp_path.rglob("*"))
+    with socket.socket() as taken:   # a serve that got past its checks ends at its port
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        rc = main(["serve", "--port", str(taken.getsockname()[1]), "--camera", str(camera),
+                   "--layout", str(path), "--sink", f"jsonl:{tmp_path / 'new.jsonl'}",
+                   "--data", str(tmp_path / "data")])
+    out, err = capsys.readouterr()
+    assert sorted(tmp_path.rglob("*")) == before
+    assert (rc, err) == (2, f"drovisio serve: {path}: mesh: {why}\n")
+
+
 def test_an_absolute_mesh_path_is_refused_when_the_layout_is_read(tmp_path, capsys):
     from drovisio.cli import main
 

@@ -4,8 +4,6 @@ playback moves the drone and drives the replay's 3D view."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 from drovisio.mission.record import write_recording
@@ -20,16 +18,8 @@ def _text(page, el_id: str) -> str:
     return page.locator("#" + el_id).inner_text().strip()
 
 
-def _until(read, done, bound: float = 120.0):
-    """read() again until done(its answer); the bound is for failures only."""
-    deadline = time.monotonic() + bound
-    while not done(got := read()):
-        assert time.monotonic() < deadline, got
-        time.sleep(0.1)
-    return got
-
-
-def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_factory, tmp_path):
+def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_factory, tmp_path,
+                                                          until):
     scn = load_scenario(shipped_scenario()).subset(["b1"])
     write_recording(simulate(scn, params=SimParams(seed=2)), tmp_path / "one-brick", every=2)
     base = live_server_factory(Settings(replay_dir=tmp_path))
@@ -50,7 +40,7 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     p0 = page.request.get(base + "/api/replay/state").json()["drone"]["position"]
     # the replay's 3D view: viser's client in the iframe, connected before the run plays
     page.frame_locator("#replay-frame").locator("canvas").first.wait_for(state="attached")
-    _until(scene, lambda s: s.get("clients", 0) >= 1)
+    until(scene, 120, done=lambda s: s.get("clients", 0) >= 1, pause=0.1)
 
     page.select_option("#replay-speed", "4")
     page.wait_for_function("document.getElementById('replay-msg').textContent === ''")
@@ -66,9 +56,10 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     assert st["t"] > 5 and st["drone"]["position"] != p0
     # the drone keeps moving while playing (a slow machine may have played it to its end):
     # the server's own state says which
-    st2 = _until(lambda: page.request.get(base + "/api/replay/state").json(),
-                 lambda s: s["state"] == "DONE" or (
-                     s["t"] > st["t"] and s["drone"]["position"] != st["drone"]["position"]))
+    st2 = until(lambda: page.request.get(base + "/api/replay/state").json(), 120,
+                done=lambda s: s["state"] == "DONE" or (
+                    s["t"] > st["t"] and s["drone"]["position"] != st["drone"]["position"]),
+                pause=0.1)
     assert st2["t"] >= st["t"]
     # to the end: the brick is placed and the run is DONE
     page.wait_for_function("document.getElementById('replay-state').textContent === 'DONE'",
@@ -77,12 +68,14 @@ def test_replay_of_a_simulated_run_plays_in_the_live_page(page, live_server_fact
     assert _text(page, "replay-placed") == "1 of 1"
     assert len(seen) >= 2
     # the 3D view was updated by the playback
-    sc = _until(scene, lambda s: s.get("clients", 0) >= 1 and s.get("updates", 0) >= 5)
+    sc = until(scene, 120, pause=0.1,
+               done=lambda s: s.get("clients", 0) >= 1 and s.get("updates", 0) >= 5)
     # seeking back with the slider's API and pausing
     st = page.request.post(base + "/api/replay/seek", data={"t": 1.0}).json()
     assert st["state"] == "TAKE_OFF"
     page.wait_for_function("document.getElementById('replay-state').textContent === 'TAKE_OFF'")
-    _until(scene, lambda s: s["updates"] > sc["updates"])   # the seek drawn, for the screenshot
+    # the seek drawn, for the screenshot
+    until(scene, 120, done=lambda s: s["updates"] > sc["updates"], pause=0.1)
     page.screenshot(path=str(tmp_path / "replay.png"), full_page=True)
 
 

@@ -342,6 +342,21 @@ def test_run_says_frames_that_do_not_fit_the_camera_file_and_exits_2(capsys, fra
     assert st["unfit_frames"] == 3 and "image is 320x240" in st["unfit"]
 
 
+def test_run_refuses_a_layout_the_dot_detector_cannot_use_before_writing(capsys, tmp_path):
+    """Three dots load as a layout, but the dot detector needs four: refused by the start-up
+    check in one line naming the file, not as an internal error once the sinks are open."""
+    doc = json.loads((layouts_dir() / "drick-dots-2x3.json").read_text())
+    doc.update(name="three-dots", symmetry="none", markers=doc["markers"][:3])
+    layout = tmp_path / "three.json"
+    layout.write_text(json.dumps(doc))
+    rc, out, err = run_cli(capsys, "run", "--source", VIDEO, "--camera", CAMERA, "--layout",
+                           layout, "--sink", f"jsonl:{tmp_path / 'o.jsonl'}", "--quiet")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["three.json"]
+    assert (rc, out) == (2, "")
+    assert err == (f"drovisio run: {layout}: markers: the dot detector needs at least 4 dots, "
+                   "it has 3; put at least 4 dots on one flat face, or remove them\n")
+
+
 def test_run_refuses_a_camera_index_no_device_has(capsys):
     digits = "123456789012345678901234567890123"
     rc, _, err = run_cli(capsys, "run", "--source", digits, "--camera", CAMERA, "--layout",
@@ -437,6 +452,25 @@ def test_serve_refuses_a_bad_camera_file_before_starting(capsys, tmp_path):
     bad.write_text("image_width: abc\n")
     rc, _, err = run_cli(capsys, "serve", "--camera", bad)
     assert rc == 2 and str(bad) in err and err.count("\n") == 1
+
+
+def test_serve_that_cannot_start_leaves_no_empty_sink_file(capsys, tmp_path):
+    """Serve's start-up check opens and closes every sink: a jsonl:PATH file it made, and
+    never wrote to, is removed again (here the port is taken, so serve ends at once)."""
+    import socket
+
+    kept = tmp_path / "kept.jsonl"
+    kept.write_bytes(b'{"file":"earlier.png","frame":0,"bricks":[]}\n')
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        rc, _, err = run_cli(capsys, "serve", "--port", taken.getsockname()[1], "--camera",
+                             CAMERA, "--layout", CENTRE, "--sink", f"jsonl:{kept}", "--sink",
+                             f"jsonl:{tmp_path / 'out' / 'new.jsonl'}", "--data",
+                             tmp_path / "data")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.jsonl"]
+    assert kept.read_bytes() == b'{"file":"earlier.png","frame":0,"bricks":[]}\n'
+    assert rc == 2 and "cannot listen" in err and err.count("\n") == 1
 
 
 def test_serial_mavlink_has_its_module():

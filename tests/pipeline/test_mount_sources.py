@@ -60,15 +60,6 @@ def test_a_number_is_a_camera_even_beside_a_folder_of_that_name(tmp_path, monkey
     assert type(reader_for("./3")).__name__ == "ImageFolderReader"
 
 
-def until(cond, bound: float = 60.0) -> None:
-    """Wait until ``cond()`` holds; the bound only turns a hang into a failure (a loaded
-    machine is slow, not wrong)."""
-    end = time.monotonic() + bound
-    while not cond():
-        assert time.monotonic() < end, "the condition never held"
-        time.sleep(0.02)
-
-
 class _Lossless:
     """A reader whose frames are each handed over (the consumer's pace, none dropped)."""
 
@@ -132,7 +123,7 @@ def test_image_folder_in_name_order_then_ends(tmp_path):
     assert names == ["a.png", "b.png", "c.png"] and src.state == SourceState.ENDED
 
 
-def test_missing_camera_is_lost_and_retried_not_raised():
+def test_missing_camera_is_lost_and_retried_not_raised(until):
     src = FrameSource(reader_for("/dev/video97"), backoff=(0.02, 0.05)).start()
     try:
         until(lambda: src.status().state != "starting")
@@ -173,7 +164,7 @@ class _FakeV4L2:
             self.ok = False
 
 
-def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch):
+def test_one_camera_shared_by_the_live_view_and_the_calibration_page(monkeypatch, until):
     """Two users of camera 0 in one process (the live pipeline's reader and the calibration
     page's source): the device is opened once, both get fresh frames, an unplug reaches both
     and they recover; the device closes when the last user goes."""

@@ -36,16 +36,7 @@ class BrokenSink(ListSink):
         raise OSError("network unreachable")
 
 
-def until(cond, bound: float = 60.0) -> None:
-    """Wait until ``cond()`` holds; the bound only turns a hang into a failure (a loaded
-    machine is slow, not wrong)."""
-    end = time.monotonic() + bound
-    while not cond():
-        assert time.monotonic() < end, "the condition never held"
-        time.sleep(0.01)
-
-
-def test_source_fails_mid_stream_and_comes_back(flaky_reader, fake_detector, monkeypatch):
+def test_source_fails_mid_stream_and_comes_back(flaky_reader, fake_detector, monkeypatch, until):
     reader = flaky_reader(fps=30)
     src = FrameSource(reader, backoff=(0.05, 0.2))
     pauses: list[float] = []           # the reader thread's pauses between reopen attempts
@@ -107,22 +98,23 @@ class WaitsForFrames:
 
     name = "slow"
 
-    def __init__(self, reader):
+    def __init__(self, reader, until):
         self.reader = reader
+        self.until = until
         self.read_by_end: list[int] = []   # frames read when each detection ended
 
     def detect(self, image, gravity=None):
         start = self.reader.i
-        until(lambda: self.reader.i >= start + 5)
+        self.until(lambda: self.reader.i >= start + 5)
         self.read_by_end.append(self.reader.i)
         return []
 
 
-def test_newest_frame_with_slow_detector(flaky_reader):
+def test_newest_frame_with_slow_detector(flaky_reader, until):
     reader = flaky_reader(fps=60)
     src = FrameSource(reader)
     sink = ListSink()
-    det = WaitsForFrames(reader)
+    det = WaitsForFrames(reader, until)
     p = Pipeline(src, [det], sinks=[sink])
     th = threading.Thread(target=p.run, daemon=True)
     th.start()

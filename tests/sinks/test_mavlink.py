@@ -113,16 +113,7 @@ def test_vehicle_state_interpolates_and_expires():
     assert v.attitude_at(10.5, max_age=0.3) is None
 
 
-def until(cond, bound: float = 60.0) -> None:
-    """Wait until ``cond()`` holds; the bound only turns a hang into a failure (a loaded
-    machine is slow, not wrong)."""
-    end = time.monotonic() + bound
-    while not cond():
-        assert time.monotonic() < end, "the condition never held"
-        time.sleep(0.01)
-
-
-def test_ardupilot_landing_target_at_frame_rate_vs_truth(tmp_path):
+def test_ardupilot_landing_target_at_frame_rate_vs_truth(tmp_path, until):
     lst = Listener()
     jl = tmp_path / "out.jsonl"
     # every frame measured (pace "max"): at "realtime" a loaded machine, or the first run
@@ -182,7 +173,7 @@ def _frd_state_of_frame(rec):
     return (roll, pitch, yaw), NED_FROM_ENU @ world_from_body[:3, 3]
 
 
-def test_px4_local_ned_from_the_links_attitude(tmp_path):
+def test_px4_local_ned_from_the_links_attitude(tmp_path, until):
     rec = _truth()[0]
     (roll, pitch, yaw), pos = _frd_state_of_frame(rec)
     assert np.allclose(ned_from_body(roll, pitch, yaw),

@@ -11,72 +11,57 @@ from drovisio.sinks.base import SinkError
 from drovisio.sinks.mavlink import MavlinkSink, parse_mavlink_spec
 
 
-def _wait(cond, bound: float = 60.0) -> bool:
-    """Whether ``cond()`` came to hold; the bound only turns a hang into a failure (a loaded
-    machine is slow, not wrong)."""
-    end = time.monotonic() + bound
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.02)
-    return cond()
+def _known(value) -> bool:
+    """A state read (None: older than its max age, which a loaded machine may reach between
+    two calls: asked again)."""
+    return value is not None
 
 
-def _first(fn, bound: float = 60.0):
-    """``fn()``'s first value that is not None (asked again: a state older than its max age
-    reads None, which a loaded machine may reach between two calls)."""
-    end = time.monotonic() + bound
-    while (v := fn()) is None:
-        assert time.monotonic() < end, "never had a value"
-        time.sleep(0.02)
-    return v
-
-
-def test_ardupilot_answers_set_message_interval_and_streams(vehicle):
+def test_ardupilot_answers_set_message_interval_and_streams(vehicle, until):
     v = vehicle(interval="accept")
     sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
     try:
-        roll, pitch, _ = _first(lambda: sink.attitude_at(time.monotonic()))
+        roll, pitch, _ = until(lambda: sink.attitude_at(time.monotonic()), done=_known)
         assert roll == pytest.approx(0.1, abs=1e-6) and pitch == pytest.approx(-0.05, abs=1e-6)
         # asked the right vehicle, the right message, by SET_MESSAGE_INTERVAL
         # the two requests travel separately: wait for both rather than race the second
-        assert _wait(lambda: {int(c.param1) for c in v.commands if c.command == 511} >= {30, 32})
+        until(lambda: {int(c.param1) for c in v.commands if c.command == 511} >= {30, 32})
         cmd = [c for c in v.commands if c.command == 511]
         assert all(c.target_system == 1 and c.target_component == 1 for c in cmd)
         assert v.stream_requests == []         # no fallback needed
         st = sink.status()
         assert st["vehicle"] == {"system": 1, "component": 1, "autopilot": "ArduPilot"}
         assert st["note"] is None
-        assert _wait(lambda: sink.status()["streams"]["ATTITUDE"]["rate_hz"] > 20)
+        until(lambda: sink.status()["streams"]["ATTITUDE"]["rate_hz"] > 20)
         assert sink.status()["streams"]["ATTITUDE"]["mode"] == "acked"
     finally:
         sink.close()
 
 
-def test_falls_back_to_request_data_stream_when_refused(vehicle):
+def test_falls_back_to_request_data_stream_when_refused(vehicle, until):
     v = vehicle(interval="refuse", data_stream=True)
     sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
     try:
-        assert _wait(lambda: sink.attitude_at(time.monotonic()) is not None)
+        until(lambda: sink.attitude_at(time.monotonic()) is not None)
         assert any(r.req_stream_id == 10 and r.start_stop == 1 for r in v.stream_requests)
         assert sink.status()["streams"]["ATTITUDE"]["mode"] == "fallback"
     finally:
         sink.close()
 
 
-def test_no_answer_is_said_once(vehicle):
+def test_no_answer_is_said_once(vehicle, until):
     v = vehicle(interval="ignore", data_stream=False)
     sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
     try:
-        assert _wait(lambda: sink.status()["note"] is not None)
+        until(lambda: sink.status()["note"] is not None)
         note = sink.status()["note"]
         assert "no ATTITUDE" in note and "level flight" in note and "system 1" in note
         assert "REQUEST_DATA_STREAM" in note       # the last way tried
         # asked twice by command, then the old way, then gave up saying so (the vehicle's
         # thread may read the last request after the note was given)
-        assert _wait(lambda: sum(c.command == 511 and int(c.param1) == 30
-                                 for c in v.commands) >= 2)
-        assert _wait(lambda: any(r.req_stream_id == 10 for r in v.stream_requests))
+        until(lambda: sum(c.command == 511 and int(c.param1) == 30
+                          for c in v.commands) >= 2)
+        until(lambda: any(r.req_stream_id == 10 for r in v.stream_requests))
         time.sleep(1.0)
         assert sink.streams.notes == [note]       # said once
         assert sink.attitude_at(time.monotonic()) is None
@@ -112,27 +97,27 @@ def test_status_line_says_the_note_once():
     assert new_notes(st, said) == ""
 
 
-def test_nothing_on_the_link_is_said(vehicle):
+def test_nothing_on_the_link_is_said(vehicle, until):
     sink = MavlinkSink("udpout:127.0.0.1:9")    # discard port: nobody answers
     sink.streams.missing_after = 0.5
     try:
-        assert _wait(lambda: sink.status()["note"] is not None)
+        until(lambda: sink.status()["note"] is not None)
         assert "no autopilot HEARTBEAT" in sink.status()["note"]
     finally:
         sink.close()
 
 
-def test_px4_reads_only_its_own_vehicle(vehicle):
+def test_px4_reads_only_its_own_vehicle(vehicle, until):
     # system 2 is ours; system 5 streams a different attitude on the same link
     v = vehicle(sysid=2, autopilot=12, intruder=5)
     sink = open_sink(f"mavlink:udpout:127.0.0.1:{v.port}?sysid=2&compid=195", autopilot="px4")
     try:
-        assert _wait(lambda: sink.vehicle.position_at(time.monotonic()) is not None)
+        until(lambda: sink.vehicle.position_at(time.monotonic()) is not None)
         time.sleep(0.3)
         for s in list(sink.vehicle.attitude):
             assert s.values == pytest.approx((0.1, -0.05, 1.0), abs=1e-6)
-        assert _first(lambda: sink.vehicle.position_at(time.monotonic())) == pytest.approx(
-            (1.0, 2.0, -3.0))
+        position = until(lambda: sink.vehicle.position_at(time.monotonic()), done=_known)
+        assert position == pytest.approx((1.0, 2.0, -3.0))
         assert sink.conn.mav.srcSystem == 2 and sink.conn.mav.srcComponent == 195
         assert all(c.target_system == 2 for c in v.commands)
     finally:
@@ -149,7 +134,7 @@ def test_mavlink_spec_ids():
         parse_mavlink_spec("udpout:127.0.0.1:14550?system=2")
 
 
-def test_the_sinks_check_follows_a_fixed_parameter(vehicle, ardupilot_ok):
+def test_the_sinks_check_follows_a_fixed_parameter(vehicle, ardupilot_ok, until):
     v = vehicle(params=dict(ardupilot_ok, PLND_ORIENT=0))
     sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
     sink.param_refresh_s = 0.5
@@ -158,25 +143,25 @@ def test_the_sinks_check_follows_a_fixed_parameter(vehicle, ardupilot_ok):
         return {f["item"]: f for f in sink.check()}["PLND_ORIENT"]["status"]
 
     try:
-        assert _wait(lambda: orient() == "wrong")
+        until(lambda: orient() == "wrong")
         v.params["PLND_ORIENT"] = 25          # fixed from the ground station meanwhile
-        assert _wait(lambda: orient() == "ok")
+        until(lambda: orient() == "ok")
     finally:
         sink.close()
 
 
-def test_asks_again_when_a_stream_stops(vehicle):
+def test_asks_again_when_a_stream_stops(vehicle, until):
     """An autopilot reboot forgets the intervals: the sink asks again, the stream comes back."""
     v = vehicle(interval="accept")
     sink = MavlinkSink(f"udpout:127.0.0.1:{v.port}")
     sink.streams.missing_after = 1.0
     try:
-        assert _wait(lambda: sink.attitude_at(time.monotonic()) is not None)
+        until(lambda: sink.attitude_at(time.monotonic()) is not None)
         asked = sum(c.command == 511 and int(c.param1) == 30 for c in v.commands)
         v.rates.clear()                              # rebooted: streams nothing again
-        assert _wait(lambda: sink.attitude_at(time.monotonic()) is None)
-        assert _wait(lambda: sum(c.command == 511 and int(c.param1) == 30
-                                 for c in v.commands) > asked)
-        assert _wait(lambda: sink.attitude_at(time.monotonic()) is not None)
+        until(lambda: sink.attitude_at(time.monotonic()) is None)
+        until(lambda: sum(c.command == 511 and int(c.param1) == 30
+                          for c in v.commands) > asked)
+        until(lambda: sink.attitude_at(time.monotonic()) is not None)
     finally:
         sink.close()

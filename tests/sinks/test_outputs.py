@@ -88,6 +88,29 @@ def test_jsonl_file_and_bad_specs(tmp_path):
             open_sink(bad)
 
 
+def test_a_jsonl_file_is_appended_to_and_one_never_written_is_not_left(tmp_path):
+    """An existing file is never truncated; a file (and folders) the sink made is removed at
+    close when nothing was written to it; one written to stays."""
+    kept, empty = tmp_path / "kept.jsonl", tmp_path / "empty.jsonl"
+    kept.write_bytes(b"earlier\n")
+    empty.touch()
+    for path in (kept, empty, tmp_path / "new.jsonl", tmp_path / "a" / "b" / "new.jsonl"):
+        s = open_sink(f"jsonl:{path}")
+        assert path.exists()         # made at start: what follows it sees it at once
+        s.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.jsonl", "kept.jsonl"]
+    assert (kept.read_bytes(), empty.read_bytes()) == (b"earlier\n", b"")
+    s = open_sink(f"jsonl:{kept}")
+    s.send(_output([]))
+    s.close()
+    assert kept.read_text().splitlines()[0] == "earlier"
+    s = open_sink(f"jsonl:{tmp_path / 'a' / 'o.jsonl'}")
+    s.send(_output([]))
+    s.close()
+    s.close()
+    assert json.loads((tmp_path / "a" / "o.jsonl").read_text())["bricks"] == []
+
+
 def test_udp_datagram_and_no_listener():
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))

@@ -39,18 +39,6 @@ def _target() -> FrameOutput:
     return FrameOutput("cam", 1, 1, time.time(), time.monotonic(), [b], target=b)
 
 
-def _until(cond, step=None) -> bool:
-    """Run ``step`` until ``cond()`` holds (False if it did not within the deadline)."""
-    end = time.monotonic() + DEADLINE_S
-    while not cond():
-        if time.monotonic() > end:
-            return False
-        if step is not None:
-            step()
-        time.sleep(0.02)
-    return True
-
-
 def _said(alarms: Alarms, *sinks) -> list[str]:
     """What ``drovisio run`` says on a line of its own for this status of the sinks."""
     st = SimpleNamespace(source=SimpleNamespace(state="live", label="cam", error=None),
@@ -116,7 +104,7 @@ class Autopilot:
         self._listen()
 
 
-def test_a_mavlink_tcp_peer_gone_counts_lost_not_sent_and_says_it_once(capfd):
+def test_a_mavlink_tcp_peer_gone_counts_lost_not_sent_and_says_it_once(capfd, until):
     peer = Autopilot()
     sink = MavlinkSink(f"tcp:127.0.0.1:{peer.port}")
     name = f"mavlink:tcp:127.0.0.1:{peer.port}"
@@ -124,14 +112,15 @@ def test_a_mavlink_tcp_peer_gone_counts_lost_not_sent_and_says_it_once(capfd):
     try:
         for _ in range(3):
             sink.send(_target())
-        assert _until(lambda: peer.targets == 3)
+        until(lambda: peer.targets == 3, DEADLINE_S)
         st = sink.status()
         assert (st["sent"], st["lost"], st["down"]) == (3, 0, None)
         assert _said(alarms, sink) == []
 
         peer.go()
         # the peer's kernel may take one more write before the link is known closed
-        assert _until(lambda: sink.status()["down"] is not None, lambda: sink.send(_target()))
+        until(lambda: sink.status()["down"] is not None, DEADLINE_S,
+              step=lambda: sink.send(_target()))
         sent, lost = sink.status()["sent"], sink.status()["lost"]
         said = _said(alarms, sink)
         assert len(said) == 1, said
@@ -146,12 +135,13 @@ def test_a_mavlink_tcp_peer_gone_counts_lost_not_sent_and_says_it_once(capfd):
         assert _said(alarms, sink) == []                        # said once
 
         peer.come_back()     # reconnected at most once a second, on the next use
-        assert _until(lambda: sink.status()["sent"] > sent, lambda: sink.send(_target()))
+        until(lambda: sink.status()["sent"] > sent, DEADLINE_S,
+              step=lambda: sink.send(_target()))
         st = sink.status()
         assert st["down"] is None and st["lost"] >= lost + 5
         assert _said(alarms, sink) == [f"sink {name} back ({st['lost']} messages not sent "
                                        "meanwhile)"]
-        assert _until(lambda: peer.targets >= 3 + st["sent"] - sent)
+        until(lambda: peer.targets >= 3 + st["sent"] - sent, DEADLINE_S)
     finally:
         sink.close()
         peer.go()
@@ -247,7 +237,7 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def test_a_mavlink_udp_listener_sends_nothing_until_a_peer_speaks_and_says_so(capfd):
+def test_a_mavlink_udp_listener_sends_nothing_until_a_peer_speaks_and_says_so(capfd, until):
     port = _free_udp_port()
     name = f"mavlink:udpin:127.0.0.1:{port}"
     sink = MavlinkSink(f"udpin:127.0.0.1:{port}")
@@ -266,8 +256,8 @@ def test_a_mavlink_udp_listener_sends_nothing_until_a_peer_speaks_and_says_so(ca
                         "first); its messages are not sent until it comes back"]
         mav = mavutil2().mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         hb = mav.heartbeat_encode(2, 3, 0, 0, 4).pack(mav)
-        assert _until(lambda: sink.status()["sent"] > 0,
-                      lambda: (peer.sendto(hb, ("127.0.0.1", port)), sink.send(_target())))
+        until(lambda: sink.status()["sent"] > 0, DEADLINE_S,
+              step=lambda: (peer.sendto(hb, ("127.0.0.1", port)), sink.send(_target())))
         assert sink.status()["down"] is None
         assert _said(alarms, sink)[0].startswith(f"sink {name} back (")
         peer.setblocking(False)
@@ -278,7 +268,8 @@ def test_a_mavlink_udp_listener_sends_nothing_until_a_peer_speaks_and_says_so(ca
             while select.select([peer], [], [], 0.05)[0]:
                 seen.update(m.get_type() for m in mav.parse_buffer(peer.recv(4096)) or [])
 
-        assert _until(lambda: "LANDING_TARGET" in seen, read), seen  # it reaches the peer
+        # it reaches the peer
+        until(lambda: seen, DEADLINE_S, done=lambda got: "LANDING_TARGET" in got, step=read)
     finally:
         sink.close()
         peer.close()

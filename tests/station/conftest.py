@@ -7,7 +7,6 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -75,20 +74,8 @@ def drone(port: int, drone_id: str, source: Path, layout: str, web: str = "") ->
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
 
 
-def until(cond, bound: float) -> float | None:
-    """Seconds until cond() held, or None if it did not within bound."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < bound:
-        if cond():
-            return time.monotonic() - t0
-        time.sleep(0.02)
-    return None
-
-
-
-
 @pytest.fixture
 def drones() -> SimpleNamespace:
     """The helpers above, for the tests of this folder."""
     return SimpleNamespace(REPO=REPO, SAMPLE=SAMPLE, free_port=free_port, long_sample=long_sample,
-                           rendered_video=rendered_video, drone=drone, until=until)
+                           rendered_video=rendered_video, drone=drone)

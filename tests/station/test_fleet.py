@@ -83,7 +83,7 @@ def test_a_drone_names_its_web_tool_only_as_an_http_address(web, ok):
             parse_spec(spec)
 
 
-def test_the_station_drops_what_it_cannot_read():
+def test_the_station_drops_what_it_cannot_read(until):
     """A hostile or broken peer on the network: bytes that are no CDR, a JSON that is no
     object, a key that names no drone: dropped and counted, the fleet untouched."""
     import json
@@ -120,19 +120,8 @@ def test_the_station_drops_what_it_cannot_read():
         assert link.dropped >= 3
         assert fleet.status() == []
         good = encoder("std_msgs/String")({"data": json.dumps({"t": time.time(), "bricks": []})})
-        assert _until_status(fleet, lambda: peer.put(key, good))
+        until(lambda: [d.drone_id for d in fleet.status()], done=lambda ids: ids == ["evil"],
+              step=lambda: peer.put(key, good), pause=0.1)
     finally:
         peer.close()
         link.close()
-
-
-def _until_status(fleet: Fleet, poke) -> bool:
-    import time
-
-    end = time.monotonic() + 60
-    while time.monotonic() < end:
-        poke()
-        if [d.drone_id for d in fleet.status()] == ["evil"]:
-            return True
-        time.sleep(0.1)
-    return False

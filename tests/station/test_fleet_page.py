@@ -30,7 +30,7 @@ def _row(page, drone_id: str):
     return page.locator(f'#fleet-rows tr[data-drone="{drone_id}"]')
 
 
-def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones):
+def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones, until):
     zport, wport = drones.free_port(), drones.free_port()
     log = (tmp_path / "station.log").open("w")
     station = subprocess.Popen(
@@ -40,8 +40,8 @@ def test_fleet_page_shows_two_drones_a_kill_and_a_restart(page, tmp_path, drones
     base = f"http://127.0.0.1:{wport}"
     procs = [station]
     try:
-        assert drones.until(lambda: _up(base + "/api/health"), 300), \
-            (tmp_path / "station.log").read_text()
+        until(lambda: _up(base + "/api/health"), 300,
+              say=lambda _: (tmp_path / "station.log").read_text())
         video = drones.rendered_video(tmp_path / "rendered.mp4")
         sample = drones.long_sample(tmp_path / "approach.mp4")
         one = drones.drone(zport, "drone1", sample, "drick-aruco-pyramids.json",

@@ -25,7 +25,7 @@ def _target(fleet: Fleet, drone: str):
     return next((d.target for d in fleet.status() if d.drone_id == drone), None)
 
 
-def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
+def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones, until):
     port = drones.free_port()
     fleet = Fleet(lost_after_s=3600.0)   # lost only when the session ends
     link = StationLink(fleet, listen=[f"tcp/127.0.0.1:{port}"])
@@ -45,9 +45,9 @@ def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
                     seen.setdefault(d.drone_id, d.target)
             return len(seen) == 2
 
-        assert drones.until(targets, 600) is not None, (fleet.status(), one.poll(), two.poll())
-        assert drones.until(lambda: {d.drone_id: d.state for d in fleet.status()}
-                      == {"drone1": "live", "drone2": "live"}, 60) is not None
+        until(targets, 600, say=lambda _: (fleet.status(), one.poll(), two.poll()))
+        until(lambda: {d.drone_id: d.state for d in fleet.status()}
+              == {"drone1": "live", "drone2": "live"}, 60)
         t1, t2 = seen["drone1"], seen["drone2"]
         assert t1["layout"] == "drick-aruco-pyramids" and t2["layout"] == "drick-aruco-centre"
         assert 0.3 < float(np.linalg.norm(t2["tvec"])) < 2.0    # metres from the camera
@@ -56,13 +56,12 @@ def test_station_sees_two_drones_a_kill_and_a_restart(tmp_path, drones):
         # kill -9: no goodbye from the drone; its session's end withdraws its token
         os.kill(one.pid, signal.SIGKILL)
         one.wait(60)
-        lost_after = drones.until(lambda: _state(fleet, "drone1") == "lost", 60)
-        assert lost_after is not None, fleet.status()
+        until(lambda: _state(fleet, "drone1") == "lost", 60, say=lambda _: fleet.status())
         assert _state(fleet, "drone2") == "live"
         # a restart is seen again by the same station
         one = drones.drone(port, "drone1", sample, "drick-aruco-pyramids.json")
         procs.append(one)
-        assert drones.until(lambda: _state(fleet, "drone1") == "live", 600) is not None
+        until(lambda: _state(fleet, "drone1") == "live", 600)
         assert link.dropped == 0
     finally:
         for p in procs:

@@ -102,18 +102,17 @@ def no_camera():
     return ScriptedSource([])
 
 
-def wait_state(client: TestClient, pred, timeout: float = 300.0) -> dict:
-    """The first state ``pred`` holds for; the bound only turns a hang into a failure (a
-    loaded machine captures and solves slowly, not wrongly)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        s = client.get(f"{API}/state").json()
-        if pred(s):
-            return s
-        if time.monotonic() > deadline:
-            raise AssertionError(f"state never matched; last: camera={s['camera']} "
-                                 f"views={len(s['views'])} feedback={s['feedback']}")
-        time.sleep(0.05)
+@pytest.fixture
+def wait_state(until):
+    """``wait_state(client, pred, timeout=300)``: the first state ``pred`` holds for; the
+    bound only turns a hang into a failure (a loaded machine captures and solves slowly, not
+    wrongly)."""
+    def wait(client: TestClient, pred, timeout: float = 300.0) -> dict:
+        return until(lambda: client.get(f"{API}/state").json(), timeout, done=pred,
+                     pause=0.05, say=lambda s: f"camera={s['camera']} views={len(s['views'])} "
+                                               f"feedback={s['feedback']}")
+
+    return wait
 
 
 def upload(client: TestClient, files: list[tuple[str, bytes]]) -> dict:
@@ -144,7 +143,7 @@ def test_page_and_static_files(make_client):
     assert (session_dir(c) / "session.json").is_file()
 
 
-def test_live_auto_capture_saves_each_view_at_once(make_client):
+def test_live_auto_capture_saves_each_view_at_once(make_client, wait_state):
     c = make_client(lambda: ScriptedSource(still(NOVEL[:5]), hold=True))
     s = wait_state(c, lambda s: len(s["views"]) == 5)
     folder = Path(s["session"]["folder"])
@@ -163,7 +162,7 @@ def test_live_auto_capture_saves_each_view_at_once(make_client):
     assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
 
 
-def test_pages_waiting_for_a_frame_hold_no_worker_thread(make_client):
+def test_pages_waiting_for_a_frame_hold_no_worker_thread(make_client, wait_state):
     """Forty pages each waiting (a second) for a frame newer than any: with one worker
     thread, a route that needs it still answers (a wait held a thread each, before)."""
     import anyio
@@ -187,7 +186,7 @@ def test_pages_waiting_for_a_frame_hold_no_worker_thread(make_client):
     asyncio.run(main())
 
 
-def test_sample_playback_auto_captures(make_client):
+def test_sample_playback_auto_captures(make_client, wait_state):
     c = make_client(sample_seconds_per_view=0.3)
     s = wait_state(c, lambda s: len(s["views"]) >= 3)
     assert s["session"]["sample"] is True and s["camera"]["state"] == "ok"
@@ -206,7 +205,7 @@ def test_sample_playback_still_and_moving_frames():
     assert any(not np.array_equal(a, b) for a, b in itertools.pairwise(frames))
 
 
-def test_camera_lost_mid_session_keeps_views_and_recovers(make_client):
+def test_camera_lost_mid_session_keeps_views_and_recovers(make_client, wait_state):
     back = threading.Event()
     calls = {"n": 0}
 
@@ -235,7 +234,7 @@ def test_camera_lost_mid_session_keeps_views_and_recovers(make_client):
     assert [v["id"] for v in s["views"]] == [0, 1, 2, 3]
 
 
-def test_manual_capture_with_auto_off(make_client):
+def test_manual_capture_with_auto_off(make_client, wait_state):
     frames = {"f": _img(0)}
 
     class Live:
@@ -270,7 +269,7 @@ def test_manual_capture_with_auto_off(make_client):
     assert saved["auto_capture"] is False
 
 
-def test_capture_while_a_busy_machine_is_slow_over_the_next_frame(make_client):
+def test_capture_while_a_busy_machine_is_slow_over_the_next_frame(make_client, wait_state):
     """The camera keeps giving frames, the machine takes long over each (a busy or a small
     computer): Capture keeps the latest one (it was refused as "no picture from the camera
     right now" once a frame had taken over 3 s)."""
@@ -426,7 +425,7 @@ def test_nothing_to_solve_yet(make_client):
     assert c.post(f"{API}/use").status_code == 409
 
 
-def test_solve_result_downloads_and_use(make_client, tmp_path):
+def test_solve_result_downloads_and_use(make_client, tmp_path, wait_state):
     c = make_client(no_camera)
     upload(c, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(10)])
     r = c.post(f"{API}/solve")
@@ -501,7 +500,7 @@ def test_writes_work_with_the_token(make_client):
     assert c.get(f"{API}/state").json()["auto_capture"] is False
 
 
-def test_lens_model_choice_solves_again_and_says_why(make_client):
+def test_lens_model_choice_solves_again_and_says_why(make_client, wait_state):
     c = make_client(no_camera)
     upload(c, [(f"view_{i:02d}.jpg", _jpeg_bytes(i)) for i in range(10)])
     assert c.post(f"{API}/solve").status_code == 202
@@ -550,7 +549,7 @@ def test_board_pdf_of_the_session_board(make_client):
     assert c.get(f"{API}/board.pdf", params={"paper": "A5"}).status_code == 422
 
 
-def test_the_measured_square_size_scales_the_board_not_the_lens(make_client):
+def test_the_measured_square_size_scales_the_board_not_the_lens(make_client, wait_state):
     # a camera's session (not the sample): the page asks for the square size before solving
     c = make_client(no_camera, source="/dev/video-test")
     assert c.get(f"{API}/state").json()["session"]["square_measured"] is False

@@ -38,16 +38,7 @@ def _output(k: int) -> FrameOutput:
                        bricks=[b], target=b)
 
 
-def _until(cond, bound: float = 60.0) -> bool:
-    end = time.monotonic() + bound
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.05)
-    return cond()
-
-
-def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path):
+def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path, until):
     port = _free_port()
     app = create_app(Settings(station_listen=[f"tcp/127.0.0.1:{port}"], data_dir=tmp_path))
     with TestClient(app, base_url=LOCAL) as c:
@@ -73,7 +64,7 @@ def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path):
                 return (bool(d) and d[0]["has_image"] and bool(d[0]["info"])
                         and d[0]["state"] == "live")
 
-            assert _until(heard)
+            until(heard, pause=0.05)
             (d,) = st["drones"]
             assert st["listen"] == [f"tcp/127.0.0.1:{port}"] and st["error"] is None
             assert d["drone_id"] == "alpha" and d["state"] == "live" and d["bricks"] == 1
@@ -87,7 +78,8 @@ def test_a_station_lists_its_drones_with_target_thumbnail_and_link(tmp_path):
         finally:
             sink.close()
         # the sink's session ended: the drone is lost
-        assert _until(lambda: c.get("/api/fleet/status").json()["drones"][0]["state"] == "lost")
+        until(lambda: c.get("/api/fleet/status").json()["drones"][0]["state"] == "lost",
+              pause=0.05)
         assert c.get("/api/fleet/drones/nobody/image.jpg").status_code == 404
         assert c.get("/api/fleet/drones/a%20b/image.jpg").status_code == 404
         page = c.get("/fleet")

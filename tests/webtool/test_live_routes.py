@@ -59,16 +59,6 @@ class OneBrick:
                                                  [300, 240.0]]))]
 
 
-def until(cond, bound: float = 60.0):
-    """``cond()``'s first true value; the bound only turns a hang into a failure (a loaded
-    machine is slow, not wrong)."""
-    end = time.monotonic() + bound
-    while not (got := cond()):
-        assert time.monotonic() < end, "the condition never held"
-        time.sleep(0.05)
-    return got
-
-
 def _fake_pipeline(svc):
     from drovisio.camera import Camera
 
@@ -122,19 +112,20 @@ def test_adaptive_stream_keeps_under_the_share():
     assert st5.level > lvl
 
 
-def test_status_frame_bricks_and_target():
+def test_status_frame_bricks_and_target(until):
     app = _app()
     with TestClient(app, base_url=LOCAL) as c:
         st = c.get("/api/live/status").json()
         assert st["running"] and st["access"] == "full" and st["bandwidth_kbps"] == 2000
-        until(lambda: app.state.live.seq > 0)   # the first frame (503 before it: documented)
+        # the first frame (503 before it: documented)
+        until(lambda: app.state.live.seq > 0, pause=0.05)
         r = c.get("/api/live/frame.jpg?level=3")
         assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
         small = c.get("/api/live/frame.jpg?level=12").content
         assert len(small) < len(r.content) / 3
         assert c.get("/api/live/frame.jpg?level=99").status_code == 422
         # a pose older than max_age is never shown: a loaded machine may show none for a while
-        b = until(lambda: c.get("/api/live/bricks").json()["bricks"])
+        b = until(lambda: c.get("/api/live/bricks").json()["bricks"], pause=0.05)
         assert b[0]["layout"] == "drick-aruco-centre" and b[0]["target"] is True
         assert "body_from_brick" in b[0] and b[0]["age"] <= 0.5
         # the uncertainty in words: measured σ √1e-5 m = 3.2 mm, 0.18°, plus the tracker's
@@ -146,7 +137,7 @@ def test_status_frame_bricks_and_target():
         assert r.status_code == 200 and r.json()["target"]["instance"] == 2
         # the next frames have brick 1 but no target
         b = until(lambda: [x for x in c.get("/api/live/bricks").json()["bricks"]
-                           if x["target"] is False])
+                           if x["target"] is False], pause=0.05)
         assert b[0]["instance"] == 1
         assert c.post("/api/live/target", json={"spec": "a:b"}).status_code == 422
         st = c.get("/api/live/status").json()
@@ -173,7 +164,7 @@ def test_a_target_the_loaded_layouts_cannot_have_is_refused_in_one_line():
         assert r.status_code == 200 and r.json()["target"]["instance"] == 19
 
 
-def test_another_sites_page_cannot_start_the_pipeline_with_a_get():
+def test_another_sites_page_cannot_start_the_pipeline_with_a_get(until):
     app = _app()
     with TestClient(app, base_url=LOCAL) as c:
         # an <img> on another site's page: no Origin, but the browser says where it is from
@@ -190,7 +181,7 @@ def test_another_sites_page_cannot_start_the_pipeline_with_a_get():
         assert (r.status_code == 200 and r.content[:2] == b"\xff\xd8") or (
             r.status_code == 503 and "no frame yet" in r.json()["detail"]), r.status_code
         assert app.state.live.status()["running"]
-        until(lambda: app.state.live.seq > 0)
+        until(lambda: app.state.live.seq > 0, pause=0.05)
         r = c.get("/api/live/frame.jpg", headers={"Sec-Fetch-Site": "same-origin"})
         assert r.status_code == 200 and r.content[:2] == b"\xff\xd8"
 
@@ -303,7 +294,7 @@ def test_token_viewer_token_and_refusals():
     assert Settings(host="0.0.0.0").viewer_token and Settings().viewer_token is None
 
 
-def test_3d_client_and_socket_through_the_proxy():
+def test_3d_client_and_socket_through_the_proxy(until):
     import viser
 
     settings = Settings()
@@ -317,7 +308,8 @@ def test_3d_client_and_socket_through_the_proxy():
         with c.websocket_connect(LOCAL_WS + "/live/3d", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
             m = ws.receive()
             assert m.get("bytes")  # viser's first (msgpack) message, relayed
-        until(lambda: c.get("/api/live/status").json().get("scene", {}).get("bricks"))
+        until(lambda: c.get("/api/live/status").json().get("scene", {}).get("bricks"),
+              pause=0.05)
         assert any("drick-aruco-centre:1" in n
                    for n in c.get("/api/live/status").json()["scene"]["bricks"])
 
@@ -334,14 +326,14 @@ def test_access_lines_with_qr_codes():
     assert access_lines("http://h/", None, None) == []
 
 
-def test_idle_service_releases_the_source_and_restarts():
+def test_idle_service_releases_the_source_and_restarts(until):
     settings = Settings()
     svc = LiveService(settings, pipeline_factory=_fake_pipeline, scene=False, idle_timeout=0.3)
     try:
         svc.ensure_started()
         assert svc.status()["running"]
         # nobody watching: stopped (the camera is free for calibration)
-        until(lambda: not svc.status()["running"])
+        until(lambda: not svc.status()["running"], pause=0.05)
         svc.ensure_started()
         assert svc.status()["running"]
     finally:

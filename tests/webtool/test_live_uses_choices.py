@@ -5,7 +5,6 @@ measuring the mount from the demo's bricks refuses the pan and says why."""
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 import pytest
@@ -30,19 +29,16 @@ def app(tmp_path):
     close_services(a)
 
 
-def _wait_frames(live, n: int = 2, timeout: float = 60.0) -> None:
+def _wait_frames(live, until, n: int = 2, timeout: float = 60.0) -> None:
     start = live.seq
-    deadline = time.monotonic() + timeout
-    while live.seq < start + n:
-        assert time.monotonic() < deadline, live.error
-        time.sleep(0.05)
+    until(lambda: live.seq >= start + n, timeout, pause=0.05, say=lambda _: live.error)
 
 
-def test_a_saved_mount_is_used_by_the_live_view_at_once(app, tmp_path):
+def test_a_saved_mount_is_used_by_the_live_view_at_once(app, tmp_path, until):
     client = TestClient(app, base_url=LOCAL)
     live = get_service(app, "live")
     live.ensure_started()
-    _wait_frames(live)
+    _wait_frames(live, until)
     assert abs(live.mount.angles()["tilt_deg"] - 20.0) < 1e-6          # the sample's
 
     # measured from the demo's bricks "with the x arrow to the nose": no pan, and why
@@ -62,17 +58,17 @@ def test_a_saved_mount_is_used_by_the_live_view_at_once(app, tmp_path):
     assert live.config().mount_file == saved
     assert np.allclose(live.mount.body_from_camera,
                        body_from_camera_angles(33.0, 0.0, 0.0, (0.08, 0, 0.05)), atol=1e-9)
-    _wait_frames(live)
+    _wait_frames(live, until)
     assert live.pipeline is not None and live.error is None
     # and after a restart too
     again = create_app(Settings(data_dir=tmp_path / "data"))
     assert again.state.settings.mount == saved
 
 
-def test_a_chosen_calibration_is_used_by_the_live_view_at_once(app, tmp_path):
+def test_a_chosen_calibration_is_used_by_the_live_view_at_once(app, tmp_path, until):
     live = get_service(app, "live")
     live.ensure_started()
-    _wait_frames(live)
+    _wait_frames(live, until)
     fx_before = live.camera.fx
     # what "Use this calibration" does to the settings, then tells the live view
     cam = load_camera(sample_sessions_dir() / "camera.yaml")
@@ -82,5 +78,5 @@ def test_a_chosen_calibration_is_used_by_the_live_view_at_once(app, tmp_path):
     app.state.settings.camera = path
     live.reconfigure()
     assert live.camera.fx == pytest.approx(fx_before * 1.01)
-    _wait_frames(live)
+    _wait_frames(live, until)
     assert live.error is None
