@@ -17,14 +17,17 @@ OTHER = aruco_code_bits("DICT_6X6_250", 23).astype(np.float64)
 TRUE = np.array([[42.3, 31.6], [111.8, 35.2], [108.1, 104.9], [38.7, 101.4]])
 
 
-def _render(bend_cells: float, seed: int, noise: float = 1.5, ss: int = 6) -> np.ndarray:
+def _render(bend_cells: float, seed: int, noise: float = 1.5, ss: int = 6,
+            corners: np.ndarray = TRUE, bar: np.ndarray | None = None) -> np.ndarray:
     """A 6×6 code (8 cells with its border) whose outer border is the square with corners
     ``TRUE`` (px) on white paper, but whose cells are pushed toward its top-left corner by up
     to ``bend_cells`` (a bilinear bend, nothing at the far corner): the border is that much
     thinner there than the cells say, as on a bent print or at the rim of a photo undistorted
-    with a lens model that does not fit it. Blurred 0.8 px, grey 20 on 230, with noise."""
+    with a lens model that does not fit it. Blurred 0.8 px, grey 20 on 230, with noise;
+    ``bar``: a dark polygon (px) drawn over it."""
     n = BITS.shape[0]
-    H = cv2.getPerspectiveTransform(np.float32(TRUE), np.float32([[0, 0], [n, 0], [n, n], [0, n]]))
+    H = cv2.getPerspectiveTransform(np.float32(corners),
+                                    np.float32([[0, 0], [n, 0], [n, n], [0, n]]))
     ys, xs = np.mgrid[0:CAM.height * ss, 0:CAM.width * ss]
     p = np.stack([(xs.ravel() + 0.5) / ss - 0.5, (ys.ravel() + 0.5) / ss - 0.5, np.ones(xs.size)])
     q = H @ p
@@ -35,8 +38,10 @@ def _render(bend_cells: float, seed: int, noise: float = 1.5, ss: int = 6) -> np
     ui = np.clip(np.floor(uc).astype(int), 0, n - 1)
     vi = np.clip(np.floor(vc).astype(int), 0, n - 1)
     white = np.where(inside, BITS[vi, ui] > 0, True)
-    img = cv2.resize(np.where(white, 230.0, 20.0).reshape(CAM.height * ss, CAM.width * ss),
-                     (CAM.width, CAM.height), interpolation=cv2.INTER_AREA)
+    big = np.where(white, 230.0, 20.0).reshape(CAM.height * ss, CAM.width * ss)
+    if bar is not None:
+        cv2.fillPoly(big, [np.round((bar + 0.5) * ss - 0.5).astype(np.int32)], 20.0)
+    img = cv2.resize(big, (CAM.width, CAM.height), interpolation=cv2.INTER_AREA)
     img = cv2.GaussianBlur(img, (0, 0), 0.8)
     img = img + np.random.default_rng(seed).normal(0.0, noise, img.shape)
     return np.clip(np.round(img), 0, 255).astype(np.uint8)
@@ -99,3 +104,47 @@ def test_a_decoy_is_not_kept_at_its_edges():
     img = _render(0.4, 4)
     r = refine_codes(img, CAM, _start(4)[None], [OTHER], edge_fallback=True)[0]
     assert not r.ok and not r.edge_lines
+
+
+def test_no_edge_where_the_image_ends_or_something_dark_covers_a_side():
+    """A code 1 px beyond the image's left border: the border is no edge (the normals that
+    leave the image find nothing). A dark bar over the top side: its points scatter like
+    noise. Either way that side, and so the code's edge corners, are not found."""
+    cut = TRUE - [TRUE[:, 0].min() + 1.0, 0.0]
+    assert outer_edge_corners_full(_render(0.0, 5, corners=cut), cut) is None
+    assert outer_edge_corners_full(_render(0.0, 5), TRUE) is not None
+    bar = np.array([[30.0, 15.0], [125.0, 19.0], [125.0, 36.0], [30.0, 32.0]])
+    assert outer_edge_corners_full(_render(0.4, 6, bar=bar), TRUE) is None
+    r = refine_codes(_render(0.4, 6, bar=bar), CAM, _start(6)[None], [BITS], edge_fallback=True)[0]
+    assert not r.edge_lines
+
+
+def test_hostile_corners_are_refused_without_an_exception():
+    img = _render(0.0, 7)
+    for q in (np.where([[1, 1], [0, 0], [1, 1], [1, 1]], TRUE, np.nan),
+              np.where([[1, 1], [0, 0], [1, 1], [1, 1]], TRUE, np.inf),
+              np.full((4, 2), 80.0), TRUE * 1e30):
+        r = refine_codes(img, CAM, q[None], [BITS], edge_fallback=True)[0]
+        assert not r.ok and not r.edge_lines and r.reason
+        assert edge_line_fallback(img, q, BITS) is None
+
+
+def test_decoys_in_clutter_are_not_kept_at_their_edges():
+    """Patterns in a rendered clutter texture that OpenCV reads as codes of a 1000-code 4x4
+    dictionary, whose interior fits moved far (one diverged): their cells, read back at the
+    fit, do not read as the code, so their edges are not even tried."""
+    from drovisio.bench.real_codes import tag_layout
+    from drovisio.detect.aruco import ArucoBrickDetector
+    from drovisio.synth.textures import ground_texture
+
+    S = 1024
+    cam = Camera(K=np.array([[900.0, 0, S / 2], [0, 900.0, S / 2], [0, 0, 1]]), width=S, height=S)
+    det = ArucoBrickDetector(cam, [tag_layout("DICT_4X4_1000", 0.05)])
+    refused = 0
+    for seed in (8, 18, 147):
+        img = cv2.cvtColor(np.asarray(ground_texture("clutter", seed, S)).astype(np.uint8),
+                           cv2.COLOR_BGR2GRAY)
+        codes = det.detect_codes(img)
+        assert not any(c.refined.edge_lines for c in codes), seed
+        refused += sum(c.refined.reason.startswith("a corner moved") for c in codes)
+    assert refused == 3

@@ -37,6 +37,13 @@ EDGE_LINE_MAX_RMS_PX = 0.3
 #: fewest edge points (of 40 normals) for a side to count as located
 _MIN_EDGE_POINTS = 20
 
+#: how far each normal searches on either side of the given side, px
+_SEARCH_PX = 3.0
+
+#: points that scatter more than half as much as points found at random in the search window
+#: (RMS ``_SEARCH_PX / sqrt(3)``) found no edge: a side covered by something dark, a shadow
+_MAX_SIDE_RMS_PX = 0.5 * _SEARCH_PX / np.sqrt(3.0)
+
 
 @dataclass
 class _Line:
@@ -77,7 +84,9 @@ class EdgeCorners:
 def _edge_line(gf: np.ndarray, p0: np.ndarray, p1: np.ndarray, centre: np.ndarray
                ) -> _Line | None:
     """The outer edge between corners ``p0`` and ``p1`` (px) of a dark code around
-    ``centre``, or None where fewer than :data:`_MIN_EDGE_POINTS` normals find it."""
+    ``centre``, or None where fewer than :data:`_MIN_EDGE_POINTS` normals find it (a normal
+    that leaves the image finds nothing: the image's own border is no edge) or its points
+    scatter like noise (:data:`_MAX_SIDE_RMS_PX`)."""
     t = np.linspace(0.15, 0.85, 40)
     pts = p0[None] + t[:, None] * (p1 - p0)[None]
     length = float(np.linalg.norm(p1 - p0))
@@ -87,13 +96,17 @@ def _edge_line(gf: np.ndarray, p0: np.ndarray, p1: np.ndarray, centre: np.ndarra
     out = np.array([-along[1], along[0]])
     if np.dot(centre - pts.mean(axis=0), out) > 0:
         out = -out
-    s = np.arange(-30, 31) * 0.1
+    s = np.arange(-30, 31) * (_SEARCH_PX / 30)
     X = (pts[:, 0, None] + s[None] * out[0]).astype(np.float32)
     Y = (pts[:, 1, None] + s[None] * out[1]).astype(np.float32)
+    H, W = gf.shape[:2]
+    seen = ((X >= 0) & (Y >= 0) & (X <= W - 1) & (Y <= H - 1)).all(axis=1)
     grad = np.gradient(cv2.remap(gf, X, Y, cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_REPLICATE), axis=1)
     found = []
     for i in range(len(t)):
+        if not seen[i]:
+            continue
         k = int(np.argmax(grad[i]))
         if k < 2 or k > len(s) - 3 or grad[i, k] <= 0:
             continue
@@ -107,6 +120,8 @@ def _edge_line(gf: np.ndarray, p0: np.ndarray, p1: np.ndarray, centre: np.ndarra
     _, _, vt = np.linalg.svd(e - m)
     along_e = (e - m) @ vt[0]
     rms = float(np.sqrt(np.mean(((e - m) @ vt[1]) ** 2)))
+    if rms > _MAX_SIDE_RMS_PX:
+        return None
     return _Line(m, vt[0], rms, len(e), float((along_e ** 2).sum()))
 
 
@@ -147,9 +162,10 @@ def outer_edge_corners_full(gray: np.ndarray, quad: np.ndarray) -> EdgeCorners |
     Returns:
         The corners, or None where an edge cannot be located or two edges are parallel.
     """
-    q = np.asarray(quad, np.float64).reshape(4, 2)
-    if q.shape != (4, 2) or not np.isfinite(q).all():
+    q = np.asarray(quad, np.float64)
+    if q.size != 8 or not np.isfinite(q).all():
         return None
+    q = q.reshape(4, 2)
     gf = cv2.GaussianBlur(np.asarray(gray, np.float32), (0, 0), 0.7)
     centre = q.mean(axis=0)
     lines = [_edge_line(gf, q[i], q[(i + 1) % 4], centre) for i in range(4)]

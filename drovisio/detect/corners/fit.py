@@ -212,11 +212,12 @@ def _batch(grid: np.ndarray, corners: list[np.ndarray] | np.ndarray, bits: list[
     valid = np.isfinite(qn).all(axis=(1, 2))
     reasons = ["" if ok else "corners outside the calibrated field" for ok in valid]
     qn = np.where(valid[:, None, None], qn, 0.0)
+    q = np.where(valid[:, None, None], q, 0.0)   # refused: its numbers stay harmless
     nf = ns.astype(np.float64)
     prev = [3, 0, 1, 2]  # each corner's predecessor (np.roll is slow on small arrays)
     dq = q - q[:, prev]
     side_px = np.sqrt((dq * dq).sum(axis=2))
-    cell_px = side_px.sum(axis=1) / (4.0 * nf)
+    cell_px = np.where(valid, side_px.sum(axis=1) / (4.0 * nf), 1.0)
     centre = qn.sum(axis=1) * 0.25
     dqn = qn - qn[:, prev]
     scale = np.sqrt((dqn * dqn).sum(axis=2)).sum(axis=1) / (4.0 * nf)
@@ -416,8 +417,15 @@ _MOVED = "a corner moved"
 may overturn)."""
 
 
-def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
-    """Why code ``c``'s fit is refused, or ``""`` when it is kept."""
+#: an interior fit farther than this many cells from the code's edge lines went astray: it is
+#: no bent view of the code (a rim, a bent print moves a corner about a cell)
+_EDGE_MAX_DISAGREE_CELLS = 2.5
+
+
+def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks,
+             moved_too: bool = True) -> str:
+    """Why code ``c``'s fit is refused, or ``""`` when it is kept (``moved_too``: False
+    leaves out how far its corners moved, every other check still made)."""
     contrast, resid = k.contrast[c], k.resid[c]
     if not np.all(np.isfinite(px_c[c])):
         return "diverged"
@@ -425,7 +433,7 @@ def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
         return f"low contrast ({contrast:.0f})"
     if resid > 0.2 * contrast:
         return f"poor fit (residual {resid:.1f} for contrast {contrast:.0f})"
-    if k.moved[c].max() > k.move_limit[c]:
+    if moved_too and k.moved[c].max() > k.move_limit[c]:
         return (f"{_MOVED} {k.moved[c].max():.1f} px from its start (limit "
                 f"{k.move_limit[c]:.1f} px at the start noise of this frame)")
     if k.blur[c] > 2.5 * cell_px[c]:
@@ -437,6 +445,9 @@ def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks) -> str:
     return ""
 
 
+# the batch carries codes already refused (degenerate or non-finite quads) whose arithmetic is
+# meaningless and never used; every kept code is checked finite ("diverged")
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
 def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | np.ndarray,
                  bits: list[np.ndarray], iterations: int = 3, coarse_iterations: int = 1,
                  chord_from: int | None = None, max_samples: int = MAX_SAMPLES,
@@ -525,7 +536,10 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     at_edges = np.zeros(C, bool)
     if edge_fallback:
         for c in range(C):
-            if valid[c] and whys[c].startswith(_MOVED):
+            # refused for the move alone: every other check (the cells read back at the
+            # fit, the blur) passes, as it must for any code kept
+            if (valid[c] and whys[c].startswith(_MOVED)
+                    and not _refusal(c, px_c, cell_px, checks, moved_too=False)):
                 got = _at_edge_lines(gray, camera, b, c, px_c[c], tol_cells[c])
                 if got is not None:
                     px_c[c], xn_c[c], cov_px[c], margin[c] = got
@@ -533,7 +547,8 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     out: list[RefinedCode] = []
     for c in range(C):
         if not valid[c]:
-            out.append(RefinedCode(b.q[c], np.full((4, 2), np.nan), np.eye(8), float("inf"),
+            given = np.asarray(corners[c], np.float64).reshape(4, 2)
+            out.append(RefinedCode(given, np.full((4, 2), np.nan), np.eye(8), float("inf"),
                                    float("inf"), 0.0, 0.0, False, b.reasons[c]))
             continue
         why = whys[c]
@@ -559,14 +574,19 @@ def _at_edge_lines(gray: np.ndarray, camera: Camera, b: _Batch, c: int,
 
     Returns:
         (corners (4, 2) px, the same normalised, covariance (8, 8) px², the cells' least
-        margin), or None when the edges are not found, leave the calibrated field, or the
-        cells do not read as the code.
+        margin), or None when an edge is not found (:func:`.edges.outer_edge_corners_full`),
+        the interior fit lies more than :data:`_EDGE_MAX_DISAGREE_CELLS` cells from the edges'
+        corners (it went astray), a corner leaves the calibrated field, or the cells do not
+        read as the code there.
     """
     n = int(b.ns[c])
     got = edge_line_fallback(gray, b.q[c], b.bits_pad[c, :n, :n])
     if got is None:
         return None
     e, a = got
+    far = np.linalg.norm(e.corners_px - interior_px, axis=1).max()
+    if far > _EDGE_MAX_DISAGREE_CELLS * b.cell_px[c]:
+        return None
     expected = b.bits_pad[c, 1:n - 1, 1:n - 1].ravel()
     ok = cell_verdicts(a[None], expected[None], np.array([tolerable]))[0]
     xn = camera.normalize(e.corners_px)

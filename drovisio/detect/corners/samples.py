@@ -48,9 +48,9 @@ def grid_lookup(grid: np.ndarray, px: np.ndarray) -> np.ndarray:
     beyond."""
     H, W = grid.shape[:2]
     x, y = px[:, 0], px[:, 1]
-    inside = (x >= -3) & (y >= -3) & (x <= W + 2) & (y <= H + 2)
-    x = np.minimum(np.maximum(x, 0.0), W - 1.000001)
-    y = np.minimum(np.maximum(y, 0.0), H - 1.000001)
+    inside = (x >= -3) & (y >= -3) & (x <= W + 2) & (y <= H + 2)   # False for NaN too
+    x = np.minimum(np.maximum(np.where(inside, x, 0.0), 0.0), W - 1.000001)
+    y = np.minimum(np.maximum(np.where(inside, y, 0.0), 0.0), H - 1.000001)
     x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
     fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     g = grid.reshape(-1, 2)
