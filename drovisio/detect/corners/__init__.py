@@ -48,10 +48,12 @@ corners within their covariance under a tone curve (chi-square 3.9, 40 without).
 Where a code's cells are no flat square of its border (the interior fit, extrapolated, moved
 a corner farther than the frame's start noise allows: the rim of a photo undistorted with a
 lens model that does not fit it, a bent print), the code is kept where its four outer edge
-lines meet, if its cells read right there (:mod:`.edges`), its covariance holding the
-distance to the interior fit's corners. On pupil-labs' tag photos one code of 56 is (0.39 px
-RMS from AprilTag 3's corners, flagged ambiguous); on rendered scenes none: decoys in clutter
-that reach this far read wrong cells there.
+lines meet (:mod:`.edges`) if every other check passed, each side is an edge inside the image
+(not the image's border, not noise), those corners lie within 2.5 cells of the interior
+fit's, and the cells read right there too; its covariance holds the distance to the interior
+fit's corners. On pupil-labs' tag photos one code of 56 is (0.39 px RMS from AprilTag 3's
+corners, flagged ambiguous); on rendered drick scenes none; decoys in rendered clutter whose
+interior fit moved far read wrong cells at the fit, and their edges are not tried.
 
 Measured on rendered drick scenes (``drovisio bench aruco``, blur σ ≤ 1 px, 2852 corners):
 mean signed radial error +0.004 px, RMS 0.20 px; OpenCV's corners at the detector's settings
