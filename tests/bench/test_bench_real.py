@@ -92,9 +92,9 @@ def test_tag_folder_with_apriltag(tmp_path, capsys):
     assert c["drovisio_vs_apriltag"]["median"] < 0.5 * c["opencv_vs_apriltag"]["median"]
     assert set(r["ms_per_photo"]) == {"drovisio", "opencv", "apriltag"}
     # AprilTag's corners as a reference, against the outer edge lines (a reading neither
-    # method makes): 0.13 px RMS per code (median, 46 codes), no offset left after the
-    # half-pixel convention (+0.001, -0.002 px); Drovisio 0.20 px; where the two differ by
-    # over 0.5 px (3 codes with clean edges) the edges side with AprilTag
+    # method makes): 0.12 px RMS per code (median, 48 codes), no offset left after the
+    # half-pixel convention (-0.009, -0.006 px); Drovisio 0.14 px; where the two differ by
+    # over 0.5 px (1 code with clean edges) the edges side with AprilTag
     e = r["edge_reference"]
     assert e["apriltag_vs_edges"]["n"] >= 40 and e["apriltag_vs_edges"]["median"] < 0.2
     assert max(abs(v) for v in e["apriltag_mean_offset_px"]) < 0.05

@@ -61,9 +61,9 @@ def test_edge_line_corners_and_their_covariance_on_a_noisy_square():
         d = (e.corners_px - TRUE).ravel()
         chi2.append(float(d @ np.linalg.solve(e.cov_px, d)))
         err.append(np.abs(d).max())
-    # measured: mean chi-square 5.4, every coordinate within 0.23 px
+    # measured: mean chi-square 7.6, every coordinate within 0.06 px
     assert 4.0 < np.mean(chi2) < 16.0
-    assert max(err) < 0.3
+    assert max(err) < 0.15
 
 
 def test_the_cells_read_at_the_edge_corners_tell_the_code_from_another():
@@ -89,7 +89,7 @@ def test_a_code_whose_interior_is_no_square_of_its_border_is_kept_at_its_edges()
     assert np.linalg.norm(plain.corners_px - TRUE, axis=1).max() > 3.0
     r = refine_codes(img, CAM, start[None], [BITS], edge_fallback=True)[0]
     assert r.ok and r.edge_lines and not r.surround and r.reason == ""
-    # measured: 0.05 px from the true corners at worst, sigma 1.0 px
+    # measured: 0.03 px from the true corners at worst, sigma 1.0 px
     assert np.linalg.norm(r.corners_px - TRUE, axis=1).max() < 0.3
     assert r.sigma_px > 0.5
     assert np.allclose(CAM.project(np.c_[r.corners_norm, np.ones(4)]), r.corners_px, atol=1e-6)

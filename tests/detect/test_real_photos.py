@@ -203,11 +203,11 @@ def test_multi_tag_photos_codes_kept_and_corners_agree_with_apriltag(multi):
     assert n_cv == 54 and kept == 54 and ok_codes == 56
     assert missed == []
     rms_a = np.array(rms)
-    # measured: median 0.14 px, p90 0.36 px, max 1.03 px, 54 of 56 within 0.5 px (OpenCV's
+    # measured: median 0.14 px, p90 0.31 px, max 1.03 px, 54 of 56 within 0.5 px (OpenCV's
     # corners: 0.81, 1.44; from the codes' interior alone, without their outer edges: 0.19,
     # 0.53, 48 of 55). The two beyond: a 25-px tag on a bent card seen at a grazing angle
     # (1.03 px) and a 19-px tag whose one-cell white ring meets a dark ground (0.51 px)
-    assert np.median(rms_a) < 0.2 and np.percentile(rms_a, 90) < 0.4
+    assert np.median(rms_a) < 0.2 and np.percentile(rms_a, 90) < 0.35
     assert np.sum(rms_a < 0.5) >= 54 and rms_a.max() < 1.2
 
 
@@ -240,8 +240,8 @@ def test_a_code_whose_interior_is_no_square_of_its_border_is_kept_at_its_edges(m
     assert len(c85) == 1 and c85[0].refined.ok and c85[0].refined.edge_lines
     at = [p for i, p in r["apriltag"] if i == 85][0]
     d = _match_corners(c85[0].refined.corners_px, at)
-    # measured: RMS 0.39 px, the rim corner 0.73 px; sigma 1.4 px per coordinate
-    assert np.sqrt(np.mean(d ** 2)) < 0.5 and d.max() < 1.0
+    # measured: RMS 0.24 px, the rim corner 0.40 px; sigma 1.5 px per coordinate
+    assert np.sqrt(np.mean(d ** 2)) < 0.5 and d.max() < 0.8
     assert c85[0].refined.sigma_px > 1.0
     assert 85 in [p.markers[0] for p in r["poses"]]
     # the 82-px tag 198 (fit 3.9 px RMS, OpenCV's corners 3.6 px: the camera's) is kept

@@ -51,7 +51,7 @@ lens model that does not fit it, a bent print), the code is kept where its four 
 lines meet (:mod:`.edges`) if every other check passed, each side is an edge inside the image
 (not the image's border, not noise), those corners lie within 2.5 cells of the interior
 fit's, and the cells read right there too; its covariance holds the distance to the interior
-fit's corners. On pupil-labs' tag photos one code of 56 is (0.39 px RMS from AprilTag 3's
+fit's corners. On pupil-labs' tag photos one code of 56 is (0.24 px RMS from AprilTag 3's
 corners, flagged ambiguous); on rendered drick scenes none; decoys in rendered clutter whose
 interior fit moved far read wrong cells at the fit, and their edges are not tried.
 

@@ -10,13 +10,15 @@ bench real`` judges two readings of a code by them where the four edges are clea
 
 Along each side (its middle 70 %, away from the corners) the grey level is sampled on 40
 normals ±3 px (bilinear, 0.1 px steps, the image smoothed by a 0.7 px Gaussian against JPEG
-noise); the edge is where the dark-to-light gradient peaks (the centroid of the peak ±0.8 px:
-the 50 % crossing of a symmetric blur). A line is fitted to those points by total least
-squares; its RMS says how clean the edge is (a neighbour's edge or a shadow within 3 px
-widens it, so does a bent edge). On a rendered square (σ 0.8 px blur) the intersections fall
-within 0.08 px of the truth. A thin margin of paper on a darker surface pulls a gradient peak
-by a few tenths of a pixel (see the package's docstring), which is why the interior fit, not
-this, is the detector's first reading.
+noise, each profile by 0.5 px along its normal); the edge is where the dark-to-light gradient
+peaks (the centroid of the peak ±0.8 px: the 50 % crossing of a symmetric blur). A line is
+fitted to those points by total least squares; its RMS says how clean the edge is (a
+neighbour's edge or a shadow within 3 px widens it, so does a bent edge). On a rendered
+square (σ 0.8 px blur, noise of 4 grey levels, any orientation) the intersections fall within
+0.06 px of the truth and their covariance holds (mean χ² 7.6 for 8 coordinates). A thin
+margin of paper on a darker surface pulls a gradient peak by a few tenths of a pixel (see the
+package's docstring), and so does a neighbour's edge within the search; that is why the
+interior fit, not this, is the detector's first reading.
 
 Conventions: pixel (0, 0) is the centre of the top-left pixel; corners in the order given.
 """
@@ -43,6 +45,10 @@ _SEARCH_PX = 3.0
 #: points that scatter more than half as much as points found at random in the search window
 #: (RMS ``_SEARCH_PX / sqrt(3)``) found no edge: a side covered by something dark, a shadow
 _MAX_SIDE_RMS_PX = 0.5 * _SEARCH_PX / np.sqrt(3.0)
+
+#: a Gaussian of 0.5 px along each normal (samples 0.1 px apart), and nothing across normals
+_ALONG_NORMAL = cv2.getGaussianKernel(31, 5.0).astype(np.float32)
+_ONE = np.ones((1, 1), np.float32)
 
 
 @dataclass
@@ -101,8 +107,11 @@ def _edge_line(gf: np.ndarray, p0: np.ndarray, p1: np.ndarray, centre: np.ndarra
     Y = (pts[:, 1, None] + s[None] * out[1]).astype(np.float32)
     H, W = gf.shape[:2]
     seen = ((X >= 0) & (Y >= 0) & (X <= W - 1) & (Y <= H - 1)).all(axis=1)
-    grad = np.gradient(cv2.remap(gf, X, Y, cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_REPLICATE), axis=1)
+    prof = cv2.remap(gf, X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # bilinear profiles are piecewise linear between pixel centres: their gradient is flat
+    # across a pixel where an edge runs along the pixel grid, and its peak wanders with the
+    # noise (3.6x worse corners on an axis-aligned code); smoothed along the normal it is not
+    grad = np.gradient(cv2.sepFilter2D(prof, -1, _ALONG_NORMAL, _ONE), axis=1)
     found = []
     for i in range(len(t)):
         if not seen[i]:
