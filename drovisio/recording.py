@@ -14,6 +14,12 @@ Writing happens in a background thread with a bounded queue: a slow disk drops f
 the recording (counted in :meth:`Recorder.status`) but never slows the pipeline. Play a
 recording with ``--source DIR`` (:class:`drovisio.sources.RecordingReader`): frames come at
 their recorded timing.
+
+A recording a run made and that holds no frame when it closes (the source failed at its first
+read, Ctrl+C before the first frame, a stream that never delivered) is removed again, as both
+recorders (this folder and the ``.mcap`` file) do through :class:`MadeFiles`: only what the
+recorder itself made, each file checked by its inode, a folder only when it is then empty.
+The status says so (``"removed"``) and :func:`removed_line` says it in one line.
 """
 
 from __future__ import annotations
@@ -33,13 +39,99 @@ import cv2
 from drovisio._threads import STOP_WAIT_S, join_thread
 from drovisio.bounds import check_number, check_whole
 from drovisio.errors import InputError
-from drovisio.fileio import atomic_write_bytes, atomic_write_text
+from drovisio.fileio import atomic_write_bytes
 from drovisio.textfile import check_regular_file, name_inside, parse_json
 
-__all__ = ["MAX_FRAMES", "MAX_INDEX_BYTES", "MAX_LINE_BYTES", "MAX_TIME_S", "RECORDING_SCHEMA", "RecordedFrame",
-           "Recorder", "holds_recording", "read_index", "stop_writer"]
+__all__ = ["MAX_FRAMES", "MAX_INDEX_BYTES", "MAX_LINE_BYTES", "MAX_TIME_S", "RECORDING_SCHEMA",
+           "MadeFiles", "RecordedFrame", "Recorder", "holds_recording", "read_index",
+           "removed_line", "stop_writer"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
+
+
+def _identity(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino
+
+
+class MadeFiles:
+    """The files and folders a recorder made, each known by its inode, for :meth:`remove` to
+    remove again when the recording holds no frame at close: a run that never got a frame
+    leaves nothing behind, and the next run may record to the same name.
+
+    Nothing that was there before is among them. A path that no longer names what was made
+    (replaced or moved meanwhile) is left alone, and so is a folder something else was put
+    in, with every folder above it.
+    """
+
+    def __init__(self) -> None:
+        self._files: list[tuple[Path, tuple[int, int]]] = []
+        self._folders: list[tuple[Path, tuple[int, int]]] = []   # deepest first
+
+    def make_folder(self, folder: Path) -> None:
+        """``folder`` and its missing parents made (as ``mkdir -p``); those this call made
+        are noted.
+
+        Raises:
+            OSError: a folder could not be made.
+        """
+        missing = []
+        for q in (folder, *folder.parents):
+            if q.exists() or q.is_symlink():
+                break
+            missing.append(q)
+        for q in reversed(missing):   # outermost first
+            try:
+                q.mkdir()
+                self._folders.insert(0, (q, _identity(q.lstat())))
+            except FileExistsError:
+                continue   # made meanwhile by something else: not ours
+            except OSError:
+                break      # said by the mkdir below
+        folder.mkdir(parents=True, exist_ok=True)
+
+    def add(self, path: Path, st: os.stat_result) -> None:
+        """Note a file made here; ``st``: the status of what was written."""
+        self._files.append((path, _identity(st)))
+
+    def remove(self) -> bool:
+        """Remove the files made here, then the folders made here that are then empty
+        (deepest first); whether every file made here is gone."""
+        gone = True
+        for path, ident in self._files:
+            try:
+                if _identity(path.lstat()) == ident:
+                    path.unlink()
+                else:
+                    gone = False
+            except FileNotFoundError:
+                pass
+            except OSError:
+                gone = False
+        self._files = []
+        for q, ident in self._folders:
+            try:
+                if _identity(q.lstat()) != ident:
+                    break
+                q.rmdir()
+            except OSError:
+                break   # something else is in it: it stays, and so does every folder above
+        self._folders = []
+        return gone
+
+
+def removed_line(status: dict) -> str | None:
+    """What a closed recorder's status (``"removed"``) has to say, in one line: that the
+    recording it made held no frame and was removed (or could not be, wholly); None when it
+    was kept."""
+    removed = status.get("removed")
+    if removed is None:
+        return None
+    where = status.get("folder") or status.get("file") or "--record"
+    why = f" (last error: {status['last_error']})" if status.get("last_error") else ""
+    if removed:
+        return f"{where}: no frame was recorded{why}; the empty recording was removed"
+    return (f"{where}: no frame was recorded{why}; the empty recording could not be removed "
+            "whole (something in it changed meanwhile): remove it by hand")
 
 
 def holds_recording(folder: str | Path) -> bool:
@@ -115,13 +207,45 @@ class Recorder:
     exclusively (never over an existing name) and streamed; its index line is written only
     once the file is complete, so a run killed mid-frame leaves at most one unindexed file,
     which playback never reads.
+
+    A recording this recorder made (not continued) that holds no frame at :meth:`close` is
+    removed: the files it wrote, then the folders it made once empty (a folder that was
+    there before stays, with whatever else is in it).
     """
 
     def __init__(self, folder: str | Path, source: str = "", camera_file: str | Path | None = None,
                  mount_file: str | Path | None = None, jpeg_quality: int = 95,
                  max_queue: int = 30):
         self.folder = Path(folder)
-        (self.folder / "frames").mkdir(parents=True, exist_ok=True)
+        self._made = MadeFiles()
+        self._own = False
+        """This recorder made the recording (its manifest): removed at close if empty."""
+        self.removed: bool | None = None
+        """Set at close when the recording it made held no frame: whether it is gone."""
+        try:
+            self._start(source, camera_file, mount_file)
+        except BaseException:
+            self._made.remove()   # nothing is recorded: what was made is not left behind
+            raise
+        self.quality = int(jpeg_quality)
+        self._q: queue.Queue = queue.Queue(maxsize=max_queue)
+        self.written = 0
+        self.dropped = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._thread = threading.Thread(target=self._writer, daemon=True, name="recorder")
+        self._thread.start()
+
+    def _write_new(self, path: Path, data: bytes) -> None:
+        """``path`` written (never over a file), noted as made here by what was written."""
+        written: list[os.stat_result] = []
+        atomic_write_bytes(path, data, overwrite=False,
+                           verify=lambda tmp: written.append(tmp.lstat()))
+        self._made.add(path, written[-1])
+
+    def _start(self, source: str, camera_file: str | Path | None,
+               mount_file: str | Path | None) -> None:
+        self._made.make_folder(self.folder / "frames")
         self._number = _next_frame_number(self.folder / "frames")
         self.continued = (self.folder / "recording.json").exists()
         manifest = {"schema": RECORDING_SCHEMA,
@@ -133,26 +257,25 @@ class Recorder:
                 if self.continued or dst.exists():
                     continue  # the recording's own copies are kept
                 try:
-                    atomic_write_bytes(dst, Path(f).read_bytes(), overwrite=False)
+                    self._write_new(dst, Path(f).read_bytes())
                     manifest[key] = dst.name
                 except OSError:
                     pass
         if not self.continued:
             try:
-                atomic_write_text(self.folder / "recording.json",
-                                  json.dumps(manifest, indent=1), overwrite=False)
+                self._write_new(self.folder / "recording.json",
+                                json.dumps(manifest, indent=1).encode("utf-8"))
+                self._own = True
             except FileExistsError:
                 self.continued = True  # made meanwhile by another writer: kept
-        _drop_cut_line(self.folder / "frames.jsonl")
-        self._index = open(self.folder / "frames.jsonl", "a", encoding="utf-8")
-        self.quality = int(jpeg_quality)
-        self._q: queue.Queue = queue.Queue(maxsize=max_queue)
-        self.written = 0
-        self.dropped = 0
-        self.errors = 0
-        self.last_error: str | None = None
-        self._thread = threading.Thread(target=self._writer, daemon=True, name="recorder")
-        self._thread.start()
+        index = self.folder / "frames.jsonl"
+        _drop_cut_line(index)
+        try:   # made here (noted), else appended to
+            fd = os.open(index, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_EXCL, 0o666)
+            self._made.add(index, os.fstat(fd))
+        except FileExistsError:
+            fd = os.open(index, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        self._index = open(fd, "a", encoding="utf-8")
 
     def add(self, frame, output) -> None:
         """Queue a frame and its output (never blocks)."""
@@ -175,6 +298,8 @@ class Recorder:
                     raise OSError("OpenCV could not encode the frame as JPEG")
                 # "x": a new file, never over one (streamed: a frame is indexed once whole)
                 with open(self.folder / name, "xb") as fh:
+                    if self.written == 0:   # removed with the rest if no frame is recorded
+                        self._made.add(self.folder / name, os.fstat(fh.fileno()))
                     fh.write(buf.tobytes())
                 self._number += 1
                 self._index.write(json.dumps({"frame": index, "seq": seq, "t": round(t, 6),
@@ -187,12 +312,18 @@ class Recorder:
                 self.last_error = str(e)
 
     def close(self, timeout: float = STOP_WAIT_S) -> None:
+        """Write what is queued; then a recording this recorder made that holds no frame is
+        removed (:attr:`removed`)."""
         stop_writer(self._q, self._thread, timeout)
         self._index.close()
+        if self._own and self.written == 0 and not self._thread.is_alive() \
+                and self.removed is None:
+            self.removed = self._made.remove()
 
     def status(self) -> dict:
+        """``removed``: None while kept, else whether the empty recording is gone."""
         return {"folder": str(self.folder), "written": self.written, "dropped": self.dropped,
-                "errors": self.errors, "last_error": self.last_error}
+                "errors": self.errors, "last_error": self.last_error, "removed": self.removed}
 
 
 class RecordedFrame(NamedTuple):

@@ -14,7 +14,8 @@ another size than the camera file's are not measured: said on a line at the firs
 exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable link, a link
 whose peer went away) is counted (never as sent), said on a line when it starts failing and
 when it works again (even with --quiet), shown in the status line, and makes the exit status
-1 at the end, which says how many messages each sink did not send.
+1 at the end, which says how many messages each sink did not send. A --record recording that
+got no frame is removed at the end, said on a line (the next run may record there again).
 """
 
 from __future__ import annotations
@@ -298,7 +299,18 @@ def run(args: argparse.Namespace) -> int:
         print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
     for note in pipeline.notes:
         _err(f"{config.camera}: {note}")
+    _say_recording(pipeline)
     return _exit_code(config, n, st)
+
+
+def _say_recording(pipeline: Pipeline) -> None:
+    """Say that the recording (closed with the pipeline) held no frame and was removed."""
+    from drovisio.recording import removed_line
+
+    if pipeline.recorder is not None:
+        line = removed_line(pipeline.recorder.status())
+        if line:
+            _err(line)
 
 
 # --------------------------------------------------------------------------------------------

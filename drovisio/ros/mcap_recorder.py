@@ -10,11 +10,13 @@ such a file; ``mcap recover`` restores its summary for other tools).
 
 Like :class:`drovisio.recording.Recorder`, writing happens in a background thread with a
 bounded queue: a slow disk drops frames from the recording (counted in :meth:`status`), never
-slows the pipeline.
+slows the pipeline; and like it, a file that holds no frame when it closes is removed again
+(with the folders made for it, once empty): :class:`drovisio.recording.MadeFiles`.
 """
 
 from __future__ import annotations
 
+import os
 import queue
 import threading
 import time
@@ -24,7 +26,7 @@ from pathlib import Path
 import cv2
 
 from drovisio._threads import STOP_WAIT_S
-from drovisio.recording import stop_writer
+from drovisio.recording import MadeFiles, stop_writer
 from drovisio.ros.messages import RosMessages
 from drovisio.ros.msgdefs import encoder, schema_text
 
@@ -49,7 +51,8 @@ class McapRecorder:
     """Writes frames and outputs to ``path`` (see the module doc).
 
     Args:
-        path: The ``.mcap`` file (created; its folder too).
+        path: The ``.mcap`` file (created; its folder too; both removed again at
+            :meth:`close` when no frame was written).
         messages: What to write (:class:`RosMessages` with the camera, mount and layouts).
         source: The run's source, kept in the file's metadata.
         jpeg_quality: JPEG quality of the images.
@@ -63,19 +66,31 @@ class McapRecorder:
                  max_queue: int = 30):
         from mcap.writer import CompressionType, Writer
 
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = _open_new(self.path)
-        self.path = Path(self._f.name)
-        self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        self._w.start(profile="ros2", library="drovisio")
-        self._w.add_metadata("drovisio", {
-            "created": datetime.now(UTC).isoformat(timespec="seconds"), "source": str(source),
-            "schema": "drovisio/recording-mcap@1"})
-        self.messages = messages
-        self.quality = int(jpeg_quality)
         if image_format not in ("jpeg", "png"):
             raise ValueError(f"image_format: {image_format!r}: use jpeg or png")
+        self.path = Path(path)
+        self._made = MadeFiles()
+        self.removed: bool | None = None
+        """Set at close when no frame was written: whether the file is gone."""
+        f = None
+        try:
+            self._made.make_folder(self.path.parent)
+            f = _open_new(self.path)
+            self.path = Path(f.name)
+            self._made.add(self.path, os.fstat(f.fileno()))
+            self._w = Writer(f, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+            self._w.start(profile="ros2", library="drovisio")
+            self._w.add_metadata("drovisio", {
+                "created": datetime.now(UTC).isoformat(timespec="seconds"),
+                "source": str(source), "schema": "drovisio/recording-mcap@1"})
+        except BaseException:   # nothing is recorded: what was made is not left behind
+            if f is not None:
+                f.close()
+            self._made.remove()
+            raise
+        self._f = f
+        self.messages = messages
+        self.quality = int(jpeg_quality)
         self.image_format = image_format
         self.flush_s = float(flush_s)
         self._schemas: dict[str, int] = {}
@@ -148,7 +163,8 @@ class McapRecorder:
                 self.last_error = str(e)
 
     def close(self, timeout: float = STOP_WAIT_S) -> None:
-        """Write what is queued, then the summary (the file is then complete)."""
+        """Write what is queued, then the summary (the file is then complete); a file that
+        holds no frame is removed (:attr:`removed`)."""
         stop_writer(self._q, self._thread, timeout)
         try:
             self._w.finish()
@@ -157,7 +173,10 @@ class McapRecorder:
             self.last_error = str(e)
         finally:
             self._f.close()
+            if self.written == 0 and not self._thread.is_alive() and self.removed is None:
+                self.removed = self._made.remove()
 
     def status(self) -> dict:
+        """``removed``: None while kept, else whether the empty file is gone."""
         return {"file": str(self.path), "written": self.written, "dropped": self.dropped,
-                "errors": self.errors, "last_error": self.last_error}
+                "errors": self.errors, "last_error": self.last_error, "removed": self.removed}

@@ -6,6 +6,10 @@
   pipeline restarted on the same ``--record``) continues it: no file already there is
   replaced, new frames are numbered after the old ones, the index only grows.
 * An MCAP recorder never truncates an existing file: it writes the next free ``STEM-N.mcap``.
+* A recording a run made that got no frame (a source whose only frame cannot be decoded, a
+  stream that never delivered) is removed at close, said in one line: the next run may record
+  to the same ``--record``. Only what the recorder made goes: a folder that was there stays,
+  with what else is in it; a file replaced meanwhile stays too.
 * The crash report is created exclusively (a symlink planted at its name in a shared /tmp is
   not followed) and readable by its owner only.
 """
@@ -44,12 +48,23 @@ class _Out:
         return {"frame": self.k, "bricks": []}
 
 
+class _McapOut(_Out):
+    """An output as the MCAP recorder reads it (its time, bricks and target)."""
+
+    def __init__(self, k: int = 0):
+        super().__init__(k)
+        self.t, self.bricks, self.target, self.detections = 1000.0 + k, [], None, []
+
+
+def _frame(i: int, v: int, seq0: int = 0) -> SimpleNamespace:
+    return SimpleNamespace(image=np.full((24, 32, 3), v, np.uint8), index=i, seq=seq0 + i,
+                           t_wall=1000.0 + i)
+
+
 def _record(folder: Path, levels: list[int], seq0: int = 0) -> Recorder:
     rec = Recorder(folder, source="test", camera_file=CAMERA)
     for i, v in enumerate(levels):
-        frame = SimpleNamespace(image=np.full((24, 32, 3), v, np.uint8), index=i,
-                                seq=seq0 + i, t_wall=1000.0 + i)
-        rec.add(frame, _Out(i))
+        rec.add(_frame(i, v, seq0), _Out(i))
     rec.close()
     return rec
 
@@ -111,9 +126,17 @@ def test_an_mcap_recorder_never_truncates_an_existing_file(tmp_path, ledger):
     old = tmp_path / "flight.mcap"
     old.write_bytes(b"an older flight" * 10)
     rec = McapRecorder(old, RosMessages(load_camera(CAMERA), None, []))
+    rec.add(_frame(0, 10), _McapOut())
     rec.close()
     assert old.read_bytes() == b"an older flight" * 10
     assert rec.path == tmp_path / "flight-2.mcap" and rec.path.stat().st_size > 0
+    assert rec.written == 1 and rec.status()["removed"] is None
+    # one that got no frame is removed again; the older file is still not touched
+    empty = McapRecorder(old, RosMessages(load_camera(CAMERA), None, []))
+    assert empty.path == tmp_path / "flight-3.mcap" and empty.path.exists()
+    empty.close()
+    assert empty.status()["removed"] is True and not empty.path.exists()
+    assert old.read_bytes() == b"an older flight" * 10 and rec.path.stat().st_size > 0
 
 
 def test_the_crash_report_does_not_follow_a_planted_symlink(tmp_path, monkeypatch, ledger):
@@ -297,3 +320,106 @@ def test_an_unknown_bench_aruco_cache_entry_is_stale_and_rendered_again(tmp_path
     assert np.array_equal(again.image, fr.image)                   # rendered again ...
     assert json.loads(js.read_text())["schema"] == CACHE_SCHEMA    # ... and replaced whole
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([png.name, js.name])
+
+# ------------------------------------------------------------------ a recording with no frame
+
+
+@pytest.fixture(scope="module")
+def undecodable(tmp_path_factory) -> Path:
+    """A folder of images whose only image cannot be decoded: the run gets no frame."""
+    import cv2
+
+    d = tmp_path_factory.mktemp("undecodable")
+    ok, png = cv2.imencode(".png", np.full((480, 640, 3), 90, np.uint8))
+    (d / "f0.png").write_bytes(png.tobytes()[: len(png) // 2])
+    return d
+
+
+def _run(capsys, source: Path, record: Path, *extra: str) -> tuple[int, list[str]]:
+    from drovisio.cli import main
+
+    rc = main(["run", "--source", str(source), "--camera", str(CAMERA), "--layout",
+               str(LAYOUT), "--sink", "jsonl:" + os.devnull, "--quiet", "--pace", "max",
+               "--record", str(record), *extra])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "Traceback" not in out
+    return rc, err.splitlines()
+
+
+def _removed_lines(err: list[str]) -> list[str]:
+    return [ln for ln in err if "no frame was recorded" in ln]
+
+
+def _mcap_images(path: Path) -> int:
+    from drovisio.ros.mcap_source import iter_images
+
+    return sum(1 for _ in iter_images(path))
+
+
+@pytest.mark.parametrize("name", ["rec", "x.mcap", "new/deeper/rec", "new/deeper/x.mcap"])
+def test_a_run_that_got_no_frame_leaves_no_recording_and_the_next_one_records(
+        tmp_path, capsys, undecodable, name, ledger):
+    ledger.tried_one("writers: recording folder")
+    target = tmp_path / name
+    rc, err = _run(capsys, undecodable, target)
+    assert rc in (0, 1), err
+    assert _removed_lines(err) == [f"drovisio run: {target}: no frame was recorded; the empty "
+                                   "recording was removed"], err
+    assert not target.exists() and not (tmp_path / "new").exists()   # its folders too
+    assert sorted(tmp_path.iterdir()) == []
+    # the same --record again, with a source that gives frames: recorded, said nothing
+    rc, err = _run(capsys, VIDEO, target, "--frames", "3")
+    assert rc == 0 and _removed_lines(err) == [], err
+    if target.suffix == ".mcap":
+        assert _mcap_images(target) == 3
+    else:
+        assert len(read_index(target)) == 3
+        assert len(list((target / "frames").iterdir())) == 3
+
+
+def test_a_folder_that_was_there_stays_with_what_else_is_in_it(tmp_path, capsys, undecodable,
+                                                               ledger):
+    ledger.tried_one("writers: recording folder")
+    empty, kept = tmp_path / "empty", tmp_path / "kept"
+    empty.mkdir()
+    (kept / "frames").mkdir(parents=True)            # an empty frames/ holds no recording
+    (kept / "notes.txt").write_text("the pilot's notes")
+    for folder in (empty, kept):
+        rc, err = _run(capsys, undecodable, folder)
+        assert _removed_lines(err) == [f"drovisio run: {folder}: no frame was recorded; the "
+                                       "empty recording was removed"], err
+    assert empty.is_dir() and list(empty.iterdir()) == []
+    assert sorted(p.name for p in kept.iterdir()) == ["frames", "notes.txt"]
+    assert list((kept / "frames").iterdir()) == []
+    assert (kept / "notes.txt").read_text() == "the pilot's notes"
+
+
+def test_a_recording_with_frames_is_kept_as_written(tmp_path, ledger):
+    ledger.tried_one("writers: recording folder")
+    rec = _record(tmp_path / "rec", [10, 60])
+    assert rec.written == 2 and rec.status()["removed"] is None
+    assert sorted(_digests(tmp_path / "rec")) == ["camera.yaml", "frames.jsonl",
+                                                  "frames/000000.jpg", "frames/000001.jpg",
+                                                  "recording.json"]
+    # continued (the web tool's pipeline restarted) and closed without a frame: not its own
+    before = _digests(tmp_path / "rec")
+    again = _record(tmp_path / "rec", [])
+    assert again.continued and again.status()["removed"] is None
+    assert _digests(tmp_path / "rec") == before
+
+
+def test_a_file_replaced_meanwhile_is_not_removed(tmp_path, ledger):
+    from drovisio.recording import removed_line
+
+    ledger.tried_one("writers: recording folder")
+    folder = tmp_path / "rec"
+    rec = Recorder(folder, source="test", camera_file=CAMERA)
+    (tmp_path / "other.json").write_text("someone else's")
+    os.replace(tmp_path / "other.json", folder / "recording.json")   # another file, same name
+    rec.close()
+    assert rec.status()["removed"] is False
+    assert sorted(p.name for p in folder.iterdir()) == ["recording.json"]
+    assert (folder / "recording.json").read_text() == "someone else's"
+    line = removed_line(rec.status())
+    assert line is not None and line.startswith(f"{folder}: no frame was recorded; ")
+    assert "remove it by hand" in line

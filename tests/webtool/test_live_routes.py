@@ -339,3 +339,35 @@ def test_idle_service_releases_the_source_and_restarts(until):
     finally:
         svc.close()
     assert not svc.status()["running"]
+
+
+@pytest.mark.parametrize("name", ["rec", "x.mcap"])
+def test_the_live_pipeline_removes_a_recording_that_got_no_frame_and_says_so(
+        tmp_path, caplog, name):
+    """The live page's pipeline records through the same recorders as ``drovisio run``: one
+    that got no frame leaves no recording behind, said in one line in the server's log."""
+    import cv2
+
+    from drovisio.resources import sample_sessions_dir
+
+    bad = tmp_path / "frames"
+    bad.mkdir()
+    ok, png = cv2.imencode(".png", np.full((480, 640, 3), 90, np.uint8))
+    (bad / "f0.png").write_bytes(png.tobytes()[: len(png) // 2])    # cannot be decoded
+    record = tmp_path / name
+    settings = Settings(source=str(bad), camera=str(sample_sessions_dir() / "camera.yaml"),
+                        layouts=[str(shipped_layouts_dir() / "drick-aruco-centre.json")],
+                        record=str(record))
+    svc = LiveService(settings, scene=False)
+    try:
+        with caplog.at_level("WARNING", logger="webtool"):
+            svc.ensure_started()
+            assert svc.error is None and svc._thread is not None
+            svc._thread.join(60)            # the folder ends: the pipeline closes
+            assert not svc._thread.is_alive()
+    finally:
+        svc.close()
+    said = [r.getMessage() for r in caplog.records if r.name == "webtool"]
+    assert said == [f"live: {record}: no frame was recorded; the empty recording was "
+                    "removed"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]

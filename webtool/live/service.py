@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import threading
 import time
@@ -44,11 +45,14 @@ from drovisio._threads import join_thread
 from drovisio.fusion import so3_log
 from drovisio.mount import down_camera_mount
 from drovisio.pose.covariance import parent_covariance, uncertainty_words
+from drovisio.recording import removed_line
 from webtool.live.annotate import annotate
 from webtool.live.scene import LiveScene
 from webtool.live.stream import DEFAULT_BANDWIDTH_BPS, LEVELS, AdaptiveStream
 
 __all__ = ["DEFAULT_BANDWIDTH_BPS", "LEVELS", "AdaptiveStream", "LiveService", "annotate"]
+
+log = logging.getLogger("webtool")
 
 # ------------------------------------------------------------------------------------------
 # The service
@@ -200,6 +204,12 @@ class LiveService:
             self.error = f"{type(e).__name__}: {e}"
         finally:
             p.close()
+            # every end of a run passes here (stop_pipeline waits for this thread): a
+            # recording that got no frame was removed by its recorder, said on a line
+            rec = getattr(p, "recorder", None)
+            line = removed_line(rec.status()) if rec is not None else None
+            if line:
+                log.warning("live: %s", line)
 
     def _watch(self) -> None:
         while not self._closed.wait(1.0):
