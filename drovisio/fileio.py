@@ -21,7 +21,7 @@ from pathlib import Path
 
 from drovisio.errors import WriteError, one_line
 
-__all__ = ["APPENDED", "FILE", "FOLDER", "atomic_write", "atomic_write_bytes", "atomic_write_text",
+__all__ = ["APPENDED", "FILE", "FOLDER", "MadeFiles", "atomic_write", "atomic_write_bytes", "atomic_write_text",
            "check_output_name", "check_output_path", "check_outputs", "guard_outputs",
            "output_folder", "save_figure", "write_video"]
 
@@ -497,3 +497,74 @@ def write_video(path: str | os.PathLike, frames, fps: float, size: tuple[int, in
             raise ValueError(f"{n} of {len(frames)} frames could be read back")
 
     return atomic_write(path, write, suffix=path.suffix or ".mp4", verify=verify)
+
+
+def _identity(st: os.stat_result) -> tuple[int, int]:
+    return st.st_dev, st.st_ino
+
+
+class MadeFiles:
+    """The files and folders an output made, each known by its inode, for :meth:`remove` to
+    remove again when nothing was written to them at close (a recording with no frame, a
+    ``jsonl:PATH`` sink that never got a line): a run that ended before its first frame
+    leaves nothing behind, and the next run may write to the same name.
+
+    Nothing that was there before is among them. A path that no longer names what was made
+    (replaced or moved meanwhile) is left alone, and so is a folder something else was put
+    in, with every folder above it.
+    """
+
+    def __init__(self) -> None:
+        self._files: list[tuple[Path, tuple[int, int]]] = []
+        self._folders: list[tuple[Path, tuple[int, int]]] = []   # deepest first
+
+    def make_folder(self, folder: Path) -> None:
+        """``folder`` and its missing parents made (as ``mkdir -p``); those this call made
+        are noted.
+
+        Raises:
+            OSError: a folder could not be made.
+        """
+        missing = []
+        for q in (folder, *folder.parents):
+            if q.exists() or q.is_symlink():
+                break
+            missing.append(q)
+        for q in reversed(missing):   # outermost first
+            try:
+                q.mkdir()
+                self._folders.insert(0, (q, _identity(q.lstat())))
+            except FileExistsError:
+                continue   # made meanwhile by something else: not ours
+            except OSError:
+                break      # said by the mkdir below
+        folder.mkdir(parents=True, exist_ok=True)
+
+    def add(self, path: Path, st: os.stat_result) -> None:
+        """Note a file made here; ``st``: the status of what was written."""
+        self._files.append((path, _identity(st)))
+
+    def remove(self) -> bool:
+        """Remove the files made here, then the folders made here that are then empty
+        (deepest first); whether every file made here is gone."""
+        gone = True
+        for path, ident in self._files:
+            try:
+                if _identity(path.lstat()) == ident:
+                    path.unlink()
+                else:
+                    gone = False
+            except FileNotFoundError:
+                pass
+            except OSError:
+                gone = False
+        self._files = []
+        for q, ident in self._folders:
+            try:
+                if _identity(q.lstat()) != ident:
+                    break
+                q.rmdir()
+            except OSError:
+                break   # something else is in it: it stays, and so does every folder above
+        self._folders = []
+        return gone

@@ -17,7 +17,7 @@ their recorded timing.
 
 A recording a run made and that holds no frame when it closes (the source failed at its first
 read, Ctrl+C before the first frame, a stream that never delivered) is removed again, as both
-recorders (this folder and the ``.mcap`` file) do through :class:`MadeFiles`: only what the
+recorders (this folder and the ``.mcap`` file) do through :class:`drovisio.fileio.MadeFiles`: only what the
 recorder itself made, each file checked by its inode, a folder only when it is then empty.
 The status says so (``"removed"``) and :func:`removed_line` says it in one line.
 """
@@ -39,84 +39,14 @@ import cv2
 from drovisio._threads import STOP_WAIT_S, join_thread
 from drovisio.bounds import check_number, check_whole
 from drovisio.errors import InputError
-from drovisio.fileio import atomic_write_bytes
+from drovisio.fileio import MadeFiles, atomic_write_bytes
 from drovisio.textfile import check_regular_file, name_inside, parse_json
 
 __all__ = ["MAX_FRAMES", "MAX_INDEX_BYTES", "MAX_LINE_BYTES", "MAX_TIME_S", "RECORDING_SCHEMA",
-           "MadeFiles", "RecordedFrame", "Recorder", "holds_recording", "read_index",
+           "RecordedFrame", "Recorder", "holds_recording", "read_index",
            "removed_line", "stop_writer"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
-
-
-def _identity(st: os.stat_result) -> tuple[int, int]:
-    return st.st_dev, st.st_ino
-
-
-class MadeFiles:
-    """The files and folders a recorder made, each known by its inode, for :meth:`remove` to
-    remove again when the recording holds no frame at close: a run that never got a frame
-    leaves nothing behind, and the next run may record to the same name.
-
-    Nothing that was there before is among them. A path that no longer names what was made
-    (replaced or moved meanwhile) is left alone, and so is a folder something else was put
-    in, with every folder above it.
-    """
-
-    def __init__(self) -> None:
-        self._files: list[tuple[Path, tuple[int, int]]] = []
-        self._folders: list[tuple[Path, tuple[int, int]]] = []   # deepest first
-
-    def make_folder(self, folder: Path) -> None:
-        """``folder`` and its missing parents made (as ``mkdir -p``); those this call made
-        are noted.
-
-        Raises:
-            OSError: a folder could not be made.
-        """
-        missing = []
-        for q in (folder, *folder.parents):
-            if q.exists() or q.is_symlink():
-                break
-            missing.append(q)
-        for q in reversed(missing):   # outermost first
-            try:
-                q.mkdir()
-                self._folders.insert(0, (q, _identity(q.lstat())))
-            except FileExistsError:
-                continue   # made meanwhile by something else: not ours
-            except OSError:
-                break      # said by the mkdir below
-        folder.mkdir(parents=True, exist_ok=True)
-
-    def add(self, path: Path, st: os.stat_result) -> None:
-        """Note a file made here; ``st``: the status of what was written."""
-        self._files.append((path, _identity(st)))
-
-    def remove(self) -> bool:
-        """Remove the files made here, then the folders made here that are then empty
-        (deepest first); whether every file made here is gone."""
-        gone = True
-        for path, ident in self._files:
-            try:
-                if _identity(path.lstat()) == ident:
-                    path.unlink()
-                else:
-                    gone = False
-            except FileNotFoundError:
-                pass
-            except OSError:
-                gone = False
-        self._files = []
-        for q, ident in self._folders:
-            try:
-                if _identity(q.lstat()) != ident:
-                    break
-                q.rmdir()
-            except OSError:
-                break   # something else is in it: it stays, and so does every folder above
-        self._folders = []
-        return gone
 
 
 def removed_line(status: dict) -> str | None:

@@ -11,7 +11,7 @@ such a file; ``mcap recover`` restores its summary for other tools).
 Like :class:`drovisio.recording.Recorder`, writing happens in a background thread with a
 bounded queue: a slow disk drops frames from the recording (counted in :meth:`status`), never
 slows the pipeline; and like it, a file that holds no frame when it closes is removed again
-(with the folders made for it, once empty): :class:`drovisio.recording.MadeFiles`.
+(with the folders made for it, once empty): :class:`drovisio.fileio.MadeFiles`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from pathlib import Path
 import cv2
 
 from drovisio._threads import STOP_WAIT_S
-from drovisio.recording import MadeFiles, stop_writer
+from drovisio.fileio import MadeFiles
+from drovisio.recording import stop_writer
 from drovisio.ros.messages import RosMessages
 from drovisio.ros.msgdefs import encoder, schema_text
 

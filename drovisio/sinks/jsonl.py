@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from drovisio.fileio import MadeFiles
 from drovisio.sinks.base import Delivery, SinkError
 
 __all__ = ["JsonlSink"]
@@ -34,50 +35,38 @@ def _open_append(p: Path) -> tuple[int, bool]:
         return os.open(p, _APPEND | os.O_CREAT, 0o666), False
 
 
-def _missing_folders(folder: Path) -> list[Path]:
-    """The folders of ``folder``'s path that do not exist yet, deepest first."""
-    out = []
-    for q in (folder, *folder.parents):
-        if q.exists() or q.is_symlink():
-            break
-        out.append(q)
-    return out
-
-
 class JsonlSink:
     def __init__(self, path: str = "-", with_covariance: bool = True):
         self.name = f"jsonl:{path}"
         self.with_covariance = with_covariance
         self.delivery = Delivery()
         self._closed = False
-        # The file this sink made, and the folders it made for it (deepest first): removed
-        # at close when nothing was written. Not a file opened at the first frame, nor a
+        # The file this sink made, and the folders it made for it: removed at close when
+        # nothing was written. Not a file opened at the first frame, nor a
         # temporary file moved into place at close: the stream is read while it is written
         # (tail -f, a logger; a kill -9 keeps what was written), and opening it at start is
         # the start-up check (a folder that cannot be made, a FIFO nobody reads: said before
         # anything runs, not at the first frame).
-        self._made: Path | None = None
-        self._folders: list[Path] = []
+        self._made = MadeFiles()
+        self._made_file = False
         if path in ("-", ""):
             self._f = sys.stdout
             self._own = False
             return
         p = Path(path)
         try:
-            self._folders = _missing_folders(p.parent)
-            p.parent.mkdir(parents=True, exist_ok=True)
+            self._made.make_folder(p.parent)
             fd, made = _open_append(p)
+            if made:
+                self._made.add(p, os.fstat(fd))
             os.set_blocking(fd, True)
             self._f = os.fdopen(fd, "a", encoding="utf-8", buffering=1)
         except OSError as e:
-            self._remove_made()
+            self._made.remove()
             raise SinkError(f"jsonl:{path}: cannot open for writing ({e.strerror or e})") \
                 from e
         self._own = True
-        if made:
-            self._made = p
-        else:
-            self._folders = []
+        self._made_file = made
 
     def send(self, output) -> None:
         try:
@@ -94,7 +83,7 @@ class JsonlSink:
             return
         self._closed = True
         try:
-            untouched = self._unwritten()
+            untouched = self._made_file and os.fstat(self._f.fileno()).st_size == 0
         except (OSError, ValueError):
             untouched = False
         try:
@@ -102,25 +91,7 @@ class JsonlSink:
         except OSError:
             pass
         if untouched:
-            self._remove_made()
-
-    def _unwritten(self) -> bool:
-        """The file this sink made is still empty, and still the one at its path."""
-        if self._made is None:
-            return False
-        st, own = os.stat(self._made), os.fstat(self._f.fileno())
-        return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino) and own.st_size == 0
-
-    def _remove_made(self) -> None:
-        """Remove what this sink made, the file then its folders; a folder something else
-        was put in stays, and so does every folder above it."""
-        try:
-            if self._made is not None:
-                self._made.unlink()
-            for q in self._folders:
-                q.rmdir()
-        except OSError:
-            pass
+            self._made.remove()   # only if the path still names the file made here
 
     def status(self) -> dict:
         return {"sink": self.name, **self.delivery.status()}
