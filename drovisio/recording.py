@@ -24,6 +24,7 @@ The status says so (``"removed"``) and :func:`removed_line` says it in one line.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -222,16 +223,20 @@ class Recorder:
                 break
             img, index, seq, t, js = item
             name = f"frames/{self._number:06d}.jpg"
+            path = self.folder / name
+            made = advanced = False
             try:
                 ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
                 if not ok:
                     raise OSError("OpenCV could not encode the frame as JPEG")
                 # "x": a new file, never over one (streamed: a frame is indexed once whole)
-                with open(self.folder / name, "xb") as fh:
+                with open(path, "xb") as fh:
+                    made = True
                     if self.written == 0:   # removed with the rest if no frame is recorded
-                        self._made.add(self.folder / name, os.fstat(fh.fileno()))
+                        self._made.add(path, os.fstat(fh.fileno()))
                     fh.write(buf.tobytes())
                 self._number += 1
+                advanced = True
                 self._index.write(json.dumps({"frame": index, "seq": seq, "t": round(t, 6),
                                               "image": name, "output": js},
                                              separators=(",", ":")) + "\n")
@@ -240,6 +245,13 @@ class Recorder:
             except (OSError, ValueError) as e:
                 self.errors += 1
                 self.last_error = str(e)
+                # a name taken, or a frame cut short (a full disk): never indexed, and the
+                # next frame takes the next name, or every later frame would fail on this one
+                if (isinstance(e, FileExistsError) or made) and not advanced:
+                    self._number += 1
+                    if made:
+                        with contextlib.suppress(OSError):
+                            path.unlink()
 
     def close(self, timeout: float = STOP_WAIT_S) -> None:
         """Write what is queued; then a recording this recorder made that holds no frame is

@@ -423,3 +423,52 @@ def test_a_file_replaced_meanwhile_is_not_removed(tmp_path, ledger):
     line = removed_line(rec.status())
     assert line is not None and line.startswith(f"{folder}: no frame was recorded; ")
     assert "remove it by hand" in line
+
+
+def test_a_frame_cut_short_by_a_full_disk_costs_that_frame_only(tmp_path, monkeypatch, ledger):
+    """The disk is full for one frame: its file is made, the write fails. That frame is lost
+    (counted, its part removed), and the frames after it are recorded under the next names;
+    the name it had is not tried again for ever."""
+    import builtins
+    import errno
+
+    import drovisio.recording as recording
+
+    ledger.tried_one("writers: recording folder")
+    real_open = builtins.open
+    failed = []
+
+    class _Full:
+        def __init__(self, fh):
+            self.fh = fh
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+        def fileno(self):
+            return self.fh.fileno()
+
+        def write(self, data):
+            self.fh.write(data[: len(data) // 2])
+            self.fh.flush()
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    def full_once(path, mode="r", *a, **kw):
+        fh = real_open(path, mode, *a, **kw)
+        if mode == "xb" and not failed:
+            failed.append(str(path))
+            return _Full(fh)
+        return fh
+
+    monkeypatch.setattr(recording, "open", full_once, raising=False)
+    folder = tmp_path / "rec"
+    rec = _record(folder, [10, 60, 110])
+    assert rec.errors == 1 and rec.written == 2 and "No space" in rec.last_error
+    frames = read_index(folder)
+    assert [f.frame for f in frames] == [1, 2]
+    names = sorted(p.name for p in (folder / "frames").iterdir())
+    assert names == [Path(f.image).name for f in frames]      # the cut frame is not left
+    assert Path(failed[0]).name not in names
