@@ -15,7 +15,9 @@ exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable 
 whose peer went away) is counted (never as sent), said on a line when it starts failing and
 when it works again (even with --quiet), shown in the status line, and makes the exit status
 1 at the end, which says how many messages each sink did not send. A --record recording that
-got no frame is removed at the end, said on a line (the next run may record there again).
+could not write some frames is said the same way at the end (exit status 1), and so are frames
+a slow disk made it drop; one that got no frame is removed at the end, said on a line (the next
+run may record there again).
 """
 
 from __future__ import annotations
@@ -299,18 +301,30 @@ def run(args: argparse.Namespace) -> int:
         print(status_line(st, time.monotonic() - t0), file=sys.stderr, flush=True)
     for note in pipeline.notes:
         _err(f"{config.camera}: {note}")
-    _say_recording(pipeline)
-    return _exit_code(config, n, st)
+    recording_failed = _say_recording(pipeline)
+    return max(_exit_code(config, n, st), 1 if recording_failed else 0)
 
 
-def _say_recording(pipeline: Pipeline) -> None:
-    """Say that the recording (closed with the pipeline) held no frame and was removed."""
+def _say_recording(pipeline: Pipeline) -> bool:
+    """Say how the recording (closed with the pipeline) ended, where it did not record every
+    frame: frames it could not write (a failing output, as a sink's), frames a slow disk made
+    it drop, or that it held no frame and was removed. Whether writes failed."""
     from drovisio.recording import removed_line
 
-    if pipeline.recorder is not None:
-        line = removed_line(pipeline.recorder.status())
-        if line:
-            _err(line)
+    if pipeline.recorder is None:
+        return False
+    rs = pipeline.recorder.status()
+    where = rs.get("folder") or rs.get("file") or "--record"
+    errors, dropped = int(rs.get("errors") or 0), int(rs.get("dropped") or 0)
+    if errors and rs.get("removed") is None:   # a removed recording's line says its error
+        _err(f"{where}: {errors} frames could not be recorded ({rs.get('written', 0)} were)"
+             + (f" (last: {rs['last_error']})" if rs.get("last_error") else ""))
+    if dropped:
+        _err(f"{where}: {dropped} frames not recorded: the disk was slower than the camera")
+    line = removed_line(rs)
+    if line:
+        _err(line)
+    return errors > 0
 
 
 # --------------------------------------------------------------------------------------------

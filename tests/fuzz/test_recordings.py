@@ -425,36 +425,37 @@ def test_a_file_replaced_meanwhile_is_not_removed(tmp_path, ledger):
     assert "remove it by hand" in line
 
 
-def test_a_frame_cut_short_by_a_full_disk_costs_that_frame_only(tmp_path, monkeypatch, ledger):
-    """The disk is full for one frame: its file is made, the write fails. That frame is lost
-    (counted, its part removed), and the frames after it are recorded under the next names;
-    the name it had is not tried again for ever."""
+class _Full:
+    """A frame file that the disk fills halfway through."""
+
+    def __init__(self, fh):
+        self.fh = fh
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.fh.close()
+
+    def fileno(self):
+        return self.fh.fileno()
+
+    def write(self, data):
+        import errno
+
+        self.fh.write(data[: len(data) // 2])
+        self.fh.flush()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def _disk_full_once(monkeypatch) -> list[str]:
+    """The recorder's first frame file meets a full disk; returns the list of its name."""
     import builtins
-    import errno
 
     import drovisio.recording as recording
 
-    ledger.tried_one("writers: recording folder")
     real_open = builtins.open
-    failed = []
-
-    class _Full:
-        def __init__(self, fh):
-            self.fh = fh
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.fh.close()
-
-        def fileno(self):
-            return self.fh.fileno()
-
-        def write(self, data):
-            self.fh.write(data[: len(data) // 2])
-            self.fh.flush()
-            raise OSError(errno.ENOSPC, "No space left on device")
+    failed: list[str] = []
 
     def full_once(path, mode="r", *a, **kw):
         fh = real_open(path, mode, *a, **kw)
@@ -464,6 +465,15 @@ def test_a_frame_cut_short_by_a_full_disk_costs_that_frame_only(tmp_path, monkey
         return fh
 
     monkeypatch.setattr(recording, "open", full_once, raising=False)
+    return failed
+
+
+def test_a_frame_cut_short_by_a_full_disk_costs_that_frame_only(tmp_path, monkeypatch, ledger):
+    """The disk is full for one frame: its file is made, the write fails. That frame is lost
+    (counted, its part removed), and the frames after it are recorded under the next names;
+    the name it had is not tried again for ever."""
+    ledger.tried_one("writers: recording folder")
+    failed = _disk_full_once(monkeypatch)
     folder = tmp_path / "rec"
     rec = _record(folder, [10, 60, 110])
     assert rec.errors == 1 and rec.written == 2 and "No space" in rec.last_error
@@ -472,3 +482,16 @@ def test_a_frame_cut_short_by_a_full_disk_costs_that_frame_only(tmp_path, monkey
     names = sorted(p.name for p in (folder / "frames").iterdir())
     assert names == [Path(f.image).name for f in frames]      # the cut frame is not left
     assert Path(failed[0]).name not in names
+
+
+def test_run_says_frames_it_could_not_record_and_fails(tmp_path, monkeypatch, capsys, ledger):
+    """A recording that could not write a frame is a failing output: said at the end in one
+    line, exit status 1, as a failing sink."""
+    ledger.tried_one("writers: recording folder")
+    _disk_full_once(monkeypatch)
+    target = tmp_path / "rec"
+    rc, err = _run(capsys, VIDEO, target, "--frames", "3")
+    said = [ln for ln in err if "could not be recorded" in ln]
+    assert rc == 1 and said == [f"drovisio run: {target}: 1 frames could not be recorded (2 "
+                                "were) (last: [Errno 28] No space left on device)"], err
+    assert len(read_index(target)) == 2
