@@ -8,7 +8,7 @@ recording flushed).
 
 Finite means finite: a file, folder or recording that cannot be opened (or fails while
 read) ends the run at once with one line and exit status 2; one that ends ends the run, with
-exit status 1 when nothing could be read from it. Cameras and stream URLs keep reconnecting
+exit status 1 when nothing could be read from it (no frame, or none that decoded). Cameras and stream URLs keep reconnecting
 (said on a line when lost, even with --quiet; the status line says so too). Frames of
 another size than the camera file's are not measured: said on a line at the first, and the
 exit status is 2. A sink that fails (a full disk, a closed pipe, an unreachable link, a link
@@ -267,8 +267,9 @@ def _exit_code(config: PipelineConfig, n: int, st: PipelineStatus) -> int:
          "(newest-frame policy)"
          + (f", {src.frame_errors} frames could not be decoded" if src.frame_errors else ""))
     code = 0
-    if src.finite and src.frames == 0:
-        _err(f"{config.source}: nothing could be read from the source")
+    if src.finite and src.frames == src.frame_errors:   # none, or none that decoded
+        _err(f"{config.source}: nothing could be read from the source"
+             + (" (no frame of it decoded)" if src.frames else ""))
         code = 1
     failures = sink_failures(st)
     for f in failures:
