@@ -505,9 +505,9 @@ def _identity(st: os.stat_result) -> tuple[int, int]:
 
 class MadeFiles:
     """The files and folders an output made, each known by its inode, for :meth:`remove` to
-    remove again when nothing was written to them at close (a recording with no frame, a
-    ``jsonl:PATH`` sink that never got a line): a run that ended before its first frame
-    leaves nothing behind, and the next run may write to the same name.
+    remove again when nothing was written to them at close (a recording with no frame): a
+    run that ended before its first frame leaves nothing behind, and the next run may write to
+    the same name.
 
     Nothing that was there before is among them. A path that no longer names what was made
     (replaced or moved meanwhile) is left alone, and so is a folder something else was put

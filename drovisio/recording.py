@@ -257,8 +257,13 @@ class Recorder:
         """Write what is queued; then a recording this recorder made that holds no frame is
         removed (:attr:`removed`)."""
         stop_writer(self._q, self._thread, timeout)
+        try:   # another recorder on the same folder (a second run) wrote to it: it stays
+            others = (os.fstat(self._index.fileno()).st_size > 0
+                      or any((self.folder / "frames").iterdir()))
+        except (OSError, ValueError):
+            others = True
         self._index.close()
-        if self._own and self.written == 0 and not self._thread.is_alive() \
+        if self._own and self.written == 0 and not others and not self._thread.is_alive() \
                 and self.removed is None:
             self.removed = self._made.remove()
 

@@ -1,38 +1,41 @@
 """``jsonl:-`` / ``jsonl:PATH``: one JSON object per processed frame (JSON Lines).
 
-A ``jsonl:PATH`` file is opened at start and appended to: an existing file is never truncated
-or replaced, and a file this sink made is removed again at close when nothing was ever
-written to it (a run that ended before its first frame leaves no empty file behind).
+A ``jsonl:PATH`` file is appended to, never truncated or replaced. An existing one (a log, a
+FIFO, a device) is opened at start, so that a FIFO nobody reads is said before anything runs;
+a missing one is made at the first line, its folder checked at start: a run that ends before
+its first frame leaves no file behind, and nothing is ever removed (another writer may hold
+the same file open).
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import sys
+import tempfile
 from pathlib import Path
+from typing import TextIO
 
-from drovisio.fileio import MadeFiles
 from drovisio.sinks.base import Delivery, SinkError
 
 __all__ = ["JsonlSink"]
 
+# non-blocking open: a FIFO nobody reads fails at once (ENXIO), never hangs
 _APPEND = os.O_WRONLY | os.O_APPEND | os.O_NONBLOCK
 
 
-def _open_append(p: Path) -> tuple[int, bool]:
-    """``p`` opened for appending (made if missing): (descriptor, whether this call made it).
-
-    Non-blocking: a FIFO nobody reads fails at once (ENXIO), never hangs.
-    """
-    try:
-        return os.open(p, _APPEND | os.O_CREAT | os.O_EXCL, 0o666), True
-    except FileExistsError:
-        pass
-    try:
-        return os.open(p, _APPEND), False
-    except FileNotFoundError:   # a link to nothing, or removed meanwhile: made, not ours
-        return os.open(p, _APPEND | os.O_CREAT, 0o666), False
+def _check_can_make(p: Path) -> None:
+    """Raise the OSError that making ``p`` (and its missing folders) would meet, leaving
+    nothing behind: its nearest existing folder must be a folder that takes a new entry (a
+    folder of our own, made and removed again at once: permissions alone do not say it, not
+    for root, not on /proc or a read-only mount)."""
+    for q in p.parents:
+        if os.path.lexists(q):
+            if not q.is_dir():
+                raise OSError(errno.ENOTDIR, "not a folder", str(q))
+            os.rmdir(tempfile.mkdtemp(prefix=".drovisio-check-", dir=q))
+            return
 
 
 class JsonlSink:
@@ -41,38 +44,38 @@ class JsonlSink:
         self.with_covariance = with_covariance
         self.delivery = Delivery()
         self._closed = False
-        # The file this sink made, and the folders it made for it: removed at close when
-        # nothing was written. Not a file opened at the first frame, nor a
-        # temporary file moved into place at close: the stream is read while it is written
-        # (tail -f, a logger; a kill -9 keeps what was written), and opening it at start is
-        # the start-up check (a folder that cannot be made, a FIFO nobody reads: said before
-        # anything runs, not at the first frame).
-        self._made = MadeFiles()
-        self._made_file = False
+        self._f: TextIO | None = None
         if path in ("-", ""):
             self._f = sys.stdout
             self._own = False
             return
-        p = Path(path)
+        self._path = Path(path)
         try:
-            self._made.make_folder(p.parent)
-            fd, made = _open_append(p)
-            if made:
-                self._made.add(p, os.fstat(fd))
-            os.set_blocking(fd, True)
-            self._f = os.fdopen(fd, "a", encoding="utf-8", buffering=1)
+            if os.path.lexists(self._path):
+                self._open()
+            else:
+                _check_can_make(self._path)
         except OSError as e:
-            self._made.remove()
             raise SinkError(f"jsonl:{path}: cannot open for writing ({e.strerror or e})") \
                 from e
         self._own = True
-        self._made_file = made
+
+    def _open(self) -> TextIO:
+        """The file, opened for appending (made, with its folders, if missing)."""
+        self._path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self._path, _APPEND | os.O_CREAT, 0o666)
+        os.set_blocking(fd, True)
+        self._f = os.fdopen(fd, "a", encoding="utf-8", buffering=1)
+        return self._f
 
     def send(self, output) -> None:
         try:
-            self._f.write(json.dumps(output.to_json(self.with_covariance),
-                                     separators=(",", ":")) + "\n")
-            self._f.flush()
+            if self._closed:
+                raise ValueError("the sink is closed")
+            f = self._f if self._f is not None else self._open()
+            f.write(json.dumps(output.to_json(self.with_covariance),
+                               separators=(",", ":")) + "\n")
+            f.flush()
         except (OSError, ValueError) as e:  # disk full, closed stdout: count, go on
             self.delivery.failed(str(e))
             return
@@ -82,16 +85,11 @@ class JsonlSink:
         if not self._own or self._closed:
             return
         self._closed = True
-        try:
-            untouched = self._made_file and os.fstat(self._f.fileno()).st_size == 0
-        except (OSError, ValueError):
-            untouched = False
-        try:
-            self._f.close()
-        except OSError:
-            pass
-        if untouched:
-            self._made.remove()   # only if the path still names the file made here
+        if self._f is not None:
+            try:
+                self._f.close()
+            except OSError:
+                pass
 
     def status(self) -> dict:
         return {"sink": self.name, **self.delivery.status()}

@@ -497,3 +497,44 @@ def test_run_says_frames_it_could_not_record_and_fails(tmp_path, monkeypatch, ca
     assert rc == 1 and said == [f"drovisio run: {target}: 1 frames could not be recorded (2 "
                                 "were) (last: [Errno 28] No space left on device)"], err
     assert len(read_index(target)) == 2
+
+
+def test_a_recording_another_recorder_wrote_to_is_not_removed(tmp_path, ledger):
+    """Two runs on one --record folder: the first made it and got no frame, the second wrote
+    three frames into it. The first's close removes nothing: the index, the manifest and the
+    frames stay and play back."""
+    ledger.tried_one("writers: recording folder")
+    folder = tmp_path / "rec"
+    first = Recorder(folder, source="test", camera_file=CAMERA)
+    second = Recorder(folder, source="test", camera_file=CAMERA)
+    assert second.continued
+    for i, v in enumerate([10, 60, 110]):
+        second.add(_frame(i, v), _Out(i))
+    second.close()
+    first.close()
+    assert first.written == 0 and first.status()["removed"] is None
+    assert (folder / "recording.json").is_file() and len(read_index(folder)) == 3
+
+
+def test_a_jsonl_file_shared_with_another_writer_keeps_every_line(tmp_path):
+    """Two sinks on one jsonl:PATH: the one that got no line closes first; the other's lines
+    all stay in the file (nothing a sink did not write is ever removed)."""
+    from drovisio.sinks.jsonl import JsonlSink
+
+    class _Line(_Out):
+        def to_json(self, with_covariance: bool = True) -> dict:
+            return {"frame": self.k}
+
+    path = tmp_path / "log.jsonl"
+    idle = JsonlSink(str(path))
+    busy = JsonlSink(str(path))
+    busy.send(_Line(0))
+    idle.close()
+    busy.send(_Line(1))
+    busy.close()
+    lines = [json.loads(ln) for ln in path.read_text().splitlines()]
+    assert [ln["frame"] for ln in lines] == [0, 1]
+    # a sink that never got a line made no file
+    never = JsonlSink(str(tmp_path / "new" / "never.jsonl"))
+    never.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.jsonl"]

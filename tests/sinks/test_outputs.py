@@ -88,15 +88,15 @@ def test_jsonl_file_and_bad_specs(tmp_path):
             open_sink(bad)
 
 
-def test_a_jsonl_file_is_appended_to_and_one_never_written_is_not_left(tmp_path):
-    """An existing file is never truncated; a file (and folders) the sink made is removed at
-    close when nothing was written to it; one written to stays."""
+def test_a_jsonl_file_is_appended_to_and_one_never_written_is_not_made(tmp_path):
+    """An existing file is opened at start and never truncated; a missing one (and its
+    folders) is made at the first line, so a sink that got none leaves nothing behind, and a
+    sink never removes a file."""
     kept, empty = tmp_path / "kept.jsonl", tmp_path / "empty.jsonl"
     kept.write_bytes(b"earlier\n")
     empty.touch()
     for path in (kept, empty, tmp_path / "new.jsonl", tmp_path / "a" / "b" / "new.jsonl"):
         s = open_sink(f"jsonl:{path}")
-        assert path.exists()         # made at start: what follows it sees it at once
         s.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.jsonl", "kept.jsonl"]
     assert (kept.read_bytes(), empty.read_bytes()) == (b"earlier\n", b"")
@@ -105,10 +105,12 @@ def test_a_jsonl_file_is_appended_to_and_one_never_written_is_not_left(tmp_path)
     s.close()
     assert kept.read_text().splitlines()[0] == "earlier"
     s = open_sink(f"jsonl:{tmp_path / 'a' / 'o.jsonl'}")
+    assert not (tmp_path / "a").exists()
     s.send(_output([]))
     s.close()
     s.close()
     assert json.loads((tmp_path / "a" / "o.jsonl").read_text())["bricks"] == []
+    assert [p.name for p in (tmp_path / "a").iterdir()] == ["o.jsonl"]   # no check left
 
 
 def test_udp_datagram_and_no_listener():
