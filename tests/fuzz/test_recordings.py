@@ -518,7 +518,7 @@ def test_a_recording_another_recorder_wrote_to_is_not_removed(tmp_path, ledger):
 
 def test_a_jsonl_file_shared_with_another_writer_keeps_every_line(tmp_path):
     """Two sinks on one jsonl:PATH: the one that got no line closes first; the other's lines
-    all stay in the file (nothing a sink did not write is ever removed)."""
+    all stay in the file (a sink never removes a file)."""
     from drovisio.sinks.jsonl import JsonlSink
 
     class _Line(_Out):
@@ -528,8 +528,8 @@ def test_a_jsonl_file_shared_with_another_writer_keeps_every_line(tmp_path):
     path = tmp_path / "log.jsonl"
     idle = JsonlSink(str(path))
     busy = JsonlSink(str(path))
+    idle.close()                 # closes before the other writer's first line
     busy.send(_Line(0))
-    idle.close()
     busy.send(_Line(1))
     busy.close()
     lines = [json.loads(ln) for ln in path.read_text().splitlines()]
