@@ -25,6 +25,7 @@ The status says so (``"removed"``) and :func:`removed_line` says it in one line.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import queue
@@ -206,7 +207,7 @@ class Recorder:
             self._made.add(index, os.fstat(fd))
         except FileExistsError:
             fd = os.open(index, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
-        self._index = open(fd, "a", encoding="utf-8")
+        self._index = open(fd, "ab", buffering=0)   # one write per line (see _append_line)
 
     def add(self, frame, output) -> None:
         """Queue a frame and its output (never blocks)."""
@@ -224,7 +225,7 @@ class Recorder:
             img, index, seq, t, js = item
             name = f"frames/{self._number:06d}.jpg"
             path = self.folder / name
-            made = advanced = False
+            made = advanced = indexed = False
             try:
                 ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
                 if not ok:
@@ -237,10 +238,10 @@ class Recorder:
                     fh.write(buf.tobytes())
                 self._number += 1
                 advanced = True
-                self._index.write(json.dumps({"frame": index, "seq": seq, "t": round(t, 6),
+                self._append_line(json.dumps({"frame": index, "seq": seq, "t": round(t, 6),
                                               "image": name, "output": js},
-                                             separators=(",", ":")) + "\n")
-                self._index.flush()
+                                             separators=(",", ":")))
+                indexed = True
                 self.written += 1
             except (OSError, ValueError) as e:
                 self.errors += 1
@@ -249,9 +250,21 @@ class Recorder:
                 # next frame takes the next name, or every later frame would fail on this one
                 if (isinstance(e, FileExistsError) or made) and not advanced:
                     self._number += 1
-                    if made:
-                        with contextlib.suppress(OSError):
-                            path.unlink()
+                if made and not indexed:   # a frame no index line names is never played
+                    with contextlib.suppress(OSError):
+                        path.unlink()
+
+    def _append_line(self, line: str) -> None:
+        """Add one line to the index in one write; a line a full disk cut short is cut off
+        again at once (:func:`_drop_cut_line`), or the next line would be glued to it and the
+        index could not be read past it."""
+        data = (line + "\n").encode("utf-8")
+        try:
+            if self._index.write(data) != len(data):
+                raise OSError(errno.ENOSPC, "the index line was cut short (disk full?)")
+        except OSError:
+            _drop_cut_line(self.folder / "frames.jsonl")
+            raise
 
     def close(self, timeout: float = STOP_WAIT_S) -> None:
         """Write what is queued; then a recording this recorder made that holds no frame is

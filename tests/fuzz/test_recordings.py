@@ -538,3 +538,34 @@ def test_a_jsonl_file_shared_with_another_writer_keeps_every_line(tmp_path):
     never = JsonlSink(str(tmp_path / "new" / "never.jsonl"))
     never.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.jsonl"]
+
+
+def test_an_index_line_cut_short_is_cut_off_and_the_recording_still_plays(tmp_path, ledger):
+    """The disk fills during one frame's index line: half of it is written. The half line is
+    cut off at once (else the next line is glued to it and the index cannot be read past
+    it), that frame's image goes with it, and the frames after it are recorded and play."""
+    ledger.tried_one("writers: recording folder")
+    folder = tmp_path / "rec"
+    rec = Recorder(folder, source="test", camera_file=CAMERA)
+    real = rec._index
+    calls = []
+
+    class _HalfOnce:
+        def write(self, data):
+            calls.append(len(data))
+            if len(calls) == 2:
+                return real.write(data[: len(data) // 2])
+            return real.write(data)
+
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+    rec._index = _HalfOnce()
+    for i, v in enumerate([10, 60, 110]):
+        rec.add(_frame(i, v), _Out(i))
+    rec.close()
+    assert rec.written == 2 and rec.errors == 1 and "cut short" in rec.last_error
+    frames = read_index(folder)
+    assert [f.frame for f in frames] == [0, 2]
+    assert sorted(p.name for p in (folder / "frames").iterdir()) == \
+        sorted(Path(f.image).name for f in frames)
