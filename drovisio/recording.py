@@ -19,7 +19,8 @@ A recording a run made and that holds no frame when it closes (the source failed
 read, Ctrl+C before the first frame, a stream that never delivered) is removed again, as both
 recorders (this folder and the ``.mcap`` file) do through :class:`drovisio.fileio.MadeFiles`: only what the
 recorder itself made, each file checked by its inode, a folder only when it is then empty.
-The status says so (``"removed"``) and :func:`removed_line` says it in one line.
+The status says so (``"removed"``) and :func:`end_lines` says it, with the frames a recorder
+could not write or dropped, one line each.
 """
 
 from __future__ import annotations
@@ -45,10 +46,31 @@ from drovisio.fileio import MadeFiles, atomic_write_bytes
 from drovisio.textfile import check_regular_file, name_inside, parse_json
 
 __all__ = ["MAX_FRAMES", "MAX_INDEX_BYTES", "MAX_LINE_BYTES", "MAX_TIME_S", "RECORDING_SCHEMA",
-           "RecordedFrame", "Recorder", "holds_recording", "read_index",
+           "RecordedFrame", "Recorder", "end_lines", "holds_recording", "read_index",
            "removed_line", "stop_writer"]
 
 RECORDING_SCHEMA = "drovisio/recording@1"
+
+
+def _place(status: dict) -> str:
+    return status.get("folder") or status.get("file") or "--record"
+
+
+def end_lines(status: dict) -> list[str]:
+    """What a closed recorder's status has to say where it did not record every frame, one
+    line each: frames it could not write (a failing output, as a failing sink), frames a slow
+    disk made it drop, and that it held no frame and was removed (:func:`removed_line`)."""
+    out = []
+    errors = int(status.get("errors") or 0)
+    if errors and status.get("removed") is None:   # a removed recording's line says its error
+        out.append(f"{_place(status)}: {errors} frames could not be recorded "
+                   f"({status.get('written', 0)} were)"
+                   + (f" (last: {status['last_error']})" if status.get("last_error") else ""))
+    if status.get("dropped"):
+        out.append(f"{_place(status)}: {status['dropped']} frames not recorded: the disk was "
+                   "slower than the camera")
+    line = removed_line(status)
+    return out + ([line] if line else [])
 
 
 def removed_line(status: dict) -> str | None:
@@ -58,7 +80,7 @@ def removed_line(status: dict) -> str | None:
     removed = status.get("removed")
     if removed is None:
         return None
-    where = status.get("folder") or status.get("file") or "--record"
+    where = _place(status)
     why = f" (last error: {status['last_error']})" if status.get("last_error") else ""
     if removed:
         return f"{where}: no frame was recorded{why}; the empty recording was removed"

@@ -192,12 +192,18 @@ def _check(config: PipelineConfig, open_sinks: bool) -> _Checked:
     if config.record:
         check_record_folder(config.record)
     if open_sinks:
-        for sink in open_sinks_of(config, target, mount, layouts, camera=camera):
-            try:
-                sink.close()
-            except Exception:  # noqa: BLE001,S110 - it opened: closing it is best effort
-                pass
+        _close_all(open_sinks_of(config, target, mount, layouts, camera=camera))
     return _Checked(camera, layouts, detectors, mount, reader, target)
+
+
+def _close_all(sinks: Sequence[Sink]) -> None:
+    """Close sinks that will not run (best effort: they opened, and what failed is said by
+    whoever stops the start)."""
+    for sink in sinks:
+        try:
+            sink.close()
+        except Exception:  # noqa: BLE001,S110 - closing after a check or a failure
+            pass
 
 
 def check_pipeline_options(options: PipelineConfig | argparse.Namespace, *,
@@ -236,13 +242,11 @@ def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount |
                                    send_held=config.send_held_targets,
                                    camera=camera, drone_id=config.drone_id))
         except (SinkError, OSError, ValueError) as e:  # a spec's parts, parsed: one line too
-            for s in sinks:
-                s.close()
+            _close_all(sinks)
             why = (e.strerror or e) if isinstance(e, OSError) else e
             raise InputError(f"--sink {one_line(spec, 80)}: {one_line(why, 300)}") from None
         except BaseException:
-            for s in sinks:
-                s.close()
+            _close_all(sinks)
             raise
     return sinks
 
@@ -333,11 +337,7 @@ def build_pipeline(config: PipelineConfig, loop: bool = False,
                             recorder=recorder, max_age=config.max_age,
                             layouts=layouts, camera=camera, detector_factory=make_detectors)
     except BaseException:   # nothing runs: the sinks opened (a link's thread) are closed
-        for s in sinks:
-            try:
-                s.close()
-            except Exception:  # noqa: BLE001,S110 - closing after a failure, best effort
-                pass
+        _close_all(sinks)
         if recorder is not None:
             recorder.close()
         raise

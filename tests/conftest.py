@@ -83,6 +83,40 @@ def until() -> Callable[..., Any]:
     return _until
 
 
+def _stop_waits_for_held_work(stop: Callable[[], None],
+                              held: Callable[[], threading.Thread],
+                              release: threading.Event, what: str, *, hold: float = 5.0,
+                              hang: float = 60.0) -> None:
+    """Run ``stop`` from another thread while some work is held on ``release`` (the caller
+    got it there): ``stop`` must not return while it is held (``hold`` seconds: longer than a
+    stop that gives up after a few seconds waits; one that waits passes with any), must
+    return once it is released, and the held work's thread (``held()``) must have ended by
+    then. ``release`` is set whatever happens."""
+    alive_after: list[bool] = []
+
+    def run() -> None:
+        stop()
+        alive_after.append(held().is_alive())
+
+    stopper = threading.Thread(target=run, daemon=True, name="stopper")
+    try:
+        stopper.start()
+        stopper.join(hold)
+        assert stopper.is_alive(), f"{what} returned while the work was still held"
+        release.set()
+        stopper.join(hang)
+        assert not stopper.is_alive(), f"{what} never returned"
+        assert alive_after == [False], f"{what} returned before the held work ended"
+    finally:
+        release.set()
+
+
+@pytest.fixture(scope="session")
+def stop_waits_for_held_work() -> Callable[..., None]:
+    """The one check that a stop waits for work in progress (:func:`_stop_waits_for_held_work`)."""
+    return _stop_waits_for_held_work
+
+
 # DROVISIO_CHROMIUM overrides the path (other distributions); the default is Debian's.
 CHROMIUM = Path(os.environ.get("DROVISIO_CHROMIUM", "/usr/bin/chromium"))
 CHROMIUM_ARGS = [

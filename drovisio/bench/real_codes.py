@@ -223,10 +223,10 @@ def _against_edges(g: np.ndarray, codes: list[Any], ats: Quads, fig: _TagFigures
             continue
         ap = roll_like(other[1], q)
         e = outer_edge_corners(g, ap)
-        if e is None or e[1] > EDGE_LINE_MAX_RMS_PX:
+        if e is None or e.worst_rms_px > EDGE_LINE_MAX_RMS_PX:
             fig.edges_unclean += 1
             continue
-        fig.edges.append((ap - e[0], q - e[0]))
+        fig.edges.append((ap - e.corners_px, q - e.corners_px))
 
 
 def _edge_figures(fig: _TagFigures) -> dict[str, Any]:

@@ -307,25 +307,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _say_recording(pipeline: Pipeline) -> bool:
-    """Say how the recording (closed with the pipeline) ended, where it did not record every
-    frame: frames it could not write (a failing output, as a sink's), frames a slow disk made
-    it drop, or that it held no frame and was removed. Whether writes failed."""
-    from drovisio.recording import removed_line
+    """Say how the recording (closed with the pipeline) ended where it did not record every
+    frame (:func:`drovisio.recording.end_lines`); whether writes failed (exit status 1)."""
+    from drovisio.recording import end_lines
 
     if pipeline.recorder is None:
         return False
     rs = pipeline.recorder.status()
-    where = rs.get("folder") or rs.get("file") or "--record"
-    errors, dropped = int(rs.get("errors") or 0), int(rs.get("dropped") or 0)
-    if errors and rs.get("removed") is None:   # a removed recording's line says its error
-        _err(f"{where}: {errors} frames could not be recorded ({rs.get('written', 0)} were)"
-             + (f" (last: {rs['last_error']})" if rs.get("last_error") else ""))
-    if dropped:
-        _err(f"{where}: {dropped} frames not recorded: the disk was slower than the camera")
-    line = removed_line(rs)
-    if line:
+    for line in end_lines(rs):
         _err(line)
-    return errors > 0
+    return int(rs.get("errors") or 0) > 0
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ import numpy as np
 
 from drovisio.camera import Camera
 from drovisio.detect.corners import cell_verdict, refine_codes
-from drovisio.detect.corners.edges import edge_line_fallback, outer_edge_corners_full
+from drovisio.detect.corners.edges import edge_line_fallback, outer_edge_corners
 from drovisio.layout import aruco_code_bits
 
 CAM = Camera(K=np.array([[500.0, 0, 80], [0, 500.0, 70], [0, 0, 1]]), width=160, height=140)
@@ -56,7 +56,7 @@ def test_edge_line_corners_and_their_covariance_on_a_noisy_square():
     coordinates: mean 8 for a right covariance) and sit on the truth."""
     chi2, err = [], []
     for seed in range(30):
-        e = outer_edge_corners_full(_render(0.0, seed, noise=4.0), _start(seed))
+        e = outer_edge_corners(_render(0.0, seed, noise=4.0), _start(seed))
         assert e is not None and e.corners_px.shape == (4, 2) and e.cov_px.shape == (8, 8)
         d = (e.corners_px - TRUE).ravel()
         chi2.append(float(d @ np.linalg.solve(e.cov_px, d)))
@@ -111,10 +111,10 @@ def test_no_edge_where_the_image_ends_or_something_dark_covers_a_side():
     leave the image find nothing). A dark bar over the top side: its points scatter like
     noise. Either way that side, and so the code's edge corners, are not found."""
     cut = TRUE - [TRUE[:, 0].min() + 1.0, 0.0]
-    assert outer_edge_corners_full(_render(0.0, 5, corners=cut), cut) is None
-    assert outer_edge_corners_full(_render(0.0, 5), TRUE) is not None
+    assert outer_edge_corners(_render(0.0, 5, corners=cut), cut) is None
+    assert outer_edge_corners(_render(0.0, 5), TRUE) is not None
     bar = np.array([[30.0, 15.0], [125.0, 19.0], [125.0, 36.0], [30.0, 32.0]])
-    assert outer_edge_corners_full(_render(0.4, 6, bar=bar), TRUE) is None
+    assert outer_edge_corners(_render(0.4, 6, bar=bar), TRUE) is None
     r = refine_codes(_render(0.4, 6, bar=bar), CAM, _start(6)[None], [BITS], edge_fallback=True)[0]
     assert not r.edge_lines
 

@@ -33,7 +33,8 @@ class NoCamera:
         pass
 
 
-def test_close_waits_for_the_previous_session_and_its_solve(tmp_path):
+def test_close_waits_for_the_previous_session_and_its_solve(tmp_path,
+                                                            stop_waits_for_held_work):
     svc = CalibrationService(Settings(calibration_dir=tmp_path / "cal"),
                              source_factory=NoCamera)
     solving, release = threading.Event(), threading.Event()
@@ -45,13 +46,6 @@ def test_close_waits_for_the_previous_session_and_its_solve(tmp_path):
         if not release.wait(HANG):
             raise TimeoutError("the test never released the solve")
 
-    solver_alive_after_close: list[bool] = []
-
-    def close() -> None:
-        svc.close()
-        solver_alive_after_close.append(solvers[0].is_alive())
-
-    closer = threading.Thread(target=close, daemon=True, name="closer")
     try:
         old = svc.session
         old.solve = held_solve  # type: ignore[method-assign]
@@ -59,16 +53,10 @@ def test_close_waits_for_the_previous_session_and_its_solve(tmp_path):
         assert solving.wait(HANG), "the solve never began"
         svc.new_session()
         assert svc.session is not old
-        closer.start()
         # the previous session's solve stays blocked a while after close began, then returns
-        closer.join(HOLD)
-        assert closer.is_alive(), "close returned while the previous session was still solving"
-        release.set()
-        closer.join(HANG)
-        assert not closer.is_alive(), "close never returned"
-        assert solver_alive_after_close == [False], "close returned before the solve ended"
+        stop_waits_for_held_work(svc.close, lambda: solvers[0], release, "close", hold=HOLD,
+                                 hang=HANG)
         assert not any(t.name == "calibration-session-close" for t in threading.enumerate())
     finally:
         release.set()
-        if not closer.is_alive():
-            svc.close()
+        svc.close()

@@ -126,28 +126,16 @@ def test_the_clock_runs_while_a_draw_is_blocked(recordings):
         svc.close()
 
 
-def test_close_waits_for_the_blocked_draw_to_end(recordings):
+def test_close_waits_for_the_blocked_draw_to_end(recordings, stop_waits_for_held_work):
     svc = ReplayService(Settings(replay_dir=recordings), clock=Clock())
     scene = BlockedScene()
     svc.scene = scene  # type: ignore[assignment]
-    drawer_alive_after_close: list[bool] = []
-
-    def close() -> None:
-        svc.close()
-        drawer_alive_after_close.append(scene.drawers[0].is_alive())
-
-    closer = threading.Thread(target=close, daemon=True, name="closer")
     try:
         svc.load("one-brick")
         assert scene.drawing.wait(HANG), "the playback never drew"
-        closer.start()
-        # the draw stays blocked a while after close began (longer than a close that gives
-        # up after a few seconds waits), then returns
-        closer.join(HOLD)
-        scene.release.set()
-        closer.join(HANG)
-        assert not closer.is_alive(), "close never returned"
-        assert drawer_alive_after_close == [False], "close returned before the draw ended"
+        # the draw stays blocked a while after close began, then returns
+        stop_waits_for_held_work(svc.close, lambda: scene.drawers[0], scene.release, "close",
+                                 hold=HOLD, hang=HANG)
     finally:
         scene.release.set()
 

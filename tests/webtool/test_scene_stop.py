@@ -36,45 +36,29 @@ class HeldDraw:
             raise TimeoutError("the test never released the draw")
 
 
-def stop_waits_for_the_held_draw(scene: ViserScene, held: HeldDraw,
-                                 first_draw: Callable[[], None]) -> None:
-    """Stop ``scene`` from another thread while ``held`` blocks its draw: stop must not
-    return before the draw is released, and the drawing thread must have ended when it does."""
-    drawer_alive_after_stop: list[bool] = []
-
-    def stop() -> None:
-        scene.stop()
-        drawer_alive_after_stop.append(held.drawers[0].is_alive())
-
-    stopper = threading.Thread(target=stop, daemon=True, name="stopper")
-    try:
-        first_draw()
-        assert held.drawing.wait(HANG), "the scene never drew"
-        stopper.start()
-        # the draw stays blocked a while after stop began (longer than a stop that gives up
-        # after a few seconds waits), then returns
-        stopper.join(HOLD)
-        assert stopper.is_alive(), "stop returned while the draw was still blocked"
-        held.release.set()
-        stopper.join(HANG)
-        assert not stopper.is_alive(), "stop never returned"
-        assert drawer_alive_after_stop == [False], "stop returned before the draw ended"
-        assert scene.server is None
-    finally:
-        held.release.set()
-        if not stopper.is_alive():
-            scene.stop()
-
-
-def test_the_live_scene_stop_waits_for_the_draw_in_progress():
+def test_the_live_scene_stop_waits_for_the_draw_in_progress(stop_waits_for_held_work):
     scene = LiveScene().start()
     held = HeldDraw()
     scene._apply = held  # type: ignore[method-assign]
-    stop_waits_for_the_held_draw(scene, held, lambda: scene.update(object()))
+    _stop_waits(scene, held, lambda: scene.update(object()), stop_waits_for_held_work)
 
 
-def test_the_fleet_scene_stop_waits_for_the_draw_in_progress():
+def test_the_fleet_scene_stop_waits_for_the_draw_in_progress(stop_waits_for_held_work):
     scene = FleetScene(Fleet(), max_hz=20.0).start()
     held = HeldDraw()
     scene.update = held  # type: ignore[method-assign]
-    stop_waits_for_the_held_draw(scene, held, lambda: None)
+    _stop_waits(scene, held, lambda: None, stop_waits_for_held_work)
+
+
+def _stop_waits(scene: ViserScene, held: HeldDraw, first_draw: Callable[[], None],
+                check: Callable[..., None]) -> None:
+    """Stop ``scene`` from another thread while ``held`` blocks its draw: stop waits for the
+    draw (``check``: the ``stop_waits_for_held_work`` fixture), and the server is gone."""
+    try:
+        first_draw()
+        assert held.drawing.wait(HANG), "the scene never drew"
+        check(scene.stop, lambda: held.drawers[0], held.release, "stop", hold=HOLD, hang=HANG)
+        assert scene.server is None
+    finally:
+        held.release.set()
+        scene.stop()

@@ -45,7 +45,7 @@ from drovisio._threads import join_thread
 from drovisio.fusion import so3_log
 from drovisio.mount import down_camera_mount
 from drovisio.pose.covariance import parent_covariance, uncertainty_words
-from drovisio.recording import removed_line
+from drovisio.recording import end_lines
 from webtool.live.annotate import annotate
 from webtool.live.scene import LiveScene
 from webtool.live.stream import DEFAULT_BANDWIDTH_BPS, LEVELS, AdaptiveStream
@@ -204,11 +204,10 @@ class LiveService:
             self.error = f"{type(e).__name__}: {e}"
         finally:
             p.close()
-            # every end of a run passes here (stop_pipeline waits for this thread): a
-            # recording that got no frame was removed by its recorder, said on a line
+            # every end of a run passes here (stop_pipeline waits for this thread): what the
+            # recording could not record, or that it got no frame and was removed
             rec = getattr(p, "recorder", None)
-            line = removed_line(rec.status()) if rec is not None else None
-            if line:
+            for line in end_lines(rec.status()) if rec is not None else []:
                 log.warning("live: %s", line)
 
     def _watch(self) -> None:

@@ -160,13 +160,13 @@ def _corners_of(lines: list[_Line]) -> np.ndarray | None:
     return out
 
 
-def outer_edge_corners_full(gray: np.ndarray, quad: np.ndarray) -> EdgeCorners | None:
+def outer_edge_corners(gray: np.ndarray, quad: np.ndarray) -> EdgeCorners | None:
     """The corners where a dark code's four outer edge lines meet, with their covariance.
 
     Args:
         gray: (H, W) grey image.
-        quad: (4, 2) the code's corners (px) from any reading, good to a pixel or two; the
-            result keeps their order.
+        quad: (4, 2) the code's corners (px, OpenCV's convention: pixel centres at integers)
+            from any reading, good to a pixel or two; the result keeps their order.
 
     Returns:
         The corners, or None where an edge cannot be located or two edges are parallel.
@@ -200,22 +200,6 @@ def outer_edge_corners_full(gray: np.ndarray, quad: np.ndarray) -> EdgeCorners |
             var[2 * i + j] = v
     cov = (J * var) @ J.T
     return EdgeCorners(corners, cov, np.array([ln.rms for ln in ok_lines]))
-
-
-def outer_edge_corners(gray: np.ndarray, quad: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """The corners where a dark code's four outer edge lines meet.
-
-    Args:
-        gray: (H, W) grey image.
-        quad: (4, 2) the code's corners (px, OpenCV's convention: pixel centres at integers)
-            from any reading, good to a pixel or two; the result keeps their order.
-
-    Returns:
-        ((4, 2) corners px, the largest of the four lines' RMS px), or None where an edge
-        cannot be located.
-    """
-    e = outer_edge_corners_full(gray, quad)
-    return None if e is None else (e.corners_px, e.worst_rms_px)
 
 
 def read_cells(gray: np.ndarray, corners_px: np.ndarray, n: int) -> np.ndarray:
@@ -259,7 +243,7 @@ def edge_line_fallback(gray: np.ndarray, start: np.ndarray, bits: np.ndarray
         white cells' median), or None where an edge is not found or the code has no white
         cell.
     """
-    e = outer_edge_corners_full(gray, start)
+    e = outer_edge_corners(gray, start)
     if e is None:
         return None
     n = bits.shape[0]

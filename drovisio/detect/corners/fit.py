@@ -412,11 +412,6 @@ class _Checks:
     """(C,) the cells' common spread of whiteness (fraction of the contrast)."""
 
 
-_MOVED = "a corner moved"
-"""How the refusal of a corner that moved too far begins (the one refusal the edge lines
-may overturn)."""
-
-
 #: an interior fit farther than this many cells from the code's edge lines went astray: it is
 #: no bent view of the code (a rim, a bent print moves a corner about a cell)
 _EDGE_MAX_DISAGREE_CELLS = 2.5
@@ -434,7 +429,7 @@ def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks,
     if resid > 0.2 * contrast:
         return f"poor fit (residual {resid:.1f} for contrast {contrast:.0f})"
     if moved_too and k.moved[c].max() > k.move_limit[c]:
-        return (f"{_MOVED} {k.moved[c].max():.1f} px from its start (limit "
+        return (f"a corner moved {k.moved[c].max():.1f} px from its start (limit "
                 f"{k.move_limit[c]:.1f} px at the start noise of this frame)")
     if k.blur[c] > 2.5 * cell_px[c]:
         return "too blurred"
@@ -536,9 +531,9 @@ def refine_codes(gray: np.ndarray, camera: Camera, corners: list[np.ndarray] | n
     at_edges = np.zeros(C, bool)
     if edge_fallback:
         for c in range(C):
-            # refused for the move alone: every other check (the cells read back at the
-            # fit, the blur) passes, as it must for any code kept
-            if (valid[c] and whys[c].startswith(_MOVED)
+            # refused, but for the move alone: every other check (the cells read back at
+            # the fit, the blur) passes, as it must for any code kept
+            if (valid[c] and whys[c]
                     and not _refusal(c, px_c, cell_px, checks, moved_too=False)):
                 got = _at_edge_lines(gray, camera, b, c, px_c[c], tol_cells[c])
                 if got is not None:
@@ -574,7 +569,7 @@ def _at_edge_lines(gray: np.ndarray, camera: Camera, b: _Batch, c: int,
 
     Returns:
         (corners (4, 2) px, the same normalised, covariance (8, 8) px², the cells' least
-        margin), or None when an edge is not found (:func:`.edges.outer_edge_corners_full`),
+        margin), or None when an edge is not found (:func:`.edges.outer_edge_corners`),
         the interior fit lies more than :data:`_EDGE_MAX_DISAGREE_CELLS` cells from the edges'
         corners (it went astray), a corner leaves the calibrated field, or the cells do not
         read as the code there.
