@@ -148,3 +148,18 @@ def test_decoys_in_clutter_are_not_kept_at_their_edges():
         assert not any(c.refined.edge_lines for c in codes), seed
         refused += sum(c.refined.reason.startswith("a corner moved") for c in codes)
     assert refused == 3
+
+
+def test_an_edge_along_the_pixel_grid_is_located_as_well_as_a_slanted_one():
+    """A code whose sides run along the pixel rows and columns: a bilinear profile's gradient
+    is flat across a pixel there, and an unsmoothed peak wandered with the noise (corners
+    0.22 px RMS off); smoothed along the normal, it does not."""
+    square = np.array([[44.2, 35.3], [116.2, 35.3], [116.2, 107.3], [44.2, 107.3]])
+    err = []
+    for seed in range(10):
+        start = square + np.random.default_rng(80 + seed).normal(0.0, 0.7, (4, 2))
+        e = outer_edge_corners(_render(0.0, seed, corners=square), start)
+        assert e is not None
+        err.append(np.sqrt(np.mean((e.corners_px - square) ** 2)))
+    # measured: 0.07 px RMS per coordinate over 10 noise draws (unsmoothed: 0.22)
+    assert np.sqrt(np.mean(np.square(err))) < 0.12
