@@ -145,9 +145,11 @@ def test_decoys_in_clutter_are_not_kept_at_their_edges():
         img = cv2.cvtColor(np.asarray(ground_texture("clutter", seed, S)).astype(np.uint8),
                            cv2.COLOR_BGR2GRAY)
         codes = det.detect_codes(img)
-        assert not any(c.refined.edge_lines for c in codes), seed
+        assert not any(c.refined.edge_lines or c.refined.ok for c in codes), seed
         refused += sum(c.refined.reason.startswith("a corner moved") for c in codes)
-    assert refused == 3
+    # 5 of the 6 reach the move check (the sixth's fit explains nothing of it: residual
+    # 0.63 of its contrast), each a candidate for its edges, none kept there
+    assert refused == 5
 
 
 def test_an_edge_along_the_pixel_grid_is_located_as_well_as_a_slanted_one():

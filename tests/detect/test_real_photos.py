@@ -250,31 +250,98 @@ def test_a_code_whose_interior_is_no_square_of_its_border_is_kept_at_its_edges(m
     assert sum(c.refined.edge_lines for v in multi.values() for c in v["codes"]) == 1
 
 
-def test_many_codes_with_one_id_are_posed_each_and_flagged(tmp_path):
+SWARM = REPO_ROOT / "tests" / "data" / "real" / "apriltag-swarm"
+
+
+def _expected_corners(txt: Path) -> list[np.ndarray]:
+    """AprilTag's expected corners (its test data), in OpenCV's pixel convention."""
+    import re
+
+    return [np.array([[float(a), float(b)] for a, b in re.findall(r"\(([-\d.]+) ([-\d.]+)\)", ln)])
+            - APRILTAG_PIXEL_OFFSET for ln in txt.read_text().splitlines() if ln.strip()]
+
+
+@pytest.fixture(scope="module")
+def swarm():
+    from drovisio.study.methods import apriltag_detector
+
+    cam = load_camera(SWARM / "camera.yaml")
+    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
+    cv_det = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11))
+    out = {}
+    for f in sorted(SWARM.glob("*.jpg")):
+        img = cv2.imread(str(f))
+        poses = det.detect(img)
+        q, i, _ = cv_det.detectMarkers(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+        out[f.name] = {"poses": poses, "codes": list(det.last_codes),
+                       "duplicates": dict(det.last_duplicates),
+                       "opencv": [(int(k), np.asarray(c).reshape(4, 2))
+                                  for c, k in zip(q, np.ravel(i))],
+                       "expected": _expected_corners(f.with_suffix(".txt")),
+                       "apriltag": [a.corners - APRILTAG_PIXEL_OFFSET for a in
+                                    apriltag_detector("tag36h11").detect(
+                                        cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))]}
+    return out
+
+
+def test_many_codes_with_one_id_are_posed_each_and_flagged(swarm):
     """AprilTag's Swarmathon photos: cubes with tag 0 on every face. Each copy is its own
     pose, flagged duplicate; none is merged into one brick."""
-    d = _need("apriltag-swarm", optional=True)
-    cam = load_camera(d / "camera.yaml")
-    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
-    for f in sorted(d.glob("*.jpg")):
-        poses = det.detect(cv2.imread(str(f)))
-        good = [c for c in det.last_codes if c.refined.ok]
+    for name, r in swarm.items():
+        poses = r["poses"]
+        good = [c for c in r["codes"] if c.refined.ok]
         assert len(good) >= 10
         assert len(poses) == len(good) and all(p.duplicate for p in poses)
         assert all(p.markers == [0] and len(p.image_points) == 4 for p in poses)
         assert all(p.to_json()["duplicate"] is True for p in poses)
-        assert det.last_duplicates == {0: len(good)}
+        assert r["duplicates"] == {0: len(good)}
         centres = np.array([p.image_points.mean(axis=0) for p in poses])
         gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2) + np.eye(len(poses)) * 1e9
-        assert gaps.min() > 5.0   # distinct codes, not one read twice
-        # AprilTag's expected corners (its test data): ours within 1.5 px RMS of each match
-        import re
+        assert gaps.min() > 5.0, name   # distinct codes, not one read twice
 
-        truth = [np.array([[float(a), float(b)] for a, b in re.findall(r"\(([-\d.]+) ([-\d.]+)\)", ln)])
-                 - APRILTAG_PIXEL_OFFSET for ln in f.with_suffix(".txt").read_text().splitlines()
-                 if ln.strip()]
-        matched = [min((np.sqrt(np.mean(_match_corners(c.refined.corners_px, t) ** 2))
-                        for t in truth), default=np.inf) for c in good]
-        matched = [m for m in matched if m < 5.0]
-        assert len(matched) >= 0.75 * len(truth)
-        assert np.median(matched) < 1.0
+
+def test_swarm_photos_codes_kept_and_corners_agree_with_apriltag(swarm):
+    """A downscaled, sharpened Flickr JPEG: every code read is the tag 0 the cubes carry
+    (all 587 ids of the dictionary are live, so a false reading would show another id); of
+    the codes OpenCV reads, those kept and their corners against AprilTag's expected ones."""
+    kept = n_cv = 0
+    rms: dict[str, list[float]] = {"expected": [], "apriltag": []}
+    for name, r in swarm.items():
+        good = [c for c in r["codes"] if c.refined.ok]
+        assert {c.marker_id for c in good} == {0}, name
+        for mid, q in r["opencv"]:
+            assert mid == 0
+            n_cv += 1
+            kept += bool(_near(q, [c.refined.corners_px for c in good]))
+        for ref in rms:
+            for t in r[ref]:
+                m = _near(t, [c.refined.corners_px for c in good])
+                if m:
+                    rms[ref].append(float(np.sqrt(np.mean(_match_corners(m[0], t) ** 2))))
+    # measured: OpenCV reads 42 codes, Drovisio keeps 38 (36 with a fixed limit of a fifth
+    # of the contrast on the fit's residual); the 4 it has no quad for: two edge-on top
+    # faces AprilTag does not read either, a 30-px side face whose border OpenCV bends, a
+    # 39-px code in shadow)
+    assert n_cv == 42 and kept >= 38
+    # corner RMS per code, measured: against AprilTag 3 (decimate 1, edges refined) 39
+    # codes, median 0.30 px, p90 0.56, max 0.95; against the expected corners of AprilTag's
+    # own test (its quads' edges not refined) 42 codes, median 0.47, p90 0.80
+    at, ex = np.array(rms["apriltag"]), np.array(rms["expected"])
+    assert len(at) >= 38 and np.median(at) < 0.35 and np.percentile(at, 90) < 0.65
+    assert at.max() < 1.1
+    assert len(ex) >= 40 and np.median(ex) < 0.55 and np.percentile(ex, 90) < 0.9
+
+
+def test_a_code_whose_cells_read_right_is_kept_in_a_sharpened_jpeg(swarm):
+    """The 16-px side face at (622, 284) of the second photo: its fit's residual is 0.26 of
+    its contrast (the sharpening's halos, which no blurred model has), its cells read as tag
+    0 with the classes 7.9 spreads apart and its corners stay where they started. A fixed
+    limit of a fifth of the contrast refused it; it is kept, near AprilTag's corners."""
+    r = swarm["34085369442_304b6bafd9_c.jpg"]
+    c = [c for c in r["codes"] if np.linalg.norm(c.refined.corners_px.mean(0) - [622, 284]) < 3]
+    assert len(c) == 1 and c[0].refined.ok, [x.refined.reason for x in c]
+    assert c[0].refined.residual > 0.2 * c[0].refined.contrast
+    at = _near(c[0].refined.corners_px, r["apriltag"])
+    assert at and np.sqrt(np.mean(_match_corners(c[0].refined.corners_px, at[0]) ** 2)) < 1.0
+

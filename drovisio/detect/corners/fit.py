@@ -412,6 +412,12 @@ class _Checks:
     """(C,) the cells' common spread of whiteness (fraction of the contrast)."""
 
 
+#: a fit whose residual is this share of its contrast or more explains nothing of the code (the
+#: model's black and white lie within a residual of each other). Below it the cells' verdict
+#: and the corners' moves decide: a sharpened JPEG's halos, which no blurred model has, leave
+#: 0.26 of the contrast on a code whose cells read 7.9 spreads apart (a limit of 0.2 refused it)
+_MAX_RESIDUAL_SHARE = 0.5
+
 #: an interior fit farther than this many cells from the code's edge lines went astray: it is
 #: no bent view of the code (a rim, a bent print moves a corner about a cell)
 _EDGE_MAX_DISAGREE_CELLS = 2.5
@@ -426,7 +432,7 @@ def _refusal(c: int, px_c: np.ndarray, cell_px: np.ndarray, k: _Checks,
         return "diverged"
     if contrast < 20:
         return f"low contrast ({contrast:.0f})"
-    if resid > 0.2 * contrast:
+    if resid > _MAX_RESIDUAL_SHARE * contrast:
         return f"poor fit (residual {resid:.1f} for contrast {contrast:.0f})"
     if moved_too and k.moved[c].max() > k.move_limit[c]:
         return (f"a corner moved {k.moved[c].max():.1f} px from its start (limit "
