@@ -25,14 +25,13 @@ REAL = Path(os.environ.get("DROVISIO_REAL_DATA", REPO_ROOT.parent / "shared" / "
                            "real"))
 
 
-def _need(sub: str, *, optional: bool = False) -> Path:
-    """The real set ``sub``; ``optional`` for a set added after ../shared was first laid out
-    (it may be absent even where ../shared is present)."""
+def _need(sub: str) -> Path:
+    """The real set ``sub`` of ``../shared`` (the skip says why; CI fails instead)."""
     d = REAL / sub
     if not d.is_dir():
         msg = (f"real data {d} is absent; set DROVISIO_REAL_DATA to the folder of "
                "../shared/datasets/real to run these tests")
-        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1" and not optional:  # CI has it
+        if os.environ.get("DROVISIO_REQUIRE_SHARED") == "1":  # CI has it
             pytest.fail(msg)
         pytest.skip(msg)
     return d
