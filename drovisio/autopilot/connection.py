@@ -28,7 +28,18 @@ RECONNECT_EVERY_S = 1.0
 
 
 class AddressError(ValueError):
-    """A MAVLink connection string that cannot be used (the message names it)."""
+    """A MAVLink connection string that cannot be used: ``NAME: why``.
+
+    Args:
+        name: How the connection is named (``mavlink:...``, or as the user gave it).
+        why: What is wrong and what to do; kept apart so that a caller that names the
+            connection itself (the sink's ``--sink SPEC: ...``) says it once.
+    """
+
+    def __init__(self, name: str, why: str) -> None:
+        self.name = name
+        self.why = why
+        super().__init__(f"{name}: {why}")
 
 
 class LinkDown(ConnectionError):
@@ -67,10 +78,10 @@ def parse_connection(spec: str) -> tuple[str, dict[str, int]]:
     for part in query.split("&"):
         key, eq, value = part.partition("=")
         if key not in ("sysid", "compid"):
-            raise AddressError(f"mavlink:{spec}: unknown option {key!r}: use "
+            raise AddressError(f"mavlink:{spec}", f"unknown option {key!r}: use "
                                "?sysid=N&compid=M")
         if not eq or not value.strip().isdigit() or not 1 <= int(value) <= 255:
-            raise AddressError(f"mavlink:{spec}: {key}: expected a whole number 1-255, "
+            raise AddressError(f"mavlink:{spec}", f"{key}: expected a whole number 1-255, "
                                f"got {value!r}")
         opts[key] = int(value)
     return conn, opts
@@ -97,11 +108,11 @@ def check_host(name: str, dev: str) -> None:
         return
     host, _, port = rest.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise AddressError(f"{name}: expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
+        raise AddressError(name, f"expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
     try:
         socket.getaddrinfo(host, int(port))
     except (socket.gaierror, UnicodeError) as e:
-        raise AddressError(f"{name}: unknown host {host!r} ({e}); check the address") from None
+        raise AddressError(name, f"unknown host {host!r} ({e}); check the address") from None
     if kind == "tcp":
         _probe_tcp(name, host, int(port))
 
@@ -133,7 +144,8 @@ def open_link(name: str, conn: str, *, source_system: int, source_component: int
                                               autoreconnect=reconnect, retries=1,
                                               **({"baud": baud} if baud else {}))
     except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
-        raise AddressError(f"{name}: cannot open the MAVLink connection ({e})") from None
+        raise AddressError(name, f"cannot open the MAVLink connection ({e}); check the "
+                           "device (or address) and that no other program holds it") from None
     if isinstance(link, mavutil.mavtcp):     # and its Unix-socket kind
         _bounded_tcp(link, name, reconnect)
     elif isinstance(link, mavutil.mavserial):
@@ -330,9 +342,9 @@ def _probe_tcp(name: str, host: str, port: int) -> None:
         with socket.create_connection((host, port), timeout=deadline):
             pass
     except TimeoutError:
-        raise AddressError(f"{name}: no answer from {host}:{port} within {deadline:g} s; is "
+        raise AddressError(name, f"no answer from {host}:{port} within {deadline:g} s; is "
                            "the autopilot (or its TCP bridge) on and is the address right?"
                            ) from None
     except OSError as e:
-        raise AddressError(f"{name}: cannot connect to {host}:{port} ({e.strerror or e}); is "
+        raise AddressError(name, f"cannot connect to {host}:{port} ({e.strerror or e}); is "
                            "the autopilot (or its TCP bridge) listening there?") from None

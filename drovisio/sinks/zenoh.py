@@ -83,42 +83,46 @@ def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
 
 
 def parse_spec(spec: str) -> dict:
-    """Options of a ``zenoh:...`` SINK string (module doc); raises SinkError naming the
-    option."""
+    """Options of a ``zenoh:...`` SINK string (module doc).
+
+    Raises:
+        SinkError: naming the option and what to write (the spec is said by
+            :func:`drovisio.sinks.open_sink`).
+    """
     body = spec[len("zenoh:"):] if spec.startswith("zenoh:") else spec
     opts: dict = {"connect": [], "listen": [], "mode": "peer", "domain": 0, "web": None}
     for part in filter(None, body.split("&")):
         key, eq, value = part.partition("=")
         if not eq or not value:
-            raise SinkError(f"{spec}: {part!r}: expected KEY=VALUE (connect=tcp/HOST:PORT, "
+            raise SinkError(f"{part!r}: expected KEY=VALUE (connect=tcp/HOST:PORT, "
                             "listen=tcp/HOST:PORT, mode=peer|client, domain=N)")
         if key in ("connect", "listen"):
             for ep in value.split(","):
                 problem = endpoint_problem(ep)
                 if problem:
-                    raise SinkError(f"{spec}: {key}: {ep[:80]!r} {problem}: {ENDPOINT_HELP}")
+                    raise SinkError(f"{key}: {ep[:80]!r} {problem}: {ENDPOINT_HELP}")
                 opts[key].append(ep)
         elif key == "mode":
             if value not in ("peer", "client"):
-                raise SinkError(f"{spec}: mode: {value!r}: use peer or client")
+                raise SinkError(f"mode: {value!r}: use peer or client")
             opts["mode"] = value
         elif key == "web":
             if not value.startswith(("http://", "https://")) or len(value) > 200 \
                     or any(c in value for c in " \"'<>"):
-                raise SinkError(f"{spec}: web: {value!r}: give this drone's web tool address, "
+                raise SinkError(f"web: {value!r}: give this drone's web tool address, "
                                 "e.g. web=http://192.168.1.21:8080/")
             opts["web"] = value
         elif key == "domain":
             if not value.isdigit() or int(value) > 232:
-                raise SinkError(f"{spec}: domain: {value!r}: use a ROS domain id, 0–232")
+                raise SinkError(f"domain: {value!r}: use a ROS domain id, 0–232")
             opts["domain"] = int(value)
         else:
-            raise SinkError(f"{spec}: unknown option {key!r}: use connect, listen, mode, "
+            raise SinkError(f"unknown option {key!r}: use connect, listen, mode, "
                             "domain or web")
     if opts["mode"] == "client" and not opts["connect"]:
-        raise SinkError(f"{spec}: mode=client needs connect=tcp/HOST:PORT (a router)")
+        raise SinkError("mode=client needs connect=tcp/HOST:PORT (a router)")
     if not opts["connect"] and not opts["listen"]:
-        raise SinkError(f"{spec}: give connect=tcp/HOST:PORT (the station or a router) or "
+        raise SinkError("give connect=tcp/HOST:PORT (the station or a router) or "
                         "listen=tcp/HOST:PORT")
     return opts
 
