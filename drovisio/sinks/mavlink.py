@@ -386,6 +386,7 @@ class MavlinkSink:
         self._stop.set()
         join_thread(self._thread, f"reading {self.name}")   # each read waits 0.05 s at most
         try:
+            # a TCP link's attempt to connect again is ended and waited for here
             self.conn.close()
         except Exception:  # noqa: BLE001
             pass
