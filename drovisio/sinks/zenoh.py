@@ -32,7 +32,10 @@ a word), is counted as lost (:class:`drovisio.sinks.base.Delivery`).
 The session is closed by the thread that opened it, once it stops; a sink still open when
 the interpreter exits is closed by an ``atexit`` hook first: Zenoh's runtime must not be
 used while the process tears down (a session left to the interpreter's finalization, or one
-closed from Zenoh's own exit handler, can abort the process).
+closed from Zenoh's own exit handler, can abort the process). A close while the session is
+still being opened (a router or station that does not answer) waits
+:data:`OPENING_WAIT_S` at most, then says so in one warning naming the endpoints and goes
+on: the process still ends.
 """
 
 from __future__ import annotations
@@ -61,6 +64,10 @@ IMAGE_HZ = 1.0
 """Camera images a second sent for a station's thumbnail (the ROS image topic, small)."""
 IMAGE_WIDTH = 320
 """Their width in pixels."""
+OPENING_WAIT_S = 3.0
+"""How long a close waits for a session still being opened: nothing cuts ``zenoh.open``
+short (a client waits for its router for ever), so the close then goes on without it, said
+in one warning naming the endpoints."""
 
 _OPEN_SINKS: weakref.WeakSet[ZenohSink] = weakref.WeakSet()
 """Sinks not closed yet (closed at interpreter exit, see the module doc)."""
@@ -147,9 +154,9 @@ class ZenohSink:
         self.domain = self.opts["domain"]
         self.delivery = Delivery()
         self.dropped = 0
-        ends = ", ".join(self.opts["connect"] + self.opts["listen"])
-        self._nobody = (f"{spec}: no Zenoh peer or router connected on {ends}; check that the "
-                        "station (or router) runs and the network reaches it")
+        self._ends = ", ".join(self.opts["connect"] + self.opts["listen"])
+        self._nobody = (f"{spec}: no Zenoh peer or router connected on {self._ends}; check "
+                        "that the station (or router) runs and the network reaches it")
         self._seq: dict[str, int] = {}
         self._gid = os.urandom(16)
         self._keys: dict[tuple[str, str], str] = {}
@@ -158,6 +165,7 @@ class ZenohSink:
         self._session_lock = threading.Lock()
         self._session_closed = False
         self._stop = threading.Event()
+        self._closed = False
         self._last_tf = 0.0
         self._token: Any = None
         self._image: tuple[float, Any] | None = None   # (capture time, BGR frame) to send
@@ -188,6 +196,8 @@ class ZenohSink:
     def _run(self) -> None:
         import zenoh
 
+        if self._stop.is_set():   # closed before it began: nothing to open
+            return
         try:
             self._session = zenoh.open(self._config())
             # held while the session lives: a station sees this drone go the moment the
@@ -310,6 +320,9 @@ class ZenohSink:
                     self.dropped += 1
 
     def close(self) -> None:
+        if self._closed:          # a second close neither waits nor warns again
+            return
+        self._closed = True
         self._stop.set()
         try:
             self._q.put_nowait(None)
@@ -318,7 +331,8 @@ class ZenohSink:
         if self._session is None:
             # still opening: zenoh.open retries a missing station for ever and nothing can cut
             # it short, so only a short wait (the thread closes the session if it ever opens)
-            self._thread.join(3)
+            join_thread(self._thread, f"opening a Zenoh session to {self._ends}, which did "
+                        "not answer", limit=OPENING_WAIT_S)
         else:
             join_thread(self._thread, f"publishing to {self.name}")
         self._close_session()
