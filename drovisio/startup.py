@@ -232,7 +232,8 @@ def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount |
     opened are closed and one line names the sink and what to do.
 
     Raises:
-        InputError: the sink that could not be opened, and why.
+        InputError: the sink that could not be opened, and why, in
+            :func:`~drovisio.sinks.open_sink`'s line.
     """
     sinks: list[Sink] = []
     for spec in (config.sinks or list(default_sinks)):
@@ -241,10 +242,9 @@ def open_sinks_of(config: PipelineConfig, target: TargetSelector, mount: Mount |
                                    mount=mount, layouts=layouts,
                                    send_held=config.send_held_targets,
                                    camera=camera, drone_id=config.drone_id))
-        except (SinkError, OSError, ValueError) as e:  # a spec's parts, parsed: one line too
+        except SinkError as e:   # already the one line (open_sink): said as it is
             _close_all(sinks)
-            why = (e.strerror or e) if isinstance(e, OSError) else e
-            raise InputError(f"--sink {one_line(spec, 80)}: {one_line(why, 300)}") from None
+            raise InputError(str(e)) from None
         except BaseException:
             _close_all(sinks)
             raise

@@ -11,13 +11,16 @@ in its own error type. Both open their link with :func:`open_link`.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
+import select
 import socket
 import threading
 import time
 from typing import Any
 
+from drovisio._threads import join_thread
 from drovisio.errors import LIMITS
 
 __all__ = ["AddressError", "LinkClosed", "LinkDown", "check_host", "mavutil2", "open_link",
@@ -25,10 +28,23 @@ __all__ = ["AddressError", "LinkClosed", "LinkDown", "check_host", "mavutil2", "
 
 #: Least time between two attempts to connect a closed TCP link again (the sink's).
 RECONNECT_EVERY_S = 1.0
+#: How often an attempt to connect again looks whether its link was closed meanwhile.
+_CONNECT_STEP_S = 0.05
 
 
 class AddressError(ValueError):
-    """A MAVLink connection string that cannot be used (the message names it)."""
+    """A MAVLink connection string that cannot be used: ``NAME: why``.
+
+    Args:
+        name: How the connection is named (``mavlink:...``, or as the user gave it).
+        why: What is wrong and what to do; kept apart so that a caller that names the
+            connection itself (the sink's ``--sink SPEC: ...``) says it once.
+    """
+
+    def __init__(self, name: str, why: str) -> None:
+        self.name = name
+        self.why = why
+        super().__init__(f"{name}: {why}")
 
 
 class LinkDown(ConnectionError):
@@ -67,10 +83,10 @@ def parse_connection(spec: str) -> tuple[str, dict[str, int]]:
     for part in query.split("&"):
         key, eq, value = part.partition("=")
         if key not in ("sysid", "compid"):
-            raise AddressError(f"mavlink:{spec}: unknown option {key!r}: use "
+            raise AddressError(f"mavlink:{spec}", f"unknown option {key!r}: use "
                                "?sysid=N&compid=M")
         if not eq or not value.strip().isdigit() or not 1 <= int(value) <= 255:
-            raise AddressError(f"mavlink:{spec}: {key}: expected a whole number 1-255, "
+            raise AddressError(f"mavlink:{spec}", f"{key}: expected a whole number 1-255, "
                                f"got {value!r}")
         opts[key] = int(value)
     return conn, opts
@@ -97,11 +113,11 @@ def check_host(name: str, dev: str) -> None:
         return
     host, _, port = rest.rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise AddressError(f"{name}: expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
+        raise AddressError(name, f"expected {kind}:HOST:PORT (e.g. {kind}:127.0.0.1:14550)")
     try:
         socket.getaddrinfo(host, int(port))
     except (socket.gaierror, UnicodeError) as e:
-        raise AddressError(f"{name}: unknown host {host!r} ({e}); check the address") from None
+        raise AddressError(name, f"unknown host {host!r} ({e}); check the address") from None
     if kind == "tcp":
         _probe_tcp(name, host, int(port))
 
@@ -133,7 +149,8 @@ def open_link(name: str, conn: str, *, source_system: int, source_component: int
                                               autoreconnect=reconnect, retries=1,
                                               **({"baud": baud} if baud else {}))
     except Exception as e:  # noqa: BLE001 - pymavlink raises anything on a bad device
-        raise AddressError(f"{name}: cannot open the MAVLink connection ({e})") from None
+        raise AddressError(name, f"cannot open the MAVLink connection ({e}); check the "
+                           "device (or address) and that no other program holds it") from None
     if isinstance(link, mavutil.mavtcp):     # and its Unix-socket kind
         _bounded_tcp(link, name, reconnect)
     elif isinstance(link, mavutil.mavserial):
@@ -153,7 +170,8 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
     reconnect raises :class:`LinkClosed` (the callers say it in one line, or count the
     message as lost), a write the peer has no room for raises :class:`LinkDown`, and a link
     that reconnects tries once per :data:`RECONNECT_EVERY_S`, each try within that time,
-    never pymavlink's retries with their sleeps.
+    never pymavlink's retries with their sleeps. Closing the link ends a try under way
+    (:func:`_connect` gives up once told) and waits for its thread (``join_thread``).
     """
     addr = link.destination_addr            # (host, port), or a Unix socket's path
     where = f"{addr[0]}:{addr[1]}" if isinstance(addr, tuple) else str(addr)
@@ -166,6 +184,7 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
     attempt: dict[str, Any] = {"thread": None, "sock": None, "error": None}
     # the reader's thread and the writer's both reconnect: one takes a connected socket
     lock = threading.Lock()
+    closing = threading.Event()
 
     def shut() -> None:
         if link.port is not None:
@@ -177,18 +196,19 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
 
     def try_connect() -> None:
         try:
-            sock = socket.create_connection(addr, timeout=min(
-                RECONNECT_EVERY_S, LIMITS.connect_timeout_s))
-            sock.setblocking(False)
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            attempt["sock"] = sock
+            sock = _connect(addr, min(RECONNECT_EVERY_S, LIMITS.connect_timeout_s), closing)
         except OSError as e:
             attempt["error"] = e.strerror or str(e)
+            return
+        with lock:
+            attempt["sock"] = sock        # close() closes one it connected too late
 
     def connect_again() -> None:
         if not reconnect or not isinstance(addr, tuple):
             raise LinkClosed(closed)
         with lock:
+            if closing.is_set():          # closed: no new attempt, no socket handed over
+                raise LinkClosed(closed)
             if link.port is not None:     # the other thread took a connected socket
                 return
             sock, attempt["sock"] = attempt["sock"], None
@@ -223,10 +243,66 @@ def _bounded_tcp(link: Any, name: str, reconnect: bool) -> None:
             raise LinkDown(f"{name}: {where} is not reading what is sent (its buffer is full); "
                            "check that the peer reads the link")
 
+    def close() -> None:
+        with lock:                        # no attempt starts after this
+            closing.set()
+            thread = attempt["thread"]
+        join_thread(thread, f"connecting to {where} again")
+        with lock:
+            socks, attempt["sock"] = (attempt["sock"], link.port), None
+            link.port = link.fd = None
+        for sock in socks:
+            if sock is not None:
+                with contextlib.suppress(OSError):
+                    sock.close()
+
     link.handle_eof = shut
     link.handle_disconnect = shut
     link.reconnect = connect_again
     link.write = write
+    link.close = close
+
+
+def _connect(addr: tuple[str, int], timeout: float, stop: threading.Event
+             ) -> socket.socket | None:
+    """A non-blocking TCP connection to ``addr``, made within ``timeout`` seconds.
+
+    A peer that drops packets would hold a plain connect to its deadline: this one also
+    gives up as soon as ``stop`` is set (its link was closed), so that a close waits for
+    no deadline.
+
+    Returns:
+        The connected socket (``TCP_NODELAY``); None once ``stop`` was set.
+
+    Raises:
+        OSError: refused, unreachable, or no answer within ``timeout`` (TimeoutError).
+    """
+    end = time.monotonic() + timeout
+    error: OSError = TimeoutError(errno.ETIMEDOUT, "timed out")
+    for family, kind, proto, _, sockaddr in socket.getaddrinfo(*addr, type=socket.SOCK_STREAM):
+        sock = socket.socket(family, kind, proto)
+        try:
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            err = sock.connect_ex(sockaddr)
+            while err in (errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK):
+                left = end - time.monotonic()
+                if stop.is_set() or left <= 0:
+                    break
+                if select.select([], [sock], [], min(left, _CONNECT_STEP_S))[1]:
+                    err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+            if err == 0:
+                return sock
+            sock.close()
+            if stop.is_set():
+                return None
+            error = (TimeoutError(errno.ETIMEDOUT, "timed out")
+                     if err in (errno.EINPROGRESS, errno.EALREADY, errno.EWOULDBLOCK)
+                     else OSError(err, os.strerror(err)))
+        except OSError as e:
+            sock.close()
+            error = e
+    raise error
 
 
 def _bounded_serial(link: Any, name: str, reconnect: bool) -> None:
@@ -330,9 +406,9 @@ def _probe_tcp(name: str, host: str, port: int) -> None:
         with socket.create_connection((host, port), timeout=deadline):
             pass
     except TimeoutError:
-        raise AddressError(f"{name}: no answer from {host}:{port} within {deadline:g} s; is "
+        raise AddressError(name, f"no answer from {host}:{port} within {deadline:g} s; is "
                            "the autopilot (or its TCP bridge) on and is the address right?"
                            ) from None
     except OSError as e:
-        raise AddressError(f"{name}: cannot connect to {host}:{port} ({e.strerror or e}); is "
+        raise AddressError(name, f"cannot connect to {host}:{port} ({e.strerror or e}); is "
                            "the autopilot (or its TCP bridge) listening there?") from None

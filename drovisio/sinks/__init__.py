@@ -28,14 +28,36 @@ from drovisio.sinks.target import TargetSelector, TargetSpec, parse_target
 from drovisio.sinks.udp import UdpSink
 from drovisio.sinks.websocket import WebSocketSink
 
-__all__ = ["Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink", "parse_target"]
+__all__ = ["SINK_FORMS", "Sink", "SinkError", "TargetSelector", "TargetSpec", "open_sink",
+           "parse_target"]
+
+
+SINK_FORMS = ("jsonl:-, jsonl:PATH, udp://HOST:PORT, mavlink:CONNECTION, ws://HOST:PORT or "
+              "zenoh:connect=tcp/HOST:PORT")
+"""The SINK strings, for the line that refuses one."""
 
 
 def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str = "ardupilot",
               mount=None, layouts=None, send_held: bool = False, camera=None,
               drone_id: str | None = None) -> Sink:
-    """Open the sink of a SINK string (see the module doc)."""
-    s = spec.strip()
+    """Open the sink of a SINK string (see the module doc).
+
+    Raises:
+        SinkError: the sink cannot be opened, in the one line every sink's refusal takes:
+            ``--sink SPEC: why; what to do``, the spec said once, here.
+    """
+    try:
+        return _open(spec.strip(), target=target, autopilot=autopilot, mount=mount,
+                     layouts=layouts, send_held=send_held, camera=camera, drone_id=drone_id)
+    except SinkError as e:
+        raise SinkError(e.why, spec=spec) from None
+    except (OSError, ValueError) as e:  # a library's refusal (a port out of range, no socket)
+        why = (e.strerror or str(e)) if isinstance(e, OSError) else str(e)
+        raise SinkError(f"{why}; write the sink as one of {SINK_FORMS}", spec=spec) from None
+
+
+def _open(s: str, *, target: TargetSelector | None, autopilot: str, mount, layouts,
+          send_held: bool, camera, drone_id: str | None) -> Sink:
     if s.startswith("zenoh:"):
         # deferred: the ROS messages load OpenCV, which a process without this sink never needs
         from drovisio.ros.messages import RosMessages, namespace_for
@@ -53,5 +75,4 @@ def open_sink(spec: str, *, target: TargetSelector | None = None, autopilot: str
                            mount=mount, layouts=layouts, send_held=send_held)
     if s.startswith("ws://"):
         return WebSocketSink.from_url(s, target=target)
-    raise SinkError(f"unknown sink {spec!r}: use jsonl:-, jsonl:PATH, udp://HOST:PORT, "
-                    "mavlink:CONNECTION, ws://HOST:PORT or zenoh:connect=tcp/HOST:PORT")
+    raise SinkError(f"unknown sink: use {SINK_FORMS}")

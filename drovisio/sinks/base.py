@@ -4,12 +4,55 @@ from __future__ import annotations
 
 import threading
 from typing import Protocol
+from urllib.parse import urlsplit
 
-__all__ = ["Delivery", "Sink", "SinkError"]
+from drovisio.errors import one_line
+
+__all__ = ["Delivery", "Sink", "SinkError", "host_port"]
 
 
 class SinkError(ValueError):
-    """A sink that cannot be opened (bad spec, unusable path)."""
+    """A sink that cannot be opened (bad spec, unusable path).
+
+    A sink raises it with what is wrong and what to do, never with its SINK string:
+    :func:`drovisio.sinks.open_sink`, the one way every sink is opened, raises it again with
+    the spec, said once in front (``--sink SPEC: why; what to do``), so that no sink's own
+    wording can say the spec twice.
+
+    Args:
+        why: What is wrong and what to do.
+        spec: The SINK string, given only by :func:`drovisio.sinks.open_sink`.
+    """
+
+    def __init__(self, why: str, spec: str | None = None) -> None:
+        self.why = why
+        self.spec = spec
+        super().__init__(why if spec is None
+                         else f"--sink {one_line(spec, 80)}: {one_line(why, 300)}")
+
+
+def host_port(url: str, example: str, port_zero: bool = False) -> tuple[str, int]:
+    """``SCHEME://HOST:PORT`` → (host, port), for the sinks written so.
+
+    Args:
+        url: The SINK string.
+        example: One written right (``udp://127.0.0.1:9870``), said in the refusal.
+        port_zero: Port 0 is taken (a server's: any free port).
+
+    Raises:
+        SinkError: no host, no port, or a port out of range.
+    """
+    scheme = example.partition("://")[0]
+    low = 0 if port_zero else 1
+    u = urlsplit(url)
+    try:
+        port = u.port
+    except ValueError:        # out of range, or not a number
+        port = None
+    if not u.hostname or port is None or port < low:
+        raise SinkError(f"expected {scheme}://HOST:PORT with a port {low}-65535, e.g. "
+                        f"{example}")
+    return u.hostname, port
 
 
 class Sink(Protocol):

@@ -34,8 +34,24 @@ def _check_can_make(p: Path) -> None:
         if os.path.lexists(q):
             if not q.is_dir():
                 raise OSError(errno.ENOTDIR, "not a folder", str(q))
-            os.rmdir(tempfile.mkdtemp(prefix=".drovisio-check-", dir=q))
+            try:
+                os.rmdir(tempfile.mkdtemp(prefix=".drovisio-check-", dir=q))
+            except OSError as e:   # named by the folder, not by the probe's own name
+                raise OSError(e.errno, e.strerror, str(q)) from None
             return
+
+
+def _cannot_write(p: Path, e: OSError) -> str:
+    """Why ``p`` cannot be written and what to do (the spec is said by ``open_sink``)."""
+    why = e.strerror or str(e)
+    if e.errno == errno.ENXIO:            # a FIFO (or device) nobody reads
+        return (f"cannot open for writing ({why}); start the program that reads it first, "
+                "or give a file")
+    # the folder in the way, when it is not the file itself
+    where = (f"cannot write in {e.filename}" if e.filename is not None
+             and Path(e.filename) != p else "cannot open for writing")
+    return (f"{where} ({why}); give a file in a folder that exists (or can be made) and "
+            "that this user can write to")
 
 
 class JsonlSink:
@@ -56,8 +72,7 @@ class JsonlSink:
             else:
                 _check_can_make(self._path)
         except OSError as e:
-            raise SinkError(f"jsonl:{path}: cannot open for writing ({e.strerror or e})") \
-                from e
+            raise SinkError(_cannot_write(self._path, e)) from e
         self._own = True
 
     def _open(self) -> TextIO:

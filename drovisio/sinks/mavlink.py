@@ -96,11 +96,12 @@ MAV_COMP_ID_ONBOARD_COMPUTER = 191
 
 @contextmanager
 def _as_sink_error() -> Iterator[None]:
-    """A connection string the link cannot use is a sink that cannot be opened."""
+    """A connection string the link cannot use is a sink that cannot be opened (its why:
+    the spec is said by ``open_sink``)."""
     try:
         yield
     except AddressError as e:
-        raise SinkError(str(e)) from None
+        raise SinkError(e.why) from None
 
 
 def parse_mavlink_spec(spec: str) -> tuple[str, dict[str, int]]:
@@ -385,6 +386,7 @@ class MavlinkSink:
         self._stop.set()
         join_thread(self._thread, f"reading {self.name}")   # each read waits 0.05 s at most
         try:
+            # a TCP link's attempt to connect again is ended and waited for here
             self.conn.close()
         except Exception:  # noqa: BLE001
             pass

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 import socket
-from urllib.parse import urlsplit
 
-from drovisio.sinks.base import Delivery, SinkError
+from drovisio.sinks.base import Delivery, SinkError, host_port
 
 __all__ = ["MAX_DATAGRAM", "UdpSink"]
 
@@ -20,8 +19,8 @@ class UdpSink:
         self.with_covariance = with_covariance
         try:
             info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
-        except socket.gaierror as e:
-            raise SinkError(f"{self.name}: unknown host ({e})") from e
+        except (socket.gaierror, UnicodeError) as e:
+            raise SinkError(f"unknown host {host!r} ({e}); check the address") from e
         self.sock = socket.socket(info[0], socket.SOCK_DGRAM)
         self.sock.setblocking(False)
         self.dest = info[4]
@@ -29,10 +28,7 @@ class UdpSink:
 
     @classmethod
     def from_url(cls, url: str) -> UdpSink:
-        u = urlsplit(url)
-        if not u.hostname or not u.port:
-            raise SinkError(f"{url}: expected udp://HOST:PORT")
-        return cls(u.hostname, u.port)
+        return cls(*host_port(url, "udp://127.0.0.1:9870"))
 
     def send(self, output) -> None:
         data = json.dumps(output.to_json(self.with_covariance), separators=(",", ":")).encode()

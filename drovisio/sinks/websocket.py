@@ -19,10 +19,9 @@ import asyncio
 import json
 import threading
 from typing import Any
-from urllib.parse import urlsplit
 
 from drovisio._threads import join_thread
-from drovisio.sinks.base import SinkError
+from drovisio.sinks.base import SinkError, host_port
 from drovisio.sinks.target import TargetSelector
 
 __all__ = ["WebSocketSink"]
@@ -46,15 +45,13 @@ class WebSocketSink:
         self._thread.start()
         self._ready.wait(10)
         if self._error is not None:
-            raise SinkError(f"ws://{host}:{port}: cannot listen ({self._error})")
+            raise SinkError(f"cannot listen on {host}:{port} ({self._error}); give an "
+                            "address of this machine and a port no other program uses")
         self.name = f"ws://{host}:{self.port}"
 
     @classmethod
     def from_url(cls, url: str, target: TargetSelector | None = None) -> WebSocketSink:
-        u = urlsplit(url)
-        if not u.hostname or u.port is None:
-            raise SinkError(f"{url}: expected ws://HOST:PORT")
-        return cls(u.hostname, u.port, target=target)
+        return cls(*host_port(url, "ws://127.0.0.1:8765", port_zero=True), target=target)
 
     # ------------------------------------------------------------------ server thread
     def _run(self) -> None:

@@ -32,7 +32,10 @@ a word), is counted as lost (:class:`drovisio.sinks.base.Delivery`).
 The session is closed by the thread that opened it, once it stops; a sink still open when
 the interpreter exits is closed by an ``atexit`` hook first: Zenoh's runtime must not be
 used while the process tears down (a session left to the interpreter's finalization, or one
-closed from Zenoh's own exit handler, can abort the process).
+closed from Zenoh's own exit handler, can abort the process). A close while the session is
+still being opened (a router or station that does not answer) waits
+:data:`OPENING_WAIT_S` at most, then says so in one warning naming the endpoints and goes
+on: the process still ends.
 """
 
 from __future__ import annotations
@@ -61,6 +64,10 @@ IMAGE_HZ = 1.0
 """Camera images a second sent for a station's thumbnail (the ROS image topic, small)."""
 IMAGE_WIDTH = 320
 """Their width in pixels."""
+OPENING_WAIT_S = 3.0
+"""How long a close waits for a session still being opened: nothing cuts ``zenoh.open``
+short (a client waits for its router for ever), so the close then goes on without it, said
+in one warning naming the endpoints."""
 
 _OPEN_SINKS: weakref.WeakSet[ZenohSink] = weakref.WeakSet()
 """Sinks not closed yet (closed at interpreter exit, see the module doc)."""
@@ -83,42 +90,46 @@ def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
 
 
 def parse_spec(spec: str) -> dict:
-    """Options of a ``zenoh:...`` SINK string (module doc); raises SinkError naming the
-    option."""
+    """Options of a ``zenoh:...`` SINK string (module doc).
+
+    Raises:
+        SinkError: naming the option and what to write (the spec is said by
+            :func:`drovisio.sinks.open_sink`).
+    """
     body = spec[len("zenoh:"):] if spec.startswith("zenoh:") else spec
     opts: dict = {"connect": [], "listen": [], "mode": "peer", "domain": 0, "web": None}
     for part in filter(None, body.split("&")):
         key, eq, value = part.partition("=")
         if not eq or not value:
-            raise SinkError(f"{spec}: {part!r}: expected KEY=VALUE (connect=tcp/HOST:PORT, "
+            raise SinkError(f"{part!r}: expected KEY=VALUE (connect=tcp/HOST:PORT, "
                             "listen=tcp/HOST:PORT, mode=peer|client, domain=N)")
         if key in ("connect", "listen"):
             for ep in value.split(","):
                 problem = endpoint_problem(ep)
                 if problem:
-                    raise SinkError(f"{spec}: {key}: {ep[:80]!r} {problem}: {ENDPOINT_HELP}")
+                    raise SinkError(f"{key}: {ep[:80]!r} {problem}: {ENDPOINT_HELP}")
                 opts[key].append(ep)
         elif key == "mode":
             if value not in ("peer", "client"):
-                raise SinkError(f"{spec}: mode: {value!r}: use peer or client")
+                raise SinkError(f"mode: {value!r}: use peer or client")
             opts["mode"] = value
         elif key == "web":
             if not value.startswith(("http://", "https://")) or len(value) > 200 \
                     or any(c in value for c in " \"'<>"):
-                raise SinkError(f"{spec}: web: {value!r}: give this drone's web tool address, "
+                raise SinkError(f"web: {value!r}: give this drone's web tool address, "
                                 "e.g. web=http://192.168.1.21:8080/")
             opts["web"] = value
         elif key == "domain":
             if not value.isdigit() or int(value) > 232:
-                raise SinkError(f"{spec}: domain: {value!r}: use a ROS domain id, 0–232")
+                raise SinkError(f"domain: {value!r}: use a ROS domain id, 0–232")
             opts["domain"] = int(value)
         else:
-            raise SinkError(f"{spec}: unknown option {key!r}: use connect, listen, mode, "
+            raise SinkError(f"unknown option {key!r}: use connect, listen, mode, "
                             "domain or web")
     if opts["mode"] == "client" and not opts["connect"]:
-        raise SinkError(f"{spec}: mode=client needs connect=tcp/HOST:PORT (a router)")
+        raise SinkError("mode=client needs connect=tcp/HOST:PORT (a router)")
     if not opts["connect"] and not opts["listen"]:
-        raise SinkError(f"{spec}: give connect=tcp/HOST:PORT (the station or a router) or "
+        raise SinkError("give connect=tcp/HOST:PORT (the station or a router) or "
                         "listen=tcp/HOST:PORT")
     return opts
 
@@ -143,9 +154,9 @@ class ZenohSink:
         self.domain = self.opts["domain"]
         self.delivery = Delivery()
         self.dropped = 0
-        ends = ", ".join(self.opts["connect"] + self.opts["listen"])
-        self._nobody = (f"{spec}: no Zenoh peer or router connected on {ends}; check that the "
-                        "station (or router) runs and the network reaches it")
+        self._ends = ", ".join(self.opts["connect"] + self.opts["listen"])
+        self._nobody = (f"{spec}: no Zenoh peer or router connected on {self._ends}; check "
+                        "that the station (or router) runs and the network reaches it")
         self._seq: dict[str, int] = {}
         self._gid = os.urandom(16)
         self._keys: dict[tuple[str, str], str] = {}
@@ -154,6 +165,7 @@ class ZenohSink:
         self._session_lock = threading.Lock()
         self._session_closed = False
         self._stop = threading.Event()
+        self._closed = False
         self._last_tf = 0.0
         self._token: Any = None
         self._image: tuple[float, Any] | None = None   # (capture time, BGR frame) to send
@@ -184,6 +196,8 @@ class ZenohSink:
     def _run(self) -> None:
         import zenoh
 
+        if self._stop.is_set():   # closed before it began: nothing to open
+            return
         try:
             self._session = zenoh.open(self._config())
             # held while the session lives: a station sees this drone go the moment the
@@ -306,6 +320,9 @@ class ZenohSink:
                     self.dropped += 1
 
     def close(self) -> None:
+        if self._closed:          # a second close neither waits nor warns again
+            return
+        self._closed = True
         self._stop.set()
         try:
             self._q.put_nowait(None)
@@ -314,7 +331,8 @@ class ZenohSink:
         if self._session is None:
             # still opening: zenoh.open retries a missing station for ever and nothing can cut
             # it short, so only a short wait (the thread closes the session if it ever opens)
-            self._thread.join(3)
+            join_thread(self._thread, f"opening a Zenoh session to {self._ends}, which did "
+                        "not answer", limit=OPENING_WAIT_S)
         else:
             join_thread(self._thread, f"publishing to {self.name}")
         self._close_session()

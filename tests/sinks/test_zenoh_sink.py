@@ -245,3 +245,55 @@ def test_the_station_and_the_sink_read_an_endpoint_alike(endpoint, ok):
     with pytest.raises(SinkError) as s:
         parse_spec(f"zenoh:listen={endpoint}")
     assert str(a.value) in str(s.value) and "tcp/HOST:PORT" in str(a.value)
+
+
+_CLOSE_WHILE_OPENING = """
+import sys
+import threading
+
+import zenoh
+
+from drovisio.sinks import open_sink
+
+inside = threading.Event()
+real_open = zenoh.open
+
+
+def opening(config):
+    inside.set()
+    return real_open(config)
+
+
+zenoh.open = opening
+sink = open_sink(sys.argv[1])
+assert inside.wait(120), "the session was never being opened"
+sink.close()
+print("closed", sink.status()["state"])
+"""
+
+
+@pytest.mark.parametrize("peer", ["closed port", "silent listener"])
+def test_a_close_while_the_session_opens_warns_once_and_the_process_exits(peer):
+    """A client whose router does not answer stays inside ``zenoh.open`` for ever: the close
+    made then waits a bounded time, says so in one warning naming the endpoint, and the
+    process still ends (the subprocess's bound only turns a hang into a failure)."""
+    import subprocess
+    import sys
+
+    listener = None
+    if peer == "closed port":
+        port = _free_port()
+    else:                      # takes the connection, never says a word
+        listener = socket.create_server(("127.0.0.1", 0))
+        port = listener.getsockname()[1]
+    endpoint = f"tcp/127.0.0.1:{port}"
+    try:
+        r = subprocess.run([sys.executable, "-c", _CLOSE_WHILE_OPENING,
+                            f"zenoh:mode=client&connect={endpoint}"], capture_output=True,
+                           text=True, timeout=300, cwd=REPO, stdin=subprocess.DEVNULL)
+    finally:
+        if listener is not None:
+            listener.close()
+    assert (r.returncode, r.stdout) == (0, "closed connecting\n"), r.stderr
+    assert r.stderr == (f"thread 'zenoh-sink' (opening a Zenoh session to {endpoint}, which "
+                        "did not answer) did not end within 3 s; going on without it\n")
