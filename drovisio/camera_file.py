@@ -45,13 +45,19 @@ from drovisio.fileio import atomic_write
 from drovisio.textfile import BoundedYamlLoader as _BoundedYaml
 from drovisio.textfile import parse_json, parse_yaml, read_text
 
-__all__ = ["CameraFile", "CameraFileError", "CameraFormat", "load_camera", "save_camera"]
+__all__ = ["CameraFile", "CameraFileError", "CameraFormat", "NotACameraFile", "load_camera",
+           "parse_opencv_yaml", "save_camera"]
 
 CameraFormat = Literal["opencv", "ros", "json"]
 
 
 class CameraFileError(InputError):
     """A camera file that cannot be used; the message names the file, the field and the fix."""
+
+
+class NotACameraFile(CameraFileError):
+    """A file that reads (YAML, XML or JSON) but holds none of a camera file's fields: another
+    kind of file, which a reader looking through a folder for its camera file passes over."""
 
 
 def _finite(v: float, what: str) -> float:
@@ -170,16 +176,32 @@ class CameraFile(BaseModel):
                       model=model, size_known=known)
 
 
+#: pydantic's words for a type it refused, said with what to give instead
+_FIXES = {
+    "finite_number": "must be finite numbers (no NaN or infinity); give the calibration's "
+                     "values",
+    "int_parsing": "must be a whole number of pixels (the images' size)",
+    "int_from_float": "must be a whole number of pixels (the images' size)",
+    "int_type": "must be a whole number of pixels (the images' size)",
+    "string_type": "must be text; give a name in quotes",
+}
+
+
 def _validated(p: Path, raw: dict[str, Any]) -> Camera:
     try:
         return CameraFile.model_validate(raw).to_camera()
     except ValidationError as e:
         err = e.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"] if not isinstance(x, int)) or "file"
-        msg = err["msg"].removeprefix("Value error, ")
+        loc = ".".join(str(x) for x in err["loc"] if not isinstance(x, int))
+        msg = _FIXES.get(err["type"], err["msg"].removeprefix("Value error, "))
+        if err["type"] in ("greater_than_equal", "less_than_equal"):
+            msg = (f"{one_line(err.get('input'), 30)} pixels is not an image size; give 1 to "
+                   f"{LIMITS.max_image_side}")
         if err["type"] == "missing":
             msg = "missing (a camera file needs camera_matrix and distortion_coefficients)"
-        raise CameraFileError(f"{p}: {loc}: {one_line(msg, 200)}") from None
+        # a check of the whole file names its field at the start of its own words
+        where = f"{loc}: " if loc else ""
+        raise CameraFileError(f"{p}: {where}{one_line(msg, 200)}") from None
 
 
 # ================================================================================ reading
@@ -214,7 +236,7 @@ def load_camera(path: str | os.PathLike) -> Camera:
         data = _read_opencv_yaml(p, text)
     if not isinstance(data, dict) or not ({"camera_matrix", "distortion_coefficients",
                                            "image_width"} & set(data)):
-        raise CameraFileError(f"{p}: not a camera file: expected OpenCV FileStorage fields "
+        raise NotACameraFile(f"{p}: not a camera file: expected OpenCV FileStorage fields "
                               "'camera_matrix' and 'distortion_coefficients' or a ROS "
                               "camera_info YAML")
     return _validated(p, _from_mapping(p, data))
@@ -292,9 +314,10 @@ def _model_name(p: Path, named: Any, fisheye_flag: Any) -> Any:
         return named
     if fisheye_flag not in (1, True):
         raise CameraFileError(f"{p}: fisheye_model: must be 0 or 1")
-    if named is not None and MODEL_ALIASES.get(str(named)) != "fisheye":
-        raise CameraFileError(f"{p}: distortion_model: '{named}' contradicts fisheye_model: 1;"
-                              " keep one")
+    if named is not None and (not isinstance(named, str)
+                              or MODEL_ALIASES.get(named.strip()) != "fisheye"):
+        raise CameraFileError(f"{p}: distortion_model: '{one_line(named, 40)}' contradicts "
+                              "fisheye_model: 1; keep one")
     return "fisheye"
 
 
@@ -315,18 +338,30 @@ for _tag in ("tag:yaml.org,2002:opencv-matrix", "tag:yaml.org,2002:opencv-nd-mat
     _OpenCVYamlLoader.add_constructor(_tag, _opencv_matrix)
 
 
-def _read_opencv_yaml(p: Path, text: str) -> dict[str, Any]:
-    """OpenCV FileStorage YAML (and ROS camera_info), read by PyYAML: OpenCV's own parser
-    aborts the whole process on some malformed files, so hostile text never reaches it."""
+def parse_opencv_yaml(text: str, source: str) -> Any:
+    """OpenCV FileStorage YAML text (its ``%YAML:1.0`` header, its ``!!opencv-matrix``
+    nodes as mappings of rows, cols, dt and data), read by the bounded YAML reader
+    (:func:`drovisio.textfile.parse_yaml`), never by OpenCV's own parser: that one aborts the
+    whole process on some malformed files, blocks on a pipe and allocates whatever a
+    matrix's rows and cols announce.
+
+    Raises:
+        InputError: not valid YAML, or beyond the reader's bounds; naming ``source``.
+    """
     lines = text.splitlines()
     if lines and lines[0].lstrip().startswith("%YAML"):
-        lines = lines[1:]
+        lines[0] = ""   # PyYAML refuses OpenCV's directive; the lines keep their numbers
+    return parse_yaml("\n".join(lines), source, loader=_OpenCVYamlLoader)
+
+
+def _read_opencv_yaml(p: Path, text: str) -> dict[str, Any]:
+    """OpenCV FileStorage YAML (and ROS camera_info), read by :func:`parse_opencv_yaml`."""
     try:
-        data = parse_yaml("\n".join(lines), str(p), loader=_OpenCVYamlLoader)
+        data = parse_opencv_yaml(text, str(p))
     except InputError as e:
         raise CameraFileError(f"{e}; expected an OpenCV or ROS camera file") from None
     if not isinstance(data, dict):
-        raise CameraFileError(f"{p}: not a camera file: expected OpenCV FileStorage fields "
+        raise NotACameraFile(f"{p}: not a camera file: expected OpenCV FileStorage fields "
                               "'camera_matrix' and 'distortion_coefficients'")
     return data
 
@@ -343,7 +378,8 @@ def _read_opencv_xml(p: Path, text: str) -> dict[str, Any]:
     except ET.ParseError as e:
         raise CameraFileError(f"{p}: not valid XML ({one_line(e, 120)})") from None
     if root.tag != "opencv_storage":
-        raise CameraFileError(f"{p}: not an OpenCV FileStorage XML file (root <{root.tag}>)")
+        raise NotACameraFile(f"{p}: not an OpenCV FileStorage XML file (root "
+                             f"<{one_line(root.tag, 40)}>)")
     data: dict[str, Any] = {}
     for child in list(root)[:64]:
         if len(child):                       # a matrix: rows, cols, dt, data

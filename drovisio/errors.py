@@ -11,6 +11,7 @@ a bug, reported once by the top-level handler with a path to the full traceback.
 from __future__ import annotations
 
 import os
+import reprlib
 
 __all__ = [
     "InputError",
@@ -43,8 +44,17 @@ class WriteError(OSError):
 def one_line(text: object, limit: int = 400) -> str:
     """``text`` folded onto one line and cut to ``limit`` characters (error messages quote
     parts of hostile files; they must stay short)."""
+    if not isinstance(text, str) and isinstance(text, (list, tuple, dict, set)):
+        # a container from a hostile file is quoted by its first items only: its whole text
+        # may be of billions of values (YAML aliases) or hold itself
+        text = _SHORT_REPR.repr(text)
     s = " ".join(str(text).split())
     return s if len(s) <= limit else s[: limit - 1] + "…"
+
+
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel = 3
+_SHORT_REPR.maxlist = _SHORT_REPR.maxtuple = _SHORT_REPR.maxdict = _SHORT_REPR.maxset = 6
 
 
 class Limits:
@@ -58,6 +68,8 @@ class Limits:
         max_file_bytes: Largest camera, layout, mount, scenario or gravity file read.
         max_json_depth: Deepest nesting of JSON/YAML objects accepted.
         max_yaml_aliases: Most YAML alias references in one document (alias bombs).
+        max_yaml_expanded: Most values the aliases of one YAML document may add once
+            expanded (a hundred aliases of aliases name billions).
         max_markers: Most markers in one layout.
         max_body_bytes: Largest JSON body a web route reads.
     """
@@ -69,6 +81,7 @@ class Limits:
         self.max_file_bytes = 16 * 1024 * 1024
         self.max_json_depth = 32
         self.max_yaml_aliases = 100
+        self.max_yaml_expanded = 100_000
         self.max_markers = 200
         self.max_body_bytes = 1024 * 1024
         self.max_work_bytes = int(_env_float("DROVISIO_MAX_WORK_MIB",

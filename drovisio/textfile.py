@@ -212,6 +212,58 @@ def _check_depth(obj: Any, source: str) -> Any:
     return obj
 
 
+def _aliased_values(obj: Any, limit: int) -> int | None:
+    """How many values YAML aliases add to ``obj`` once expanded (a list or mapping reached
+    through several aliases counted each time), counting up to ``limit`` and past it at
+    most by one container; None for an alias that holds itself (a loop). ``obj``'s nesting
+    is already bounded (:func:`_check_depth`), which bounds the recursion."""
+    whole: dict[int, int] = {}    # values of each container, its aliased ones expanded
+    busy: set[int] = set()
+    extra = 0
+
+    def count(o: Any) -> int | None:
+        nonlocal extra
+        key = id(o)
+        if key in whole:      # reached again: through an alias
+            extra += whole[key]
+            return whole[key]
+        if key in busy:
+            return None
+        busy.add(key)
+        n = len(o)
+        for v in (o.values() if isinstance(o, dict) else o):
+            if isinstance(v, (dict, list)):
+                inner = count(v)
+                if inner is None:
+                    return None
+                n += inner
+            if extra > limit:
+                break
+        busy.discard(key)
+        whole[key] = n
+        return n
+
+    if isinstance(obj, (dict, list)) and count(obj) is None:
+        return None
+    return extra
+
+
+def _check_aliases(obj: Any, source: str) -> Any:
+    """Refuse a YAML document whose aliases expand it by more than
+    :attr:`~drovisio.errors.Limits.max_yaml_expanded` values: a hundred aliases of aliases
+    (under the alias cap) name billions of values, which any reader that walks or quotes
+    them (an error message included) would never finish; or an alias that holds itself."""
+    limit = LIMITS.max_yaml_expanded
+    extra = _aliased_values(obj, limit)
+    if extra is None:
+        raise InputError(f"{source}: a YAML alias holds itself (a loop); write the values "
+                         "out instead")
+    if extra > limit:
+        raise InputError(f"{source}: its YAML aliases expand to more than {limit:,} values "
+                         "(an alias bomb?); write the values out instead")
+    return obj
+
+
 def _refuse(name: str) -> Any:
     raise ValueError(name)
 
@@ -280,8 +332,8 @@ class BoundedYamlLoader(yaml.SafeLoader):
 
 
 def parse_yaml(text: str, source: str, loader: type[BoundedYamlLoader] | None = None) -> Any:
-    """YAML (safe subset) with aliases and nesting bounded (``loader``: a subclass of
-    :class:`BoundedYamlLoader` that knows more tags)."""
+    """YAML (safe subset) with aliases, what they expand to, and nesting bounded (``loader``:
+    a subclass of :class:`BoundedYamlLoader` that knows more tags)."""
     loader = loader or BoundedYamlLoader
     loader.max_aliases = LIMITS.max_yaml_aliases
     try:
@@ -296,7 +348,7 @@ def parse_yaml(text: str, source: str, loader: type[BoundedYamlLoader] | None = 
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise InputError(f"{source}: not valid YAML{where}: {one_line(problem, 160)}") from None
-    return _check_depth(data, source)
+    return _check_aliases(_check_depth(data, source), source)
 
 
 def read_structured(path: str | os.PathLike, what: str = "file") -> Any:

@@ -362,3 +362,45 @@ def test_a_pipe_is_not_read_as_a_camera_file(tmp_path: Path):
     os.mkfifo(fifo)
     with pytest.raises(CameraFileError, match="not a regular file"):
         load_camera(fifo)               # returns at once: a FIFO is never opened
+
+
+def _alias_bomb(levels: int = 6) -> str:
+    """Aliases of aliases, under the alias cap (9 a level): nine to the ``levels`` values."""
+    lines = ["a0: &a0 [0, 0, 0, 0, 0, 0, 0, 0, 0]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]"
+              for i in range(1, levels)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("tail", [
+    # quoted in the error of a matrix value, or of the lens model: the whole expansion
+    # was written out first (ten levels: billions of values, never finished)
+    "camera_matrix: [*a5, 0, 320, 0, 500, 240, 0, 0, 1]\ndistortion_coefficients: [0, 0, 0, 0]\n",
+    "camera_matrix: [[500, 0, 320], [0, 500, 240], [0, 0, 1]]\n"
+    "distortion_coefficients: [0, 0, 0, 0]\nfisheye_model: 1\ndistortion_model: *a5\n",
+])
+def test_a_yaml_alias_bomb_under_the_alias_cap_is_refused_by_what_it_expands_to(
+        tmp_path: Path, tail: str):
+    path = tmp_path / "camera.yaml"
+    path.write_text(_alias_bomb() + tail)
+    with pytest.raises(CameraFileError) as err:
+        load_camera(path)
+    assert str(err.value) == (
+        f"{path}: its YAML aliases expand to more than 100,000 values (an alias bomb?); write "
+        "the values out instead; expected an OpenCV or ROS camera file")
+
+
+def test_a_yaml_alias_that_holds_itself_is_refused(tmp_path: Path):
+    path = tmp_path / "camera.yaml"
+    path.write_text("camera_matrix: &m [1, *m]\ndistortion_coefficients: [0, 0, 0, 0]\n")
+    with pytest.raises(CameraFileError) as err:
+        load_camera(path)
+    assert str(err.value) == (f"{path}: a YAML alias holds itself (a loop); write the values "
+                              "out instead; expected an OpenCV or ROS camera file")
+
+
+def test_a_few_aliases_are_still_read(tmp_path: Path):
+    path = tmp_path / "camera.yaml"
+    path.write_text("z: &z 0.0\nrow: &r [0, 0, 1]\ncamera_matrix: [[500, *z, 320], "
+                    "[0, 500, 240], *r]\ndistortion_coefficients: [*z, *z, *z, *z]\n")
+    assert load_camera(path).K[2].tolist() == [0.0, 0.0, 1.0]

@@ -71,32 +71,60 @@ import cv2
 import numpy as np
 
 from drovisio.bench.real_codes import bench_charuco, bench_tags, charuco_layout, tag_layout
-from drovisio.bench.real_folder import CHESS_SIZES, detect_kind, load_reference, photos, read_gray
+from drovisio.bench.real_folder import (
+    CHESS_SIZES,
+    PhotoSet,
+    camera_files,
+    detect_kind,
+    folder_camera,
+    read_photos,
+    say,
+)
 from drovisio.bench.real_measures import stats, timed
+from drovisio.bounds import check_number
 from drovisio.calibration.board import BoardSpec, parse_board
 from drovisio.calibration.board import detect as board_detect
 from drovisio.camera import Camera
+from drovisio.camera_file import parse_opencv_yaml
 from drovisio.errors import InputError
 from drovisio.fileio import atomic_write_text, check_output_path
-from drovisio.textfile import missing_reason
+from drovisio.textfile import missing_reason, read_text
 
 __all__ = ["bench_charuco", "bench_chessboard", "bench_tags", "charuco_layout", "detect_kind",
            "main", "tag_layout"]
 
 #: the square side given to chessboards (m): their figures are in pixels and intrinsics
 CHESS_SQUARE_M = 0.025
+#: most corners of an expected-corners file: the largest board a board spec takes (200x200)
+MAX_EXPECTED_CORNERS = 200 * 200
 
 
 # --------------------------------------------------------------------------- chessboard
 def _expected_corners(path: Path) -> np.ndarray | None:
-    """OpenCV's expected chessboard corners (N, 2) px from its ``*.dat`` file, or None."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    """OpenCV's expected chessboard corners (N, 2) px from its ``*.dat`` file (FileStorage
+    YAML, node ``corners``), or None when it has none. Read as a camera file is, within
+    the text files' bounds, never by OpenCV's own parser (a pipe blocks it, a malformed
+    file raises inside it, and it allocates whatever rows and cols a header announces).
+
+    Raises:
+        InputError: the file or its ``corners`` cannot be used: one line naming them.
+    """
+    fix = "fix the file or remove it from the folder"
     try:
-        node = fs.getNode("corners")
-        m = None if node.empty() else node.mat()
-    finally:
-        fs.release()
-    return None if m is None else np.asarray(m, np.float64).reshape(-1, 2)
+        data = parse_opencv_yaml(read_text(path, "expected-corners file"), str(path))
+    except InputError as e:
+        raise InputError(f"{e}; {fix}") from None
+    node = data.get("corners") if isinstance(data, dict) else None
+    if node is None:
+        return None
+    values = node.get("data") if isinstance(node, dict) else node
+    where = f"{path}: corners"
+    if not isinstance(values, list) or not values or len(values) % 2 \
+            or len(values) > 2 * MAX_EXPECTED_CORNERS:
+        raise InputError(f"{where}: expected a list of x, y pixel pairs (at most "
+                         f"{MAX_EXPECTED_CORNERS} corners); {fix}")
+    pts = [check_number(v, f"{where}.data", -1e6, 1e6, unit="px") for v in values]
+    return np.asarray(pts, np.float64).reshape(-1, 2)
 
 
 def _chess_size(grays: list[np.ndarray], expected_n: int | None) -> tuple[int, int]:
@@ -108,7 +136,8 @@ def _chess_size(grays: list[np.ndarray], expected_n: int | None) -> tuple[int, i
                                                  | cv2.CALIB_CB_NORMALIZE_IMAGE)
             if found:
                 return size
-    raise InputError("no chessboard size found in the first images (give --board "
+    said = "" if expected_n is None else f" of the {expected_n} corners its *.dat files give"
+    raise InputError(f"no chessboard size{said} found in the first images (give --board "
                      "chessboard:COLSxROWS)")
 
 
@@ -155,12 +184,11 @@ class _ChessFigures:
                                                                    "opencv": []})
 
 
-def bench_chessboard(folder: Path, repeat: int, board_spec: str | None, models: list[str]
-                     ) -> dict[str, Any]:
+def bench_chessboard(photos: PhotoSet, repeat: int, board_spec: str | None,
+                     models: list[str]) -> dict[str, Any]:
     """The figures of a calibration set: corners against the expected ones, and the
     calibrations against the reference camera."""
-    images = photos(folder)
-    grays = [read_gray(p) for p in images]
+    folder, images, grays = photos.folder, photos.paths, photos.grays
     dats = {p.stem: _expected_corners(p) for p in sorted(folder.glob("*.dat"))}
     expected_n = next((len(v) for v in dats.values() if v is not None), None)
     if board_spec:
@@ -171,15 +199,16 @@ def bench_chessboard(folder: Path, repeat: int, board_spec: str | None, models: 
     else:
         size = _chess_size(grays, expected_n)
     board = parse_board(f"chessboard:{size[0]}x{size[1]}", CHESS_SQUARE_M)
-    ref_path, ref = load_reference(folder, required=False)
+    ref_path, ref = folder_camera(photos, required=False)
     rep: dict[str, Any] = {"kind": "chessboard", "folder": str(folder), "board": list(size),
                            "photos": len(images),
                            "reference": str(ref_path) if ref_path else None}
     fig = _ChessFigures()
     objp = np.zeros((size[0] * size[1], 3), np.float32)
     objp[:, :2] = np.mgrid[0:size[0], 0:size[1]].T.reshape(-1, 2) * CHESS_SQUARE_M
-    for path, g in zip(images, grays):
+    for k, (path, g) in enumerate(zip(images, grays), 1):
         _chess_photo(path, g, board, size, objp, dats, repeat, fig)
+        photos.done(k)
     rep["found"] = fig.found
     if dats:
         rep["corners_vs_expected_px"] = {"drovisio": stats(fig.e_ours),
@@ -244,6 +273,8 @@ def _calibrations(images: list[Path], grays: list[np.ndarray], size: tuple[int, 
     calib["reference"] = refd
     for model in models:
         model = ("fisheye" if fisheye else "plumb_bob") if model == "reference" else model
+        say(f"  ... {images[0].parent}: drovisio calibrate --model {model} on "
+            f"{len(images)} photos")
         got, why = _calibrate_cli(images, f"chessboard:{size[0]}x{size[1]}", model)
         calib[f"drovisio_{model}"] = got if got is not None else {"failed": why}
     _errors_vs_reference(calib, refd)
@@ -400,7 +431,7 @@ def _print_chessboard(rep: dict[str, Any]) -> None:
 
 def main(argv: list[str]) -> int:
     from drovisio.arguments import positive_float
-    from drovisio.bounds import ArgumentParser
+    from drovisio.bounds import ArgumentParser, number
 
     p = ArgumentParser(prog="drovisio bench real", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -412,17 +443,18 @@ def main(argv: list[str]) -> int:
     p.add_argument("--board", default=None,
                    help="charuco:COLSxROWS or chessboard:COLSxROWS (inner corners; default: "
                         "guessed)")
-    p.add_argument("--square", type=positive_float, default=0.04,
-                   help="ChArUco square side, m (default 0.04)")
-    p.add_argument("--marker", type=positive_float, default=0.02,
-                   help="ChArUco code side, m (default 0.02)")
+    # the sides a board spec and a layout take (1 mm to 1 m): OpenCV builds a board of
+    # any side, 1e-300 m included, and fails inside
+    p.add_argument("--square", type=number(0.001, 1.0, unit="m"), default=0.04,
+                   help="ChArUco square side, m (0.001-1; default 0.04)")
+    p.add_argument("--marker", type=number(0.001, 1.0, unit="m"), default=0.02,
+                   help="ChArUco code side, m (0.001-1; default 0.02)")
     p.add_argument("--calibrate", default="reference,auto",
                    help="drovisio calibrate models to run on chessboard sets: reference (the "
                         "reference file's model), auto, plumb_bob, rational, fisheye, none "
                         "(default reference,auto)")
     p.add_argument("--json", type=Path, metavar="FILE", help="also write the figures as JSON")
     args = p.parse_args(argv)
-    models = _checked(args)
     folders = []
     for f in args.folders:
         path = Path(f)
@@ -430,16 +462,19 @@ def main(argv: list[str]) -> int:
             raise InputError(f"{f}: {missing_reason(path) or 'not a folder'}; give folders of "
                              "real photos")
         folders.append(path)
+    models = _checked(args, folders)
     cv2.setNumThreads(1)
     reports = []
     for folder in folders:
-        kind = detect_kind(folder)
+        photos = read_photos(folder)
+        kind = detect_kind(photos)
+        say(f"  ... {folder}: {kind}, {len(photos.paths)} photos read")
         if kind == "tags":
-            rep = bench_tags(folder, args.repeat, args.tag_size)
+            rep = bench_tags(photos, args.repeat, args.tag_size)
         elif kind == "charuco":
-            rep = bench_charuco(folder, args.repeat, args.board, args.square, args.marker)
+            rep = bench_charuco(photos, args.repeat, args.board, args.square, args.marker)
         else:
-            rep = bench_chessboard(folder, args.repeat, args.board, models)
+            rep = bench_chessboard(photos, args.repeat, args.board, models)
         _print(rep)
         reports.append(rep)
     if args.json:
@@ -448,8 +483,10 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _checked(args: argparse.Namespace) -> list[str]:
-    """The options checked together (and the ``--json`` path); the calibration models to run.
+def _checked(args: argparse.Namespace, folders: list[Path]) -> list[str]:
+    """The options checked together (and the ``--json`` path, by the one output guard,
+    against every file the folders are read for: their photos, camera files and expected
+    corners); the calibration models to run.
 
     Raises:
         InputError: in one line, naming the option.
@@ -467,5 +504,10 @@ def _checked(args: argparse.Namespace) -> list[str]:
         raise InputError(f"--marker {args.marker}: the code must be smaller than the square "
                          f"({args.square})")
     if args.json:
-        check_output_path(args.json, "--json", folder_must_exist=True)
+        inputs: dict[str, Path] = {}
+        for folder in folders:
+            inputs[f"DIR {folder}"] = folder
+            for f in [*camera_files(folder), *folder.glob("*.dat")]:
+                inputs[f"{f.name} of DIR {folder}"] = f
+        check_output_path(args.json, "--json", inputs, folder_must_exist=True)
     return models

@@ -15,12 +15,11 @@ import cv2
 import numpy as np
 
 from drovisio.bench.real_folder import (
+    PhotoSet,
     aruco_detector,
     best_dictionary,
+    folder_camera,
     guess_charuco,
-    load_reference,
-    photos,
-    read_gray,
 )
 from drovisio.bench.real_measures import (
     angle_deg,
@@ -31,6 +30,7 @@ from drovisio.bench.real_measures import (
     stats,
     timed,
 )
+from drovisio.calibration.board import parse_board
 from drovisio.camera import Camera
 from drovisio.detect.aruco import ArucoBrickDetector
 from drovisio.detect.corners.edges import EDGE_LINE_MAX_RMS_PX, outer_edge_corners
@@ -113,17 +113,14 @@ class _TagFigures:
     """OpenCV's codes Drovisio does not keep, as ``photo:id``."""
 
 
-def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
+def bench_tags(photos: PhotoSet, repeat: int, tag_size: float) -> dict[str, Any]:
     """The figures of a folder of tag photos (with its camera file)."""
-    cam_path, camera = load_reference(folder, required=True)
-    assert camera is not None   # required: load_reference raised otherwise
-    images = photos(folder)
-    grays = [read_gray(p) for p in images]
+    folder, images, grays = photos.folder, photos.paths, photos.grays
+    cam_path, camera = folder_camera(photos, required=True)
+    assert camera is not None   # required: folder_camera raised otherwise
     dictionary, _ = best_dictionary(grays[:3])
     if dictionary is None:
         raise InputError(f"{folder}: no codes of a known dictionary in its first photos")
-    w, h = grays[0].shape[1], grays[0].shape[0]
-    camera = camera.for_image(w, h)[0]
     det = ArucoBrickDetector(camera, [tag_layout(dictionary, tag_size)])
     cv_det = aruco_detector(dictionary)
     at, why_not = apriltag(dictionary)
@@ -133,14 +130,12 @@ def bench_tags(folder: Path, repeat: int, tag_size: float) -> dict[str, Any]:
                            "photos": len(images), "apriltag": why_not or _apriltag_says(
                                dictionary)}
     fig = _TagFigures()
-    for path, g in zip(images, grays):
-        if g.shape != grays[0].shape:
-            raise InputError(f"{path}: {g.shape[1]}x{g.shape[0]}, the others "
-                             f"{w}x{h} (one camera file is for one size)")
+    for k, (path, g) in enumerate(zip(images, grays), 1):
         codes, cv, ats = _read_tags(g, det, cv_det, at, repeat, fig)
         _opencv_kept(path, codes, cv, fig)
         _against_apriltag(camera, tag_size, codes, cv, ats, at is not None, fig)
         _against_edges(g, codes, ats, fig)
+        photos.done(k)
     rep.update(codes=fig.n, missed_opencv_codes=fig.missed,
                edge_reference=_edge_figures(fig),
                corners_rms_px={"drovisio_vs_apriltag": stats(fig.c_ours_at),
@@ -282,11 +277,14 @@ def _charuco_board(folder: Path, gray: np.ndarray, dictionary: str, board_spec: 
     """
     d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
     if board_spec:
-        m = re.fullmatch(r"charuco:(\d+)x(\d+)", board_spec)
+        m = re.fullmatch(r"charuco:(\d{1,6})x(\d{1,6})", board_spec)
         if not m:
             raise InputError(f"--board {board_spec}: give charuco:COLSxROWS (inner corners), "
                              "e.g. charuco:4x6")
-        return cv2.aruco.CharucoBoard((int(m[1]) + 1, int(m[2]) + 1), square, marker, d)
+        # the one board-spec check (its size bounds, its codes against the dictionary's):
+        # OpenCV builds any board it is given, 10^10 squares included
+        spec = parse_board(f"charuco:{m[1]}x{m[2]}:{dictionary}", square)
+        return cv2.aruco.CharucoBoard((spec.cols + 1, spec.rows + 1), square, marker, d)
     _, ids, _ = aruco_detector(dictionary).detectMarkers(gray)
     guessed = guess_charuco(gray, dictionary, np.ravel(ids), square, marker)
     if guessed is None:
@@ -295,20 +293,17 @@ def _charuco_board(folder: Path, gray: np.ndarray, dictionary: str, board_spec: 
     return guessed
 
 
-def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: float,
+def bench_charuco(photos: PhotoSet, repeat: int, board_spec: str | None, square: float,
                   marker: float) -> dict[str, Any]:
     """The figures of a folder of ChArUco photos (with its camera file)."""
-    cam_path, camera = load_reference(folder, required=True)
-    assert camera is not None   # required: load_reference raised otherwise
-    images = photos(folder)
-    grays = [read_gray(p) for p in images]
+    folder, images, grays = photos.folder, photos.paths, photos.grays
+    cam_path, camera = folder_camera(photos, required=True)
+    assert camera is not None   # required: folder_camera raised otherwise
     dictionary, _ = best_dictionary(grays[:3])
     if dictionary is None:
         raise InputError(f"{folder}: no codes in its first photos")
     d = cv2.aruco.getPredefinedDictionary(aruco_dictionary_id(dictionary))
     board = _charuco_board(folder, grays[0], dictionary, board_spec, square, marker)
-    w, h = grays[0].shape[1], grays[0].shape[0]
-    camera = camera.for_image(w, h)[0]
     det = ArucoBrickDetector(camera, [charuco_layout(board, dictionary)])
     at, why_not = apriltag(dictionary)
     readers = _CharucoReaders(det, cv2.aruco.ArucoDetector(d, cv2.aruco.DetectorParameters()),
@@ -323,8 +318,9 @@ def bench_charuco(folder: Path, repeat: int, board_spec: str | None, square: flo
                            "square_m": square, "marker_m": marker, "photos": len(images),
                            "apriltag": why_not or _apriltag_says(dictionary)}
     fig = _CharucoFigures()
-    for g in grays:
+    for k, g in enumerate(grays, 1):
         _charuco_photo(g, camera, readers, obj, chess, repeat, fig)
+        photos.done(k)
     rep.update(codes=fig.n,
                corners_vs_board_px={"drovisio": stats(fig.e_ours), "opencv": stats(fig.e_cv),
                                     "apriltag": stats(fig.e_at),

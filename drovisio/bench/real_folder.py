@@ -1,25 +1,35 @@
 """What a folder of real photos holds (``drovisio bench real``): its pictures, its camera
 file, the dictionary of its codes, a ChArUco board guessed from them, and so its kind
-(tags, ChArUco or chessboard)."""
+(tags, ChArUco or chessboard).
+
+A folder is read once, by :func:`read_photos`, whatever its kind: every picture through the
+project's one image reader, all of one size (one camera file is for one size), at most
+:data:`MAX_IMAGES` of them, and all of them held at once only within the work cap. Its camera
+file is read and fitted to that size by :func:`folder_camera`.
+"""
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from drovisio.camera import Camera
-from drovisio.camera_file import load_camera
-from drovisio.errors import InputError
-from drovisio.images import ImageError, read_image
+from drovisio.camera_file import NotACameraFile, load_camera
+from drovisio.errors import LIMITS, InputError
+from drovisio.images import IMAGE_SUFFIXES, ImageError, is_image_file, read_image
 from drovisio.layout import aruco_dictionary_id
 
-__all__ = ["CHESS_SIZES", "IMAGE_SUFFIXES", "MAX_IMAGES", "TAG_DICTIONARIES", "aruco_detector",
-           "best_dictionary", "camera_files", "detect_kind", "guess_charuco", "photos",
-           "load_reference", "read_gray"]
+__all__ = ["CAMERA_SUFFIXES", "CHESS_SIZES", "MAX_IMAGES", "TAG_DICTIONARIES", "PhotoSet",
+           "aruco_detector", "best_dictionary", "camera_files", "detect_kind", "folder_camera",
+           "guess_charuco", "load_reference", "photos", "read_gray", "read_photos", "say"]
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: what a camera file of a folder may be called (OpenCV FileStorage, ROS camera_info)
+CAMERA_SUFFIXES = (".yaml", ".yml", ".xml", ".json")
 #: dictionaries tried on tag photos, most specific first
 TAG_DICTIONARIES = ("DICT_APRILTAG_36h11", "DICT_APRILTAG_25h9", "DICT_APRILTAG_16h5",
                     "DICT_4X4_50", "DICT_5X5_100", "DICT_6X6_250", "DICT_7X7_250",
@@ -30,17 +40,92 @@ CHESS_SIZES = ((9, 6), (8, 6), (7, 6), (7, 5), (5, 7), (6, 9), (6, 8), (10, 7), 
 MAX_IMAGES = 200
 
 
+def say(line: str) -> None:
+    """A note or a progress line of the bench, on stderr (the figures go to stdout)."""
+    print(line, file=sys.stderr, flush=True)
+
+
+def _entries(folder: Path, wanted: Callable[[Path], bool]) -> list[Path]:
+    """The folder's entries ``wanted`` by name, in name order, hidden ones and folders
+    skipped. A link to nothing, a loop of links or a pipe is kept: its reader names it and
+    says why, rather than the folder seeming to lack it."""
+    return sorted(p for p in folder.iterdir()
+                  if wanted(p) and not p.name.startswith(".") and not p.is_dir())
+
+
 def photos(folder: Path) -> list[Path]:
-    """The folder's pictures in name order (hidden files skipped), at most MAX_IMAGES."""
-    files = sorted(p for p in folder.iterdir()
-                   if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
-                   and not p.name.startswith("."))
-    return files[:MAX_IMAGES]
+    """The folder's pictures in name order (hidden files skipped), all of them."""
+    return _entries(folder, is_image_file)
+
+
+@dataclass
+class PhotoSet:
+    """A folder's pictures, each read once as (H, W) uint8 grey, all of one size.
+
+    Attributes:
+        folder: The folder.
+        paths: The pictures used, in name order.
+        grays: Their pixels, in the same order.
+    """
+
+    folder: Path
+    paths: list[Path]
+    grays: list[np.ndarray]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of every picture."""
+        return self.grays[0].shape[1], self.grays[0].shape[0]
+
+    def done(self, k: int, what: str = "photos") -> None:
+        """Say the progress once ``k`` of the photos are measured: a line at each tenth of
+        them (by count, so that a long folder is seen to move), and at the last."""
+        n = len(self.paths)
+        if k == n or k * 10 // n != (k - 1) * 10 // n:
+            say(f"  ... {self.folder}: {k} of {n} {what} done")
+
+
+def read_photos(folder: Path) -> PhotoSet:
+    """The folder's pictures (at most :data:`MAX_IMAGES`, the first in name order; the rest
+    said in one line), read by the project's one image reader, each checked to be of the
+    first one's size, and all of them held at once only within the work cap
+    (:attr:`~drovisio.errors.Limits.max_work_bytes`), estimated from the first before the
+    others are decoded.
+
+    Raises:
+        InputError: no pictures, one that cannot be read, one of another size, or too many
+            to hold: one line naming the file and what to do.
+    """
+    paths = photos(folder)
+    if not paths:
+        raise InputError(f"{folder}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in the "
+                         "folder; give a folder of photos")
+    if len(paths) > MAX_IMAGES:
+        say(f"{folder}: {len(paths)} pictures; the first {MAX_IMAGES} in name order are used "
+            f"(from {paths[0].name} to {paths[MAX_IMAGES - 1].name})")
+        paths = paths[:MAX_IMAGES]
+    first = read_gray(paths[0])
+    h, w = first.shape
+    need = len(paths) * w * h
+    if need > LIMITS.max_work_bytes:
+        raise InputError(f"{folder}: {len(paths)} pictures of {w}x{h} held at once need "
+                         f"{need / 2**30:.1f} GiB, more than the "
+                         f"{LIMITS.max_work_bytes / 2**30:.1f} GiB cap; give fewer or smaller "
+                         "pictures (DROVISIO_MAX_WORK_MIB raises the cap)")
+    grays = [first]
+    for p in paths[1:]:
+        g = read_gray(p)
+        if g.shape != first.shape:
+            raise InputError(f"{p}: {g.shape[1]}x{g.shape[0]}, but {paths[0].name} is {w}x{h}:"
+                             " the photos of one folder must be of one size (one camera "
+                             "file is for one size); move it to a folder of its own")
+        grays.append(g)
+    return PhotoSet(folder, paths, grays)
 
 
 def camera_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.is_file()
-                  and p.suffix.lower() in (".yaml", ".yml", ".xml", ".json"))
+    """The folder's camera files by suffix (:data:`CAMERA_SUFFIXES`), in name order."""
+    return _entries(folder, lambda p: p.suffix.lower() in CAMERA_SUFFIXES)
 
 
 def read_gray(path: Path) -> np.ndarray:
@@ -95,14 +180,12 @@ def guess_charuco(gray: np.ndarray, dictionary: str, ids: np.ndarray, square: fl
     return best if n_best >= 6 else None
 
 
-def detect_kind(folder: Path) -> str:
+def detect_kind(photos: PhotoSet) -> str:
     """``chessboard``, ``charuco`` or ``tags`` (module doc); InputError when none fits."""
-    images = photos(folder)
-    if not images:
-        raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    folder = photos.folder
     if any(folder.glob("*.dat")):
         return "chessboard"
-    grays = [read_gray(p) for p in images[:3]]
+    grays = photos.grays[:3]
     dictionary, n = best_dictionary(grays)
     if dictionary is not None and n > 0:
         if "APRILTAG" not in dictionary:
@@ -123,18 +206,48 @@ def detect_kind(folder: Path) -> str:
 
 
 def load_reference(folder: Path, required: bool) -> tuple[Path | None, Camera | None]:
-    """The folder's camera file (the first one that loads) and its camera, or (None, None).
+    """The folder's camera file (the first in name order) and its camera, or (None, None).
+
+    A file of a camera suffix that holds no camera at all (a detector's parameters, a JSON
+    report) is passed over; one that is a camera file but cannot be used is refused, never
+    passed over for another or for none: the figures would be against a reference the user
+    did not mean.
 
     Raises:
-        InputError: none loads and one is ``required``.
+        InputError: a camera file that cannot be used (its own one line, and to fix it or
+            remove it from the folder), or none and one is ``required``.
     """
-    errors = []
     for p in camera_files(folder):
         try:
             return p, load_camera(p)
+        except NotACameraFile:
+            continue
         except InputError as e:
-            errors.append(str(e))
+            raise InputError(f"{e}; fix it or remove it from the folder") from None
     if required:
-        raise InputError(f"{folder}: no camera file that loads (camera.yaml, *.yml); "
-                         + (errors[0] if errors else "add the camera file of these photos"))
+        raise InputError(f"{folder}: no camera file (camera.yaml, *.yml, *.xml, *.json); add "
+                         "the camera file of these photos")
     return None, None
+
+
+def folder_camera(photos: PhotoSet, required: bool) -> tuple[Path | None, Camera | None]:
+    """The folder's camera file and its camera for the photos' size (:func:`load_reference`):
+    a file that gives no size takes the photos' (its warning, when its principal point is
+    far from their centre, said in one line).
+
+    Raises:
+        InputError: as :func:`load_reference`, or a file for another image size.
+    """
+    path, camera = load_reference(photos.folder, required)
+    if path is None or camera is None:
+        return None, None
+    w, h = photos.size
+    try:
+        camera, note = camera.for_image(w, h)
+    except ValueError:
+        raise InputError(f"{path}: image_width, image_height: {camera.width}x{camera.height}, "
+                         f"but the photos are {w}x{h}; give the camera file of these photos "
+                         "(or photos of its size)") from None
+    if note:
+        say(f"{path}: {note}")
+    return path, camera

@@ -218,3 +218,229 @@ def test_plain_opencv_fisheye_solve_is_called_as_opencv_5_wants_it():
     got = _opencv_calibration(objs, imgs, (800, 504), fisheye=True)
     assert "failed" not in got, got
     assert abs(got["fx"] - 290.0) < 0.5 and got["rms_px"] < 0.01
+
+
+# --------------------------------------------------------------------------- hostile folders
+TUTORIAL = Path(__file__).resolve().parents[1] / "data" / "real" / "opencv-tutorial"
+
+
+def _run(capsys, *argv: object) -> tuple[int, str, str]:
+    rc = main(["bench", "real", *map(str, argv)])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err
+    return rc, out, err
+
+
+def _chessboard(w: int = 640, h: int = 480, square: int = 40):
+    """A drawn 8x6-square chessboard (7x5 inner corners), grey on white, in a w x h photo."""
+    import numpy as np
+
+    img = np.full((h, w), 230, np.uint8)
+    x0, y0 = (w - 8 * square) // 2, (h - 6 * square) // 2
+    for r in range(6):
+        for c in range(8):
+            if (r + c) % 2 == 0:
+                img[y0 + r * square:y0 + (r + 1) * square,
+                    x0 + c * square:x0 + (c + 1) * square] = 25
+    return img
+
+
+def _chess_folder(d: Path, sizes=((640, 480), (640, 480))) -> Path:
+    import cv2
+
+    d.mkdir()
+    for i, (w, h) in enumerate(sizes):
+        cv2.imwrite(str(d / f"chess{i}.png"), _chessboard(w, h, square=min(w, h) // 12))
+    return d
+
+
+def _charuco_folder(d: Path) -> Path:
+    """OpenCV's tutorial board (5x7 squares, DICT_6X6_250) drawn into a 640x480 photo, with
+    its tutorial camera file."""
+    import cv2
+    import numpy as np
+
+    board = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02,
+                                   cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250))
+    img = np.full((480, 640), 255, np.uint8)
+    img[30:450, 170:470] = board.generateImage((300, 420))
+    d.mkdir()
+    cv2.imwrite(str(d / "board.png"), img)
+    (d / "camera.yaml").write_text((TUTORIAL / "camera.yaml").read_text())
+    return d
+
+
+def _copy_tutorial(d: Path) -> Path:
+    import shutil
+
+    shutil.copytree(TUTORIAL, d)
+    return d
+
+
+def test_a_camera_file_for_another_image_size_is_one_line(tmp_path, capsys):
+    d = _copy_tutorial(tmp_path / "tags")
+    cam = d / "camera.yaml"
+    cam.write_text(cam.read_text().replace("image_width: 640", "image_width: 1280")
+                   .replace("image_height: 480", "image_height: 960"))
+    rc, _, err = _run(capsys, d)
+    assert rc == 2 and err.splitlines()[-1] == (
+        f"drovisio bench: {cam}: image_width, image_height: 1280x960, but the photos are "
+        "640x480; give the camera file of these photos (or photos of its size)")
+
+
+def test_a_camera_file_without_a_size_far_from_the_photos_centre_is_said(tmp_path, capsys):
+    d = _copy_tutorial(tmp_path / "tags")
+    cam = d / "camera.yaml"
+    cam.write_text(cam.read_text().replace("image_width: 640\n", "")
+                   .replace("image_height: 480\n", "").replace("3.1770297317353277e+02",
+                                                               "5.1770297317353277e+02"))
+    rc, _, err = _run(capsys, d, "--repeat", "1")
+    assert rc == 0
+    assert (f"{cam}: the camera file gives no image size; using 640x480 from the images, but "
+            "its principal point (518, 278) is far from their centre: is the file for another "
+            "resolution?") in err.splitlines()
+
+
+@pytest.mark.parametrize("kind", ["chessboard", "charuco"])
+def test_photos_of_mixed_sizes_are_refused_for_every_kind(tmp_path, capsys, kind):
+    import cv2
+
+    if kind == "chessboard":   # was measured all the same: plain OpenCV's solve mixed them
+        d = _chess_folder(tmp_path / "set", ((640, 480), (800, 600)))
+        odd, first, size = d / "chess1.png", "chess0.png", "800x600"
+    else:                      # was an internal error of the detector
+        d = _charuco_folder(tmp_path / "set")
+        odd, first, size = d / "small.png", "board.png", "320x240"
+        cv2.imwrite(str(odd), cv2.resize(cv2.imread(str(d / "board.png")), (320, 240)))
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 2 and err.splitlines()[-1] == (
+        f"drovisio bench: {odd}: {size}, but {first} is 640x480: the photos of one folder "
+        "must be of one size (one camera file is for one size); move it to a folder of its own")
+
+
+def test_json_over_an_input_of_a_folder_is_refused_before_any_work(tmp_path, capsys):
+    d = _copy_tutorial(tmp_path / "tags")
+    cam = d / "camera.yaml"
+    before = cam.read_bytes()
+    rc, out, err = _run(capsys, d, "--json", cam)
+    assert rc == 2 and out == "" and err == (
+        f"drovisio bench: {cam}: --json is the same file as camera.yaml of DIR {d}; writing it "
+        "would destroy it: choose another name\n")
+    assert cam.read_bytes() == before
+    photo = d / "singlemarkersoriginal.jpg"
+    rc, out, err = _run(capsys, d, "--json", photo)
+    assert rc == 2 and err == (f"drovisio bench: {photo}: --json would land among what the "
+                               f"command reads from DIR {d}; choose another folder\n")
+
+
+def test_a_yaml_alias_bomb_as_the_camera_file_is_one_line(tmp_path, capsys):
+    d = _copy_tutorial(tmp_path / "tags")
+    cam = d / "camera.yaml"
+    cam.write_text("a0: &a0 [0, 0, 0, 0, 0, 0, 0, 0, 0]\n" + "".join(
+        f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 6))
+        + "camera_matrix: [*a5, 0, 320, 0, 500, 240, 0, 0, 1]\n"
+        "distortion_coefficients: [0, 0, 0, 0, 0]\n")
+    rc, _, err = _run(capsys, d)
+    assert rc == 2 and err.splitlines()[-1] == (
+        f"drovisio bench: {cam}: its YAML aliases expand to more than 100,000 values (an alias "
+        "bomb?); write the values out instead; expected an OpenCV or ROS camera file; fix it "
+        "or remove it from the folder")
+
+
+def test_a_broken_reference_camera_file_is_not_passed_over(tmp_path, capsys):
+    """A chessboard set's camera file that cannot be read was left out in silence, and the
+    figures said "no camera file in the folder"; a file that is no camera file at all (a
+    detector's parameters) is still passed over."""
+    d = _chess_folder(tmp_path / "set")
+    (d / "detector_params.yml").write_text("%YAML:1.0\nadaptiveThreshWinSizeMin: 3\n")
+    cam = d / "reference.yaml"
+    cam.write_text("camera_matrix: [[500, 0, 320], [0, 500, 240], [0, 0, 1]]\n"
+                   "distortion_coefficients: [0, 0, 0]\n")
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 2 and err.splitlines()[-1] == (
+        f"drovisio bench: {cam}: distortion_coefficients: 3 coefficients; OpenCV's model has "
+        "4, 5, 8, 12 or 14 (k1 k2 p1 p2 k3 ...); fix it or remove it from the folder")
+
+
+@pytest.mark.parametrize("content, words", [
+    # OpenCV's own parser raised inside (an internal error), or allocated what rows x cols
+    # announced (80 GB here), or blocked on a pipe
+    ("%YAML:1.0\ncorners: !!opencv-matrix\n  rows: 35\n  data: [ 1, 2, [[[",
+     "not valid YAML at line 4, column 20: expected the node content, but found '<stream "
+     "end>'; fix the file or remove it from the folder"),
+    ("%YAML:1.0\ncorners: !!opencv-matrix\n  rows: 100000\n  cols: 100000\n  dt: \"2f\"\n"
+     "  data: [ 1.5, .nan ]\n",
+     "corners.data: nan is not a finite number; give a number from -1e+06 to 1e+06 px"),
+    ("%YAML:1.0\ncorners: !!opencv-matrix\n  rows: 1\n  cols: 1\n  dt: \"2f\"\n  data: [ 1 ]\n",
+     "corners: expected a list of x, y pixel pairs (at most 40000 corners); fix the file or "
+     "remove it from the folder"),
+])
+def test_expected_corner_files_are_read_within_bounds(tmp_path, capsys, content, words):
+    d = _chess_folder(tmp_path / "set")
+    dat = d / "chess_corners0.dat"
+    dat.write_text(content)
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 2 and err.splitlines()[-1] == f"drovisio bench: {dat}: {words}"
+
+
+@pytest.mark.parametrize("argv, line", [
+    # OpenCV built the board it was given: 10^10 squares took every byte of the machine
+    (["--board", "charuco:100000x100000"],
+     "drovisio bench: board spec 'charuco:100000x100000:DICT_6X6_250': 100000x100000 inner "
+     "corners is not a plausible board"),
+    (["--board", "charuco:30x30"],
+     "drovisio bench: board spec 'charuco:30x30:DICT_6X6_250': the board needs 480 markers "
+     "but DICT_6X6_250 has 250"),
+    (["--board", "charuco:0x0"],
+     "drovisio bench: board spec 'charuco:0x0:DICT_6X6_250': needs at least 3x3 inner corners "
+     "(got 0x0); expected KIND:COLSxROWS counting inner corners, e.g. chessboard:9x6 (a "
+     "board of 10x7 squares) or charuco:9x6"),
+    (["--square", "1e-300", "--marker", "1e-301"],
+     "drovisio bench real: argument --square: 1e-300 is out of range: give a number from 0.001 "
+     "to 1 m (see drovisio bench real --help)"),
+])
+def test_a_charuco_board_is_bounded_as_every_board_spec(tmp_path, capsys, argv, line):
+    d = _charuco_folder(tmp_path / "board")
+    rc, _, err = _run(capsys, d, *argv)
+    assert rc == 2 and err.splitlines()[-1] == line
+
+
+@pytest.mark.parametrize("make, why", [
+    (lambda d: (d / "a.png").symlink_to(d / "missing.png"),
+     "a symbolic link to nothing (its target does not exist); give the real path"),
+    (lambda d: ((d / "a.png").symlink_to(d / "b.png"), (d / "b.png").symlink_to(d / "a.png")),
+     "a loop of symbolic links (they lead to each other, never to a file or folder); give the "
+     "real path"),
+    (lambda d: os.mkfifo(d / "a.png"), "not a regular file (a pipe or a device)"),
+])
+def test_a_picture_that_is_no_file_is_named_not_passed_over(tmp_path, capsys, make, why):
+    d = _chess_folder(tmp_path / "set")
+    make(d)
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 2 and err == (f"drovisio bench: {d / 'a.png'}: {why}; or remove it from the "
+                               "folder\n")
+
+
+def test_a_folder_of_more_pictures_than_used_says_so_and_shows_progress(
+        tmp_path, capsys, monkeypatch):
+    from drovisio.bench import real_folder
+
+    monkeypatch.setattr(real_folder, "MAX_IMAGES", 2)
+    d = _chess_folder(tmp_path / "set", ((640, 480),) * 3)
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 0
+    lines = err.splitlines()
+    assert lines[0] == (f"{d}: 3 pictures; the first 2 in name order are used (from chess0.png "
+                        "to chess1.png)")
+    assert f"  ... {d}: 1 of 2 photos done" in lines and f"  ... {d}: 2 of 2 photos done" in lines
+
+
+def test_pictures_held_at_once_are_bounded_by_the_work_cap(tmp_path, capsys, monkeypatch):
+    from drovisio.errors import LIMITS
+
+    monkeypatch.setattr(LIMITS, "max_work_bytes", 2**20)
+    d = _chess_folder(tmp_path / "set", ((640, 480),) * 4)
+    rc, _, err = _run(capsys, d, "--calibrate", "none")
+    assert rc == 2 and err == (
+        f"drovisio bench: {d}: 4 pictures of 640x480 held at once need 0.0 GiB, more than the "
+        "0.0 GiB cap; give fewer or smaller pictures (DROVISIO_MAX_WORK_MIB raises the cap)\n")
