@@ -318,10 +318,10 @@ def test_swarm_photos_codes_kept_and_corners_agree_with_apriltag(swarm):
                 m = _near(t, [c.refined.corners_px for c in good])
                 if m:
                     rms[ref].append(float(np.sqrt(np.mean(_match_corners(m[0], t) ** 2))))
-    # measured: OpenCV reads 42 codes, Drovisio keeps 38 (36 with a fixed limit of a fifth
+    # measured: OpenCV reads 42 codes, Drovisio keeps 38 (37 with a fixed limit of a fifth
     # of the contrast on the fit's residual); the 4 it has no quad for: two edge-on top
     # faces AprilTag does not read either, a 30-px side face whose border OpenCV bends, a
-    # 39-px code in shadow)
+    # 39-px code in shadow
     assert n_cv == 42 and kept >= 38
     # corner RMS per code, measured: against AprilTag 3 (decimate 1, edges refined) 39
     # codes, median 0.30 px, p90 0.56, max 0.95; against the expected corners of AprilTag's
