@@ -11,7 +11,6 @@ file is read and fitted to that size by :func:`folder_camera`.
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from drovisio.camera_file import NotACameraFile, load_camera
 from drovisio.errors import LIMITS, InputError
 from drovisio.images import IMAGE_SUFFIXES, ImageError, is_image_file, read_image
 from drovisio.layout import aruco_dictionary_id
+from drovisio.sources.folders import folder_entries
 
 __all__ = ["CAMERA_SUFFIXES", "CHESS_SIZES", "MAX_IMAGES", "TAG_DICTIONARIES", "PhotoSet",
            "aruco_detector", "best_dictionary", "camera_files", "detect_kind", "folder_camera",
@@ -45,17 +45,9 @@ def say(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def _entries(folder: Path, wanted: Callable[[Path], bool]) -> list[Path]:
-    """The folder's entries ``wanted`` by name, in name order, hidden ones and folders
-    skipped. A link to nothing, a loop of links or a pipe is kept: its reader names it and
-    says why, rather than the folder seeming to lack it."""
-    return sorted(p for p in folder.iterdir()
-                  if wanted(p) and not p.name.startswith(".") and not p.is_dir())
-
-
 def photos(folder: Path) -> list[Path]:
     """The folder's pictures in name order (hidden files skipped), all of them."""
-    return _entries(folder, is_image_file)
+    return folder_entries(folder, is_image_file)
 
 
 @dataclass
@@ -125,7 +117,7 @@ def read_photos(folder: Path) -> PhotoSet:
 
 def camera_files(folder: Path) -> list[Path]:
     """The folder's camera files by suffix (:data:`CAMERA_SUFFIXES`), in name order."""
-    return _entries(folder, lambda p: p.suffix.lower() in CAMERA_SUFFIXES)
+    return folder_entries(folder, lambda p: p.suffix.lower() in CAMERA_SUFFIXES)
 
 
 def read_gray(path: Path) -> np.ndarray:

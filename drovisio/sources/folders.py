@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,15 +15,21 @@ from drovisio.textfile import resolve_inside
 if TYPE_CHECKING:   # the recording module loads OpenCV, deferred to the first open
     from drovisio.recording import RecordedFrame
 
-__all__ = ["ImageFolderReader", "RecordingReader", "list_folder"]
+__all__ = ["ImageFolderReader", "RecordingReader", "folder_entries", "list_folder"]
+
+
+def folder_entries(folder: Path, wanted: Callable[[Path], bool]) -> list[Path]:
+    """The folder's entries ``wanted`` by name (not recursive), in name order, hidden ones
+    and folders skipped. A link to nothing, a loop of links or a pipe is kept: its reader
+    names it and says why, rather than the folder seeming to lack it."""
+    return sorted((p for p in folder.iterdir()
+                   if wanted(p) and not p.name.startswith(".") and not p.is_dir()),
+                  key=lambda p: p.name)
 
 
 def list_folder(folder: Path) -> list[Path]:
-    """Images and videos of a folder (not recursive), in name order; hidden files skipped."""
-    items = [p for p in folder.iterdir()
-             if p.is_file() and not p.name.startswith(".")
-             and p.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES]
-    return sorted(items, key=lambda p: p.name)
+    """Images and videos of a folder (:func:`folder_entries`)."""
+    return folder_entries(folder, lambda p: p.suffix.lower() in IMAGE_SUFFIXES | VIDEO_SUFFIXES)
 
 
 class ImageFolderReader:

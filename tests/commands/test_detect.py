@@ -268,3 +268,34 @@ def test_dots_method_on_code_only_layouts(scene_files, capsys):
                           scene_files["dir"] / "frame.png")
     assert rc == 2 and lines == []
     assert "none of the layouts has colour dots" in err
+
+
+def test_a_broken_entry_of_a_folder_is_named_not_passed_over(scene_files, tmp_path, capsys):
+    """A link to nothing, a loop of links and a pipe, each named like an image: every one is
+    a frame that says why it cannot be read (it used to be left out without a word, the run
+    a success over fewer frames than the folder shows)."""
+    import os
+
+    from drovisio.sources.folders import ImageFolderReader
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copy(scene_files["dir"] / "frame.png", frames / "a.png")
+    (frames / "b.png").symlink_to(tmp_path / "gone.png")
+    (frames / "c.png").symlink_to(frames / "c.png")
+    os.mkfifo(frames / "d.png")
+    (frames / "sub.png").mkdir()      # a folder is no picture: passed over
+    rc, lines, err = _run(capsys, *_base(scene_files), frames)
+    assert rc == 1
+    assert [(Path(x["file"]).name, x.get("error", "")[:20]) for x in lines] == [
+        ("a.png", ""), ("b.png", "a symbolic link to n"), ("c.png", "a loop of symbolic l"),
+        ("d.png", "not a regular file ("),
+    ]
+    assert "4 frames" in err and "3 errors" in err and "Traceback" not in err
+    src = ImageFolderReader(frames)       # a run's folder source reads the same entries
+    src.open()
+    assert [f.name for f in src.files] == ["a.png", "b.png", "c.png", "d.png"]
+    got = [src.read() for _ in range(4)]
+    assert got[0].error is None and got[0].image is not None
+    assert [g.error[:20] for g in got[1:]] == ["a symbolic link to n", "a loop of symbolic l",
+                                              "not a regular file ("]
