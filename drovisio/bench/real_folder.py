@@ -209,17 +209,32 @@ def load_reference(folder: Path, required: bool) -> tuple[Path | None, Camera | 
         InputError: a camera file that cannot be used (its own one line, and to fix it or
             remove it from the folder), or none and one is ``required``.
     """
-    for p in camera_files(folder):
+    files = camera_files(folder)
+    for k, p in enumerate(files):
         try:
-            return p, load_camera(p)
+            camera = load_camera(p)
         except NotACameraFile:
             continue
         except InputError as e:
             raise InputError(f"{e}; fix it or remove it from the folder") from None
+        others = [q.name for q in files[k + 1:] if _is_camera_file(q)]
+        if others:   # which one the figures are against must not be a guess
+            say(f"{folder}: camera files {p.name} and {', '.join(others)}; {p.name}, the first "
+                "in name order, is used; keep only the photos' own camera file in the folder")
+        return p, camera
     if required:
         raise InputError(f"{folder}: no camera file (camera.yaml, *.yml, *.xml, *.json); add "
                          "the camera file of these photos")
     return None, None
+
+
+def _is_camera_file(p: Path) -> bool:
+    """``p`` reads as a camera file (one that does not, for any reason, is no second one)."""
+    try:
+        load_camera(p)
+    except InputError:
+        return False
+    return True
 
 
 def folder_camera(photos: PhotoSet, required: bool) -> tuple[Path | None, Camera | None]:

@@ -301,6 +301,21 @@ def test_a_camera_file_without_a_size_far_from_the_photos_centre_is_said(tmp_pat
             "resolution?") in err.splitlines()
 
 
+def test_a_second_camera_file_in_the_folder_is_said(tmp_path, capsys):
+    """Which camera file the figures are against must not be a guess: the first in name
+    order is used and the others are named (a file that holds no camera is no second one)."""
+    import shutil
+
+    d = _copy_tutorial(tmp_path / "tags")
+    shutil.copy(d / "camera.yaml", d / "a_other.yml")
+    (d / "params.yml").write_text("%YAML:1.0\n---\nadaptiveThreshWinSizeMin: 3\n")
+    rc, _, err = _run(capsys, d, "--repeat", "1")
+    assert rc == 0
+    assert (f"{d}: camera files a_other.yml and camera.yaml; a_other.yml, the first in name "
+            "order, is used; keep only the photos' own camera file in the folder"
+            ) in err.splitlines()
+
+
 @pytest.mark.parametrize("kind", ["chessboard", "charuco"])
 def test_photos_of_mixed_sizes_are_refused_for_every_kind(tmp_path, capsys, kind):
     import cv2
