@@ -430,7 +430,6 @@ def _print_chessboard(rep: dict[str, Any]) -> None:
 
 
 def main(argv: list[str]) -> int:
-    from drovisio.arguments import positive_float
     from drovisio.bounds import ArgumentParser, number
 
     p = ArgumentParser(prog="drovisio bench real", description=__doc__,
@@ -438,8 +437,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("folders", nargs="+", metavar="DIR", help="folders of real photos")
     p.add_argument("--repeat", type=int, default=1,
                    help="timed runs per photo and method, the fastest kept (1-20; default 1)")
-    p.add_argument("--tag-size", type=positive_float, default=0.065,
-                   help="side of the tags' black square, m (default 0.065)")
+    p.add_argument("--tag-size", type=number(0.001, 10.0, unit="m"), default=0.065,
+                   help="side of the tags' black square, m (0.001-10; default 0.065)")
     p.add_argument("--board", default=None,
                    help="charuco:COLSxROWS or chessboard:COLSxROWS (inner corners; default: "
                         "guessed)")

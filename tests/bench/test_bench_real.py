@@ -124,6 +124,7 @@ def test_tag_folder_of_aruco_codes_with_apriltag(tmp_path):
     (["--repeat", "0"], "--repeat 0: give 1 to 20"),
     (["--calibrate", "brown"], "'brown' is no model"),
     (["--marker", "0.05"], "smaller than the square"),
+    (["--tag-size", "1e9"], "--tag-size: 1e+09 is out of range: give a number from 0.001 to 10 m"),
 ])
 def test_bad_arguments_are_one_line(tmp_path, capsys, argv, words):
     rc = main(["bench", "real", str(tmp_path), *argv])
