@@ -86,7 +86,7 @@ from drovisio.calibration.board import BoardSpec, parse_board
 from drovisio.calibration.board import detect as board_detect
 from drovisio.camera import Camera
 from drovisio.camera_file import parse_opencv_yaml
-from drovisio.errors import InputError
+from drovisio.errors import InputError, one_line
 from drovisio.fileio import atomic_write_text, check_output_path
 from drovisio.textfile import missing_reason, read_text
 
@@ -309,8 +309,10 @@ def _opencv_calibration(pts_obj: list[np.ndarray], pts_img: list[np.ndarray],
                 "cx": float(K[0, 2]), "cy": float(K[1, 2]),
                 "model": "fisheye" if fisheye else "plumb_bob",
                 "rms_px": float(rms)}
-    except cv2.error as e:
-        return {"failed": str(e).strip().splitlines()[-1][:160]}
+    except cv2.error as e:   # said by its function and check, not OpenCV's source path
+        what = "fisheye.calibrate" if fisheye else "calibrateCamera"
+        why = one_line(f"in {e.func}: {e.err}" if getattr(e, "func", "") else e, 160)
+        return {"failed": f"OpenCV's {what} failed {why}"}
 
 
 # --------------------------------------------------------------------------- printing

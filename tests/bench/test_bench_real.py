@@ -460,3 +460,20 @@ def test_pictures_held_at_once_are_bounded_by_the_work_cap(tmp_path, capsys, mon
     assert rc == 2 and err == (
         f"drovisio bench: {d}: 4 pictures of 640x480 held at once need 0.0 GiB, more than the "
         "0.0 GiB cap; give fewer or smaller pictures (DROVISIO_MAX_WORK_MIB raises the cap)\n")
+
+
+@pytest.mark.parametrize("fisheye, words", [
+    (True, "OpenCV's fisheye.calibrate failed in Mat: 0 <= _rowRange.start"),
+    (False, "OpenCV's calibrateCamera failed in initIntrinsicParams2D: matH0.size()"),
+])
+def test_plain_opencvs_failed_solve_is_said_by_its_function_not_its_source_path(fisheye, words):
+    """A failed reference solve is said by OpenCV's function and check, without the build's
+    source path and version line OpenCV's message opens with."""
+    import numpy as np
+
+    from drovisio.bench.real import _opencv_calibration
+
+    got = _opencv_calibration([np.zeros((4, 3), np.float32)], [np.zeros((4, 2), np.float32)],
+                              (10, 10), fisheye)
+    assert set(got) == {"failed"} and got["failed"].startswith(words)
+    assert ".cpp" not in got["failed"] and "OpenCV(" not in got["failed"]
