@@ -77,6 +77,21 @@ def _until(ask: Callable[[], Any], bound: float = 60.0, *,
         time.sleep(pause)
 
 
+def _free_port() -> int:
+    """A loopback TCP port nothing listens on (bound once and let go)."""
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+@pytest.fixture(scope="session")
+def free_port() -> Callable[[], int]:
+    """The one way a test picks an unused loopback port (:func:`_free_port`)."""
+    return _free_port
+
+
 @pytest.fixture(scope="session")
 def until() -> Callable[..., Any]:
     """The one wait for a condition (:func:`_until`), for every test and fixture."""

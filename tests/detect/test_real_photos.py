@@ -148,27 +148,35 @@ def test_rigid_board_is_not_ambiguous(charuco, codes):
     assert worse[1] > 10 * worse[0]
 
 
-@pytest.fixture(scope="module")
-def multi():
+def _tag_photos(paths: list[Path], camera_file: Path, flag: int = cv2.IMREAD_COLOR) -> dict:
+    """Each tag36h11 photo read by Drovisio, plain OpenCV and AprilTag 3, by file name:
+    poses, codes, the ids read more than once, and the peers' (id, corners) in OpenCV's
+    pixel convention."""
     from drovisio.study.methods import apriltag_detector
 
-    d = _need("apriltag-multi")
-    cam = load_camera(d / "camera.yaml")
-    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
+    det = ArucoBrickDetector(load_camera(camera_file),
+                             [tag_layout("DICT_APRILTAG_36h11", 0.065)])
     cv_det = cv2.aruco.ArucoDetector(
         cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11))
     out = {}
-    for f in sorted(d.glob("*.png")):
-        g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
-        poses = det.detect(g)
+    for f in paths:
+        img = cv2.imread(str(f), flag)
+        g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        poses = det.detect(img)
         q, i, _ = cv_det.detectMarkers(g)
-        at = apriltag_detector("tag36h11").detect(g)
         out[f.name] = {"poses": poses, "codes": list(det.last_codes),
+                       "duplicates": dict(det.last_duplicates),
                        "opencv": [(int(k), np.asarray(c).reshape(4, 2))
                                   for c, k in zip(q, np.ravel(i))],
                        "apriltag": [(int(a.tag_id), a.corners - APRILTAG_PIXEL_OFFSET)
-                                    for a in at]}
+                                    for a in apriltag_detector("tag36h11").detect(g)]}
     return out
+
+
+@pytest.fixture(scope="module")
+def multi():
+    d = _need("apriltag-multi")
+    return _tag_photos(sorted(d.glob("*.png")), d / "camera.yaml", cv2.IMREAD_GRAYSCALE)
 
 
 def _near(q, pool):
@@ -262,25 +270,9 @@ def _expected_corners(txt: Path) -> list[np.ndarray]:
 
 @pytest.fixture(scope="module")
 def swarm():
-    from drovisio.study.methods import apriltag_detector
-
-    cam = load_camera(SWARM / "camera.yaml")
-    det = ArucoBrickDetector(cam, [tag_layout("DICT_APRILTAG_36h11", 0.065)])
-    cv_det = cv2.aruco.ArucoDetector(
-        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11))
-    out = {}
-    for f in sorted(SWARM.glob("*.jpg")):
-        img = cv2.imread(str(f))
-        poses = det.detect(img)
-        q, i, _ = cv_det.detectMarkers(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-        out[f.name] = {"poses": poses, "codes": list(det.last_codes),
-                       "duplicates": dict(det.last_duplicates),
-                       "opencv": [(int(k), np.asarray(c).reshape(4, 2))
-                                  for c, k in zip(q, np.ravel(i))],
-                       "expected": _expected_corners(f.with_suffix(".txt")),
-                       "apriltag": [a.corners - APRILTAG_PIXEL_OFFSET for a in
-                                    apriltag_detector("tag36h11").detect(
-                                        cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))]}
+    out = _tag_photos(sorted(SWARM.glob("*.jpg")), SWARM / "camera.yaml")
+    for name, r in out.items():
+        r["expected"] = _expected_corners(SWARM / Path(name).with_suffix(".txt").name)
     return out
 
 
@@ -314,7 +306,7 @@ def test_swarm_photos_codes_kept_and_corners_agree_with_apriltag(swarm):
             n_cv += 1
             kept += bool(_near(q, [c.refined.corners_px for c in good]))
         for ref in rms:
-            for t in r[ref]:
+            for t in ([p for _, p in r["apriltag"]] if ref == "apriltag" else r[ref]):
                 m = _near(t, [c.refined.corners_px for c in good])
                 if m:
                     rms[ref].append(float(np.sqrt(np.mean(_match_corners(m[0], t) ** 2))))
@@ -341,6 +333,6 @@ def test_a_code_whose_cells_read_right_is_kept_in_a_sharpened_jpeg(swarm):
     c = [c for c in r["codes"] if np.linalg.norm(c.refined.corners_px.mean(0) - [622, 284]) < 3]
     assert len(c) == 1 and c[0].refined.ok, [x.refined.reason for x in c]
     assert c[0].refined.residual > 0.2 * c[0].refined.contrast
-    at = _near(c[0].refined.corners_px, r["apriltag"])
+    at = _near(c[0].refined.corners_px, [p for _, p in r["apriltag"]])
     assert at and np.sqrt(np.mean(_match_corners(c[0].refined.corners_px, at[0]) ** 2)) < 1.0
 

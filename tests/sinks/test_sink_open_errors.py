@@ -4,7 +4,6 @@ the sink's own words), exit 2, no traceback."""
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 import pytest
@@ -16,19 +15,10 @@ REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_sessions"
 
 
-def _closed_port() -> int:
-    """A loopback port nothing listens on (a connect to it is refused at once)."""
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
-def _refusals() -> list[tuple[str, str]]:
+def _refusals(port: int) -> list[tuple[str, str]]:
     """(SINK string, the line's words after ``--sink SPEC: ``) for each kind of sink, in a
-    folder that holds a file ``a-file``."""
-    port = _closed_port()
+    folder that holds a file ``a-file``; ``port`` one nothing listens on (a connect to it is
+    refused at once)."""
     return [
         ("jsonl:a-file/x.jsonl",
          "cannot write in a-file (not a folder); give a file in a folder that exists (or can "
@@ -54,10 +44,10 @@ def _refusals() -> list[tuple[str, str]]:
 
 
 def test_every_sink_that_cannot_open_is_one_line_naming_its_spec_once(tmp_path, capsys,
-                                                                      monkeypatch):
+                                                                      monkeypatch, free_port):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "a-file").write_text("")
-    for spec, why in _refusals():
+    for spec, why in _refusals(free_port()):
         rc = main(["run", "--source", str(SAMPLE / "approach" / "approach.mp4"),
                    "--camera", str(SAMPLE / "camera.yaml"),
                    "--layout", str(REPO / "marker_layouts" / "drick-aruco-centre.json"),

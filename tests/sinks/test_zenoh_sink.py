@@ -32,14 +32,6 @@ BASE = ["--camera", str(SAMPLE / "camera.yaml"), "--mount",
         "--layout", str(REPO / "marker_layouts" / "drick-aruco-centre.json"), "--quiet"]
 
 
-def _free_port() -> int:
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
-
-
 class Station:
     """A Zenoh peer listening on loopback and keeping every sample under ``key``."""
 
@@ -88,8 +80,8 @@ def test_bad_specs_name_the_option(spec, says):
         parse_spec(spec)
 
 
-def test_a_run_publishes_the_recordings_messages_under_its_drone(tmp_path):
-    port = _free_port()
+def test_a_run_publishes_the_recordings_messages_under_its_drone(tmp_path, free_port):
+    port = free_port()
     st = Station(port, "0/**")
     try:
         out = tmp_path / "out.jsonl"
@@ -151,8 +143,8 @@ def _output(i: int) -> FrameOutput:
                        bricks=[])
 
 
-def test_a_lost_link_comes_back_without_a_restart():
-    port = _free_port()
+def test_a_lost_link_comes_back_without_a_restart(free_port):
+    port = free_port()
     sink = open_sink(f"zenoh:connect=tcp/127.0.0.1:{port}", drone_id="d2")
     assert isinstance(sink, ZenohSink)
     key = "0/drovisio/d2/output/**"
@@ -273,7 +265,7 @@ print("closed", sink.status()["state"])
 
 
 @pytest.mark.parametrize("peer", ["closed port", "silent listener"])
-def test_a_close_while_the_session_opens_warns_once_and_the_process_exits(peer):
+def test_a_close_while_the_session_opens_warns_once_and_the_process_exits(peer, free_port):
     """A client whose router does not answer stays inside ``zenoh.open`` for ever: the close
     made then waits a bounded time, says so in one warning naming the endpoint, and the
     process still ends (the subprocess's bound only turns a hang into a failure)."""
@@ -282,7 +274,7 @@ def test_a_close_while_the_session_opens_warns_once_and_the_process_exits(peer):
 
     listener = None
     if peer == "closed port":
-        port = _free_port()
+        port = free_port()
     else:                      # takes the connection, never says a word
         listener = socket.create_server(("127.0.0.1", 0))
         port = listener.getsockname()[1]

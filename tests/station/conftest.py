@@ -4,7 +4,6 @@ frames."""
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -14,14 +13,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_sessions"
-
-
-def free_port() -> int:
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 def long_sample(path: Path) -> Path:
@@ -75,7 +66,7 @@ def drone(port: int, drone_id: str, source: Path, layout: str, web: str = "") ->
 
 
 @pytest.fixture
-def drones() -> SimpleNamespace:
+def drones(free_port) -> SimpleNamespace:
     """The helpers above, for the tests of this folder."""
     return SimpleNamespace(REPO=REPO, SAMPLE=SAMPLE, free_port=free_port, long_sample=long_sample,
                            rendered_video=rendered_video, drone=drone)
